@@ -1,0 +1,187 @@
+"""The `Scan`: a tomogram, its instance labels and the voxel size, validated.
+
+Volumes are NumPy arrays indexed ``(z, y, x)``: axis 0 is the slice axis (the
+scanner's rotation axis, the tube axis and the direction of gravity in a pour).
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import SynthpackInputError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Scan", "validate_voxel_size", "validate_labels", "validate_tomogram"]
+
+
+@dataclass
+class Scan:
+    """A CT scan of a particle pack with one label per particle.
+
+    Parameters
+    ----------
+    tomogram : ndarray, shape (Z, Y, X)
+        Reconstructed intensities (any real dtype; kept as read).
+    labels : ndarray of int, shape (Z, Y, X)
+        Instance labels: 0 is background (pores, air, outside the field of view),
+        each particle has its own positive integer.
+    voxel_size : tuple of 3 float
+        Voxel edge lengths ``(dz, dy, dx)`` in `unit`.
+    unit : str
+        Length unit of `voxel_size`, e.g. ``"um"`` or ``"mm"``.
+    source : str
+        Where the scan came from (paths or sample name), for manifests.
+    """
+
+    tomogram: np.ndarray
+    labels: np.ndarray
+    voxel_size: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    unit: str = "um"
+    source: str = ""
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.voxel_size = validate_voxel_size(self.voxel_size)
+        self.tomogram = validate_tomogram(self.tomogram)
+        self.labels = validate_labels(self.labels)
+        if self.tomogram.shape != self.labels.shape:
+            raise SynthpackInputError(
+                f"tomogram shape {self.tomogram.shape} and labels shape "
+                f"{self.labels.shape} differ: the label mask must be the segmentation "
+                "of this very tomogram, voxel for voxel (check that both files are "
+                "from the same scan and neither was cropped or binned)"
+            )
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Volume shape ``(Z, Y, X)`` in voxels."""
+        return tuple(self.labels.shape)  # type: ignore[return-value]
+
+    @property
+    def n_particles(self) -> int:
+        """Number of distinct positive labels."""
+        return int(np.count_nonzero(np.bincount(self.labels.ravel())[1:]))
+
+    def __repr__(self) -> str:
+        return (
+            f"Scan(shape={self.shape}, tomogram dtype={self.tomogram.dtype}, "
+            f"labels dtype={self.labels.dtype}, voxel_size={self.voxel_size} {self.unit}, "
+            f"source={self.source!r})"
+        )
+
+
+def validate_voxel_size(voxel_size: float | tuple[float, ...]) -> tuple[float, float, float]:
+    """Return `voxel_size` as a ``(dz, dy, dx)`` tuple of positive floats.
+
+    A single number means an isotropic voxel.
+    """
+    values = np.atleast_1d(np.asarray(voxel_size, dtype=float)) if not isinstance(voxel_size, str) else None
+    if values is None or values.ndim != 1 or values.size not in (1, 3):
+        raise SynthpackInputError(
+            f"voxel size {voxel_size!r} is not understood: give one positive number "
+            "(isotropic) or three, in (z, y, x) order"
+        )
+    if values.size == 1:
+        values = np.repeat(values, 3)
+    if not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise SynthpackInputError(
+            f"voxel size {tuple(values)} must be positive and finite: give the edge "
+            "length of one voxel, e.g. --voxel-size 10 for 10 um voxels"
+        )
+    return tuple(float(v) for v in values)  # type: ignore[return-value]
+
+
+def _require_3d(volume: np.ndarray, what: str) -> np.ndarray:
+    volume = np.asarray(volume)
+    if volume.ndim != 3:
+        raise SynthpackInputError(
+            f"the {what} has {volume.ndim} dimension(s) (shape {volume.shape}) but a 3D "
+            "volume (z, y, x) is needed: pass the whole stack, not a single slice"
+        )
+    if min(volume.shape) < 2:
+        raise SynthpackInputError(
+            f"the {what} has shape {volume.shape}: every axis needs at least 2 voxels"
+        )
+    return volume
+
+
+def validate_tomogram(tomogram: np.ndarray) -> np.ndarray:
+    """Check that `tomogram` is a finite, real 3D volume and return it.
+
+    Raises
+    ------
+    SynthpackInputError
+        If it is not 3D, not real-valued, or holds NaN or infinite values.
+    """
+    tomogram = _require_3d(tomogram, "tomogram")
+    if not (np.issubdtype(tomogram.dtype, np.number) and not np.iscomplexobj(tomogram)):
+        raise SynthpackInputError(
+            f"the tomogram has dtype {tomogram.dtype}; it must hold real numbers"
+        )
+    if np.issubdtype(tomogram.dtype, np.floating):
+        bad = int(np.count_nonzero(~np.isfinite(tomogram)))
+        if bad:
+            raise SynthpackInputError(
+                f"the tomogram holds {bad} NaN or infinite voxel(s): replace them (e.g. "
+                "with the background value) before building packs from it"
+            )
+    return tomogram
+
+
+def validate_labels(labels: np.ndarray) -> np.ndarray:
+    """Check that `labels` is a usable instance-label volume and return it as integers.
+
+    A float volume whose values are all whole numbers is converted with a warning;
+    one with fractional values is an error (it is probably a probability map or an
+    interpolated mask, not labels).
+
+    Raises
+    ------
+    SynthpackInputError
+        If it is not 3D, has fractional or negative values, or holds no particle.
+    """
+    labels = _require_3d(labels, "label volume")
+    if labels.dtype == bool:
+        labels = labels.astype(np.uint8)
+    if np.issubdtype(labels.dtype, np.floating):
+        if not np.all(np.isfinite(labels)):
+            raise SynthpackInputError(
+                "the label volume holds NaN or infinite values: labels must be whole "
+                "numbers (0 = background, 1..N = particles)"
+            )
+        if np.any(labels != np.round(labels)):
+            raise SynthpackInputError(
+                "the label volume holds fractional values: it looks like a probability "
+                "map or an interpolated mask, not instance labels. Export the labels as "
+                "an integer image (0 = background, 1..N = particles)"
+            )
+        warnings.warn(
+            f"label volume stored as {labels.dtype} with whole-number values; "
+            "converting to integers (save labels as an integer type to avoid this)",
+            UserWarning,
+            stacklevel=3,
+        )
+        labels = labels.astype(np.int64)
+    elif not np.issubdtype(labels.dtype, np.integer):
+        raise SynthpackInputError(
+            f"the label volume has dtype {labels.dtype}; it must hold integers "
+            "(0 = background, 1..N = particles)"
+        )
+    if np.issubdtype(labels.dtype, np.signedinteger):
+        lowest = labels.min()
+        if lowest < 0:
+            raise SynthpackInputError(
+                f"the label volume holds negative labels (lowest {int(lowest)}): use 0 "
+                "for background and positive integers for particles"
+            )
+    if not labels.any():
+        raise SynthpackInputError(
+            "the label volume holds no particle (every voxel is 0): check that you "
+            "passed the label mask, not an empty or background-only image"
+        )
+    return labels
