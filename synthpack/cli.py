@@ -1,0 +1,164 @@
+"""The ``synthpack`` command line.
+
+Every subcommand turns a :class:`~synthpack.errors.SynthpackInputError` into one
+line on stderr and exit code 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from . import __version__
+from .errors import SynthpackInputError
+
+logger = logging.getLogger("synthpack")
+
+__all__ = ["main"]
+
+
+def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_argument_group("source scan (give --tomogram and --labels, or --sample)")
+    source.add_argument("--tomogram", type=Path, help="tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr or NetCDF")
+    source.add_argument("--labels", type=Path, help="instance labels of the tomogram (0 = background)")
+    source.add_argument("--sample", choices=("large", "small"), help="use a built-in sample scan instead")
+    source.add_argument("--sample-seed", type=int, default=0, help="seed of the built-in sample (default 0)")
+    source.add_argument("--voxel-size", type=float, nargs="+", metavar="SIZE",
+                        help="voxel size: one number, or three in (z, y, x) order; overrides the file metadata")
+    source.add_argument("--unit", help="length unit of the voxel size, e.g. um or mm")
+
+
+def _read_source_scan(args: argparse.Namespace):
+    if args.sample:
+        if args.tomogram or args.labels:
+            raise SynthpackInputError("give either --sample or --tomogram/--labels, not both")
+        from .samples import sample_scan
+
+        return sample_scan(args.sample, seed=args.sample_seed)
+    if not (args.tomogram and args.labels):
+        raise SynthpackInputError(
+            "no source scan: give --tomogram T --labels L (or --sample large|small)"
+        )
+    from .io import read_scan
+
+    voxel_size = None if args.voxel_size is None else tuple(args.voxel_size)
+    return read_scan(args.tomogram, args.labels, voxel_size=voxel_size, unit=args.unit)
+
+
+def _add_library_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("particle extraction and meshing")
+    group.add_argument("--density", type=float, default=2.65, help="grain density for masses (default 2.65, quartz)")
+    group.add_argument("--min-voxels", type=int, default=50, help="drop particles smaller than this (default 50)")
+    group.add_argument("--include-border", action="store_true", help="keep particles cut by the scan border")
+    group.add_argument("--target-faces", type=int, default=500, help="faces per mesh after decimation (default 500)")
+    group.add_argument("--workers", type=int, default=None, help="meshing processes (default: all cores)")
+
+
+def _library_options(args: argparse.Namespace) -> dict:
+    return dict(
+        min_voxels=args.min_voxels, include_border=args.include_border, density=args.density,
+        target_faces=args.target_faces, workers=args.workers,
+    )
+
+
+def _cmd_library_build(args: argparse.Namespace) -> None:
+    scan = _read_source_scan(args)
+    logger.info("read %r", scan)
+    from .library import ParticleLibrary
+
+    library = ParticleLibrary.from_scan(scan, **_library_options(args))
+    library.save(args.out)
+    print(library.summary())
+    if args.preview:
+        from .preview import save_library_preview
+
+        save_library_preview(scan, library, args.preview)
+        logger.info("preview written to %s", args.preview)
+
+
+def _cmd_library_info(args: argparse.Namespace) -> None:
+    from .library import ParticleLibrary
+
+    print(ParticleLibrary.load(args.library).summary())
+
+
+def _cmd_demo(args: argparse.Namespace) -> None:
+    from .io import write_tiff
+    from .library import ParticleLibrary
+    from .preview import save_library_preview
+    from .samples import sample_scan
+
+    out = Path(args.out)
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    scan = sample_scan(args.sample, seed=args.seed)
+    write_tiff(out / "source" / "tomogram.tif", scan.tomogram, scan.voxel_size, scan.unit)
+    write_tiff(out / "source" / "labels.tif", scan.labels, scan.voxel_size, scan.unit, labels=True)
+    timings["sample scan"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    library = ParticleLibrary.from_scan(scan)
+    library.save(out / "library")
+    timings["particle library"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    preview = save_library_preview(scan, library, out / "library_preview.png")
+    timings["preview"] = time.perf_counter() - start
+
+    print(library.summary())
+    print(f"\nwrote {out}/source/{{tomogram,labels}}.tif, {out}/library/ and {preview}")
+    print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="synthpack",
+        description="Synthetic CT tomograms of particle packs with exact instance labels.",
+    )
+    parser.add_argument("--version", action="version", version=f"synthpack {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    demo = commands.add_parser("demo", help="run the pipeline on a built-in sample scan")
+    demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out)")
+    demo.add_argument("--sample", choices=("large", "small"), default="large", help="built-in sample (default large)")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the sample scan (default 0)")
+    demo.set_defaults(run=_cmd_demo)
+
+    library = commands.add_parser("library", help="build or inspect a particle library")
+    library_commands = library.add_subparsers(dest="library_command", required=True, metavar="ACTION")
+    build = library_commands.add_parser("build", help="extract and mesh every particle of a labelled scan")
+    _add_scan_arguments(build)
+    _add_library_arguments(build)
+    build.add_argument("--out", type=Path, required=True, help="library folder to write")
+    build.add_argument("--preview", type=Path, help="also write a preview PNG here")
+    build.set_defaults(run=_cmd_library_build)
+    info = library_commands.add_parser("info", help="print a library's particle count and size distribution")
+    info.add_argument("library", type=Path, help="library folder")
+    info.set_defaults(run=_cmd_library_info)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    args = _parser().parse_args(argv)
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    logging.basicConfig(level=level, format="synthpack: %(message)s")
+    try:
+        args.run(args)
+    except SynthpackInputError as error:
+        print(f"synthpack: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("synthpack: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

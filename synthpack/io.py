@@ -1,0 +1,814 @@
+"""Read and write CT volumes: TIFF, TIFF-slice folders, NPY, Zarr and Mango NetCDF.
+
+Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
+``(dz, dy, dx)`` and its length unit when the file records them; `read_scan`
+turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
+Writers are atomic: the data go to a temporary sibling first and are renamed
+into place only once complete, so a failed write leaves nothing behind.
+
+Supported inputs
+----------------
+- multi-page TIFF (``.tif``, ``.tiff``), voxel size from ImageJ metadata or
+  the resolution tags;
+- a folder of 2D TIFF slices, stacked in natural order (``slice_2.tif``
+  before ``slice_10.tif``);
+- NumPy ``.npy`` files;
+- Zarr stores (a directory): a single array, or a group holding one array or
+  arrays named ``tomogram`` / ``labels``; voxel size from the attributes
+  ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`;
+- NetCDF files as written by the ANU CT lab's Mango tools (``.nc``), with the
+  variable ``tomo`` (or ``tomo_float``) and/or ``labels``, or a folder of
+  such files split along z (``block00000000.nc``, ``block00000001.nc``, ...).
+  In Mango label volumes the dtype's maximum value (255 for uint8,
+  2**31 - 1 for int32) marks voxels outside the round field of view; it is
+  read as background (0).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import netCDF4
+import numpy as np
+import tifffile
+import zarr
+
+from ._atomic import atomic_directory, atomic_file
+from .errors import SynthpackInputError
+from .scan import Scan, validate_voxel_size
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["SUPPORTED_FORMATS", "read_scan", "read_volume", "write_tiff", "write_zarr"]
+
+PathLike = str | os.PathLike
+VoxelSize = tuple[float, float, float]
+# What a reader returns: the array, and the voxel size and unit if recorded.
+Volume = tuple[np.ndarray, VoxelSize | None, str | None]
+Metadata = tuple[VoxelSize | None, str | None]
+
+SUPPORTED_FORMATS = (
+    "multi-page TIFF (.tif, .tiff)",
+    "folder of 2D TIFF slices",
+    "NumPy array (.npy)",
+    "Zarr store (directory, e.g. .zarr)",
+    "Mango NetCDF (.nc, or a folder of block*.nc files split along z)",
+)
+
+_TIFF_SUFFIXES = (".tif", ".tiff")
+_ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
+_NAMES = {
+    "tomogram": ("tomogram", "tomo", "tomo_float"),
+    "labels": ("labels",),
+}
+_NETCDF_VARIABLES = _NAMES["tomogram"][1:] + _NAMES["labels"]
+
+# Length of one unit in micrometres, to convert between known length units.
+_MICROMETRES = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "cm": 1e4, "m": 1e6}
+_UNIT_ALIASES = {
+    "µm": "um", "μm": "um", "\\u00b5m": "um", "micron": "um", "microns": "um",
+    "micrometer": "um", "micrometre": "um", "micrometers": "um", "micrometres": "um",
+    "millimeter": "mm", "millimetre": "mm", "millimeters": "mm", "millimetres": "mm",
+    "nanometer": "nm", "nanometre": "nm", "centimeter": "cm", "centimetre": "cm",
+    "meter": "m", "metre": "m", "pixel": "px", "pixels": "px", "voxel": "px", "": "px",
+}
+# TIFF ResolutionUnit values that are lengths, in micrometres (INCH is left
+# out on purpose: an inch resolution is a display DPI, not a voxel size).
+_TIFF_RESOLUTION_UNITS = {
+    tifffile.RESUNIT.CENTIMETER: 1e4,
+    tifffile.RESUNIT.MILLIMETER: 1e3,
+    tifffile.RESUNIT.MICROMETER: 1.0,
+}
+# Above this many bytes write_tiff writes BigTIFF (same margin as tifffile).
+_BIGTIFF_BYTES = 2**32 - 2**25
+
+
+# --------------------------------------------------------------------------- #
+# Public API
+# --------------------------------------------------------------------------- #
+
+
+def read_scan(
+    tomogram: PathLike | np.ndarray,
+    labels: PathLike | np.ndarray,
+    voxel_size: float | tuple[float, float, float] | None = None,
+    unit: str | None = None,
+) -> Scan:
+    """Read a tomogram and its instance labels into a validated `Scan`.
+
+    Parameters
+    ----------
+    tomogram : path or ndarray, shape (Z, Y, X)
+        Reconstructed intensities, or the file / folder / Zarr store holding
+        them (see the module docstring for the formats). In a Zarr group or a
+        NetCDF file holding several volumes, the array named ``tomogram``,
+        ``tomo`` or ``tomo_float`` is read.
+    labels : path or ndarray of int, shape (Z, Y, X)
+        Instance labels (0 = background, 1..N = particles), or where they are.
+        In a Zarr group or NetCDF file the array named ``labels`` is read; it
+        may be the same path as `tomogram`.
+    voxel_size : float or tuple of 3 float, optional
+        Voxel edge lengths ``(dz, dy, dx)`` (one number: isotropic). Overrides
+        the voxel size in the file metadata (the difference is logged at INFO).
+    unit : str, optional
+        Length unit of the voxel size, e.g. ``"um"`` or ``"mm"``. Given alone,
+        the metadata voxel size is converted to it (for nm, um, mm, cm, m).
+
+    Returns
+    -------
+    Scan
+        Tomogram (dtype as read), labels (integer), voxel size and unit.
+
+    Notes
+    -----
+    The voxel size comes from, in order: the `voxel_size` argument, the
+    tomogram's metadata, the labels' metadata. Without any of them the voxel
+    size is 1.0 in unit ``"px"`` (voxel units) and a warning is logged.
+    With `voxel_size` but no `unit`, the unit is that of the metadata, else
+    ``"um"``.
+
+    Raises
+    ------
+    SynthpackInputError
+        If a file is missing, unreadable or of an unknown format, or the
+        volumes fail the checks of `Scan` (not 3D, shapes differ, labels not
+        integral, negative or empty, tomogram not finite).
+    """
+    tomo_array, tomo_meta, tomo_source = _load(tomogram, "tomogram")
+    label_array, label_meta, label_source = _load(labels, "labels")
+    size, size_unit, origin = _resolve_voxel_size(voxel_size, unit, tomo_meta, label_meta)
+    try:
+        scan = Scan(
+            tomo_array,
+            label_array,
+            voxel_size=size,
+            unit=size_unit,
+            source=f"tomogram={tomo_source}; labels={label_source}",
+            metadata={
+                "tomogram": tomo_source,
+                "labels": label_source,
+                "voxel_size_from": origin,
+            },
+        )
+    except SynthpackInputError as exc:
+        raise SynthpackInputError(
+            f"{exc} [tomogram: {tomo_source}; labels: {label_source}]"
+        ) from exc
+    if origin == "default":
+        logger.warning(
+            "no voxel size was given and the input records none: using 1.0 px (voxel "
+            "units). Pass --voxel-size (one value, or dz dy dx) and --unit on the "
+            "command line, or voxel_size=... and unit=... to read_scan, to work in "
+            "physical units [tomogram: %s]", tomo_source,
+        )
+    return scan
+
+
+def read_volume(path: PathLike, name: str | None = None) -> Volume:
+    """Read one volume and the voxel size its file records.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.tif``/``.tiff`` stack, a folder of 2D TIFF slices, a ``.npy``
+        file, a Zarr store, a Mango NetCDF ``.nc`` file or a folder of NetCDF
+        blocks.
+    name : str, optional
+        The array to read from a Zarr group or the variable to read from a
+        NetCDF file. Needed only when the store holds several candidates.
+
+    Returns
+    -------
+    volume : ndarray
+        The data as stored (any dtype), usually shape (Z, Y, X). NetCDF
+        ``labels`` have their field-of-view marker (the dtype maximum) set to 0.
+    voxel_size : tuple of 3 float or None
+        ``(dz, dy, dx)`` from the file metadata, or None if it records none.
+    unit : str or None
+        Length unit of `voxel_size` (``"um"``, ``"mm"``, ...), or None.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the path does not exist, its format is not supported, or it cannot
+        be read.
+    """
+    return _read(path, role=None, name=name)
+
+
+def write_tiff(
+    path: PathLike,
+    volume: np.ndarray,
+    voxel_size: float | tuple[float, float, float],
+    unit: str = "um",
+    *,
+    labels: bool = False,
+) -> Path:
+    """Write a volume as an ImageJ hyperstack that Fiji opens with its voxel size.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (``.tif``); parent folders are created. An existing file
+        is replaced atomically.
+    volume : ndarray, shape (Z, Y, X)
+        The volume. ImageJ stores uint8, uint16 and float32 only, so other
+        dtypes are converted: bool -> uint8; integers whose values all lie in
+        0..65535 -> uint16 (lossless); other integers and floats -> float32
+        (intensities only).
+    voxel_size : float or tuple of 3 float
+        Voxel edge lengths ``(dz, dy, dx)`` in `unit`.
+    unit : str
+        Length unit; ``"um"`` is written as ImageJ's ``"micron"`` so Fiji
+        shows µm.
+    labels : bool
+        True for a label volume: labels outside 0..65535 or non-integer
+        values raise instead of being converted to float32.
+
+    Returns
+    -------
+    Path
+        The file written. Volumes over 4 GB are written as BigTIFF.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the volume is not 3D, does not fit the rule above (labels outside
+        0..65535 or not integral, values beyond float32, non-numeric data),
+        or `path` is a folder.
+    """
+    path = Path(path)
+    size = validate_voxel_size(voxel_size)
+    data = _imagej_compatible(_require_volume(volume), labels)
+    if path.is_dir():
+        raise SynthpackInputError(
+            f"cannot write the TIFF file {path}: a folder of that name exists; "
+            "give a file name ending in .tif"
+        )
+    dz, dy, dx = size
+    bigtiff = data.nbytes > _BIGTIFF_BYTES
+    with atomic_file(path) as tmp, warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*nonconformant BigTIFF ImageJ")
+        tifffile.imwrite(
+            tmp,
+            data,
+            imagej=True,
+            bigtiff=bigtiff,
+            resolution=(1.0 / dx, 1.0 / dy),
+            metadata={"spacing": dz, "unit": _imagej_unit(unit), "axes": "ZYX"},
+        )
+    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    return path
+
+
+def write_zarr(
+    path: PathLike,
+    volume: np.ndarray,
+    voxel_size: float | tuple[float, float, float],
+    unit: str = "um",
+    chunks: tuple[int, int, int] | None = None,
+    name: str | None = None,
+) -> Path:
+    """Write a volume to a Zarr store with its voxel size and unit as attributes.
+
+    Parameters
+    ----------
+    path : str or Path
+        The store (a directory, conventionally ending in ``.zarr``).
+    volume : ndarray, shape (Z, Y, X)
+        The volume, any numeric dtype (kept as is: use Zarr for labels beyond
+        65535, which TIFF cannot hold).
+    voxel_size : float or tuple of 3 float
+        Voxel edge lengths ``(dz, dy, dx)`` in `unit`, stored as the array
+        attribute ``voxel_size`` (a list, z first); `unit` as ``unit``.
+    unit : str
+        Length unit, e.g. ``"um"``.
+    chunks : tuple of 3 int, optional
+        Chunk shape in voxels; Zarr chooses one if omitted.
+    name : str, optional
+        Without a name the store is a single array and an existing store at
+        `path` is replaced. With a name the store is a group and the array is
+        added to it (replacing only an array of the same name), so a tomogram
+        and its labels can share one store.
+
+    Returns
+    -------
+    Path
+        The store written.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the volume is not 3D, `chunks` is invalid, or `path` exists and is
+        not a Zarr store (it is never deleted).
+    """
+    path = Path(path)
+    size = validate_voxel_size(voxel_size)
+    data = _require_volume(volume)
+    if chunks is not None and (
+        len(chunks) != 3 or not all(isinstance(c, (int, np.integer)) and c > 0 for c in chunks)
+    ):
+        raise SynthpackInputError(
+            f"chunks {chunks!r} must be three positive integers (z, y, x) or None"
+        )
+    if name is not None and (not name or "/" in name or name.startswith(".")):
+        raise SynthpackInputError(
+            f"array name {name!r} is not usable: give a plain name such as 'labels'"
+        )
+    if path.exists() and not _is_zarr_store(path) and not _is_empty_dir(path):
+        raise SynthpackInputError(
+            f"cannot write the Zarr store {path}: something that is not a Zarr store "
+            "is already there; choose another path or remove it"
+        )
+    attributes = {"voxel_size": list(size), "unit": unit, "axes": ["z", "y", "x"]}
+
+    def create(store: Path) -> None:
+        zarr.create_array(
+            store=str(store),
+            data=data,
+            chunks="auto" if chunks is None else tuple(int(c) for c in chunks),
+            dimension_names=("z", "y", "x"),
+            attributes=attributes,
+        )
+
+    if name is None:
+        with atomic_directory(path) as tmp:
+            create(tmp)
+    elif not _is_zarr_store(path):
+        with atomic_directory(path) as tmp:
+            zarr.open_group(str(tmp), mode="w")
+            create(tmp / name)
+    elif _is_zarr_group(path):
+        with atomic_directory(path / name) as tmp:
+            create(tmp)
+    else:
+        raise SynthpackInputError(
+            f"cannot add array {name!r} to {path}: it is a single Zarr array, not a "
+            "group; write without a name, or choose another path"
+        )
+    logger.info("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
+                data.shape, data.dtype, size, unit)
+    return path
+
+
+# --------------------------------------------------------------------------- #
+# Reading
+# --------------------------------------------------------------------------- #
+
+
+def _load(source: PathLike | np.ndarray, role: str) -> tuple[np.ndarray, Metadata, str]:
+    """Return ``(array, (voxel_size, unit), description)`` for one input of read_scan."""
+    if isinstance(source, np.ndarray):
+        return source, (None, None), f"<{source.dtype} array {source.shape}>"
+    if isinstance(source, (str, os.PathLike)):
+        volume, size, unit = _read(source, role=role, name=None)
+        return volume, (size, unit), str(source)
+    raise SynthpackInputError(
+        f"the {role} must be a file path or a NumPy array, not {type(source).__name__}"
+    )
+
+
+def _read(path: PathLike, role: str | None, name: str | None) -> Volume:
+    if not str(path).strip():
+        raise SynthpackInputError("an empty path was given: pass the file or folder to read")
+    path = Path(path)
+    if not path.exists():
+        raise SynthpackInputError(
+            f"{path} does not exist: check the path (it is resolved from "
+            f"{Path.cwd()} when relative)"
+        )
+    reader, description = _reader_for(path)
+    with _reading(path, description):
+        volume, size, unit = reader(path, role, name)
+    logger.info("read %s: %s %s, voxel size %s %s", path, volume.shape, volume.dtype,
+                size, unit)
+    return volume, size, unit
+
+
+def _reader_for(path: Path) -> tuple[Callable[..., Volume], str]:
+    """Return ``(reader, format description)`` for `path`, or raise."""
+    if path.is_dir():
+        if path.suffix.lower() == ".zarr" or _is_zarr_store(path):
+            return _read_zarr, "a Zarr store"
+        files = _visible_files(path)
+        tiffs = [f for f in files if f.suffix.lower() in _TIFF_SUFFIXES]
+        blocks = [f for f in files if f.suffix.lower() == ".nc"]
+        if tiffs and blocks:
+            raise SynthpackInputError(
+                f"the folder {path} holds both TIFF slices and NetCDF blocks: keep one "
+                "volume per folder"
+            )
+        if tiffs:
+            return _read_tiff_folder, "a folder of TIFF slices"
+        if blocks:
+            return _read_netcdf_folder, "a folder of NetCDF blocks"
+        what = "is empty" if not files else "holds no TIFF slices or NetCDF blocks"
+        raise SynthpackInputError(
+            f"the folder {path} {what}: a volume folder must hold 2D TIFF slices "
+            f"(.tif/.tiff) or NetCDF blocks (.nc), or be a Zarr store. "
+            f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}"
+        )
+    readers = {
+        ".tif": (_read_tiff, "TIFF"),
+        ".tiff": (_read_tiff, "TIFF"),
+        ".npy": (_read_npy, "NumPy .npy"),
+        ".nc": (_read_netcdf, "NetCDF"),
+    }
+    if path.suffix.lower() not in readers:
+        raise SynthpackInputError(
+            f"{path} is not a supported volume file (extension {path.suffix!r}). "
+            f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}. Convert it to one "
+            "of these (e.g. save as TIFF stack from Fiji)"
+        )
+    return readers[path.suffix.lower()]
+
+
+@contextmanager
+def _reading(path: Path, description: str) -> Iterator[None]:
+    """Turn a reader library's exception into a SynthpackInputError naming the file."""
+    try:
+        yield
+    except (SynthpackInputError, MemoryError):
+        raise
+    except Exception as exc:
+        raise SynthpackInputError(
+            f"cannot read {path} as {description}: {exc}. Check that the file is "
+            "complete and really is in this format (copy or export it again)"
+        ) from exc
+
+
+def _read_npy(path: Path, role: str | None, name: str | None) -> Volume:
+    return np.load(path, allow_pickle=False), None, None
+
+
+def _read_tiff(path: Path, role: str | None, name: str | None) -> Volume:
+    with tifffile.TiffFile(path) as tif:
+        if len(tif.series) > 1:
+            logger.warning("%s holds %d image series of shapes %s; reading the first only",
+                           path, len(tif.series), [s.shape for s in tif.series])
+        volume = tif.asarray()
+        size, unit = _tiff_voxel_size(tif, stack=True)
+    return volume, size, unit
+
+
+def _read_tiff_folder(path: Path, role: str | None, name: str | None) -> Volume:
+    files = _natural_sorted(
+        f for f in _visible_files(path) if f.suffix.lower() in _TIFF_SUFFIXES
+    )
+    with _reading(files[0], "TIFF"), tifffile.TiffFile(files[0]) as tif:
+        shape, dtype = tif.series[0].shape, tif.series[0].dtype
+        size, unit = _tiff_voxel_size(tif, stack=False)
+    if len(shape) != 2:
+        raise SynthpackInputError(
+            f"{files[0]} holds an image of shape {shape}, but a folder of slices must "
+            "hold one 2D grayscale image per file"
+        )
+    volume = np.empty((len(files), *shape), dtype=dtype)
+    for k, file in enumerate(files):
+        with _reading(file, "TIFF"), tifffile.TiffFile(file) as tif:
+            series = tif.series[0]
+            if series.shape != shape or series.dtype != dtype:
+                raise SynthpackInputError(
+                    f"slice {file.name} has shape {series.shape} and dtype {series.dtype} "
+                    f"but {files[0].name} has shape {shape} and dtype {dtype}: every "
+                    f"slice in {path} must have the same shape and dtype (remove stray "
+                    "files or re-export the stack)"
+                )
+            volume[k] = series.asarray()
+    return volume, size, unit
+
+
+def _tiff_voxel_size(tif: tifffile.TiffFile, stack: bool) -> Metadata:
+    """Voxel size ``(dz, dy, dx)`` and unit from ImageJ metadata or resolution tags.
+
+    The slice spacing of an ImageJ stack is its ``spacing`` entry (1.0 when
+    absent, as in ImageJ). A single slice, or a non-ImageJ file, records no
+    spacing: the voxel is then assumed cubic (dz = dx).
+    """
+    page = tif.pages[0]
+    xres = _tag_ratio(page, "XResolution")
+    yres = _tag_ratio(page, "YResolution")
+    imagej = tif.imagej_metadata
+    if imagej:
+        unit = _normalise_unit(str(imagej.get("unit", "")))
+        if unit == "px":
+            return None, None
+        dx = 1.0 / xres if xres else 1.0
+        dy = 1.0 / yres if yres else dx
+        default_dz = 1.0 if stack else dx
+        return (float(imagej.get("spacing", default_dz)), dy, dx), unit
+    scale = _TIFF_RESOLUTION_UNITS.get(page.resolutionunit)
+    if scale is None or not xres or not yres:
+        return None, None
+    dx, dy = scale / xres, scale / yres
+    return (dx, dy, dx), "um"
+
+
+def _tag_ratio(page: tifffile.TiffPage, tag: str) -> float | None:
+    """A RATIONAL tag as a float, or None when absent or degenerate."""
+    value = page.tags.valueof(tag)
+    if value is None:
+        return None
+    numerator, denominator = value
+    return numerator / denominator if numerator > 0 and denominator > 0 else None
+
+
+def _read_zarr(path: Path, role: str | None, name: str | None) -> Volume:
+    node = zarr.open(str(path), mode="r")
+    group_attrs: dict = {}
+    if isinstance(node, zarr.Group):
+        arrays = dict(node.arrays())
+        group_attrs = dict(node.attrs)
+        node = arrays[_choose(sorted(arrays), role, name, path, "array")]
+    attrs = {**group_attrs, **dict(node.attrs)}
+    size, unit = _attribute_voxel_size(attrs.get("voxel_size"), attrs.get("unit"), path)
+    return node[...], size, unit
+
+
+def _read_netcdf(path: Path, role: str | None, name: str | None) -> Volume:
+    with netCDF4.Dataset(path, mode="r") as dataset:
+        variable = dataset.variables[_netcdf_variable(dataset, role, name, path)]
+        variable.set_auto_mask(False)
+        volume = np.asarray(variable[...])
+        size, unit = _mango_voxel_size(dataset, path)
+        var_name = variable.name
+    return _mask_field_of_view(volume, var_name, path), size, unit
+
+
+def _read_netcdf_folder(path: Path, role: str | None, name: str | None) -> Volume:
+    files = _natural_sorted(f for f in _visible_files(path) if f.suffix.lower() == ".nc")
+    with _reading(files[0], "NetCDF"), netCDF4.Dataset(files[0], mode="r") as first:
+        var_name = _netcdf_variable(first, role, name, files[0])
+        size, unit = _mango_voxel_size(first, files[0])
+    layouts = [_netcdf_layout(file, var_name, path) for file in files]
+    first_shape, dtype = layouts[0]
+    for file, (shape, block_dtype) in zip(files, layouts):
+        if len(shape) != 3 or shape[1:] != first_shape[1:] or block_dtype != dtype:
+            raise SynthpackInputError(
+                f"block {file.name} holds {var_name!r} of shape {shape} and dtype "
+                f"{block_dtype}, which does not stack along z with {files[0].name} "
+                f"(shape {first_shape}, dtype {dtype}): all blocks of {path} must be 3D "
+                "(z, y, x) with the same (y, x) size and dtype"
+            )
+    volume = np.empty((sum(shape[0] for shape, _ in layouts), *first_shape[1:]), dtype)
+    z = 0
+    for file, (shape, _) in zip(files, layouts):
+        with _reading(file, "NetCDF"), netCDF4.Dataset(file, mode="r") as dataset:
+            variable = dataset.variables[var_name]
+            variable.set_auto_mask(False)
+            volume[z : z + shape[0]] = variable[...]
+        z += shape[0]
+    return _mask_field_of_view(volume, var_name, path), size, unit
+
+
+def _netcdf_layout(file: Path, var_name: str, folder: Path) -> tuple[tuple, np.dtype]:
+    """Shape and dtype (as read) of `var_name` in one NetCDF block, without its data."""
+    with _reading(file, "NetCDF"), netCDF4.Dataset(file, mode="r") as dataset:
+        if var_name not in dataset.variables:
+            raise SynthpackInputError(
+                f"block {file} has no variable {var_name!r} (variables present: "
+                f"{sorted(dataset.variables)}): all blocks in {folder} must hold "
+                "the same volume"
+            )
+        variable = dataset.variables[var_name]
+        return tuple(variable.shape), _netcdf_dtype(variable)
+
+
+def _netcdf_dtype(variable: netCDF4.Variable) -> np.dtype:
+    """The dtype netCDF4 returns, honouring the ``_Unsigned`` convention of NetCDF-3."""
+    dtype = np.dtype(variable.dtype)
+    unsigned = str(getattr(variable, "_Unsigned", "false")).lower() == "true"
+    if unsigned and dtype.kind == "i":
+        return np.dtype(f"u{dtype.itemsize}")
+    return dtype
+
+
+def _netcdf_variable(
+    dataset: netCDF4.Dataset, role: str | None, name: str | None, path: Path
+) -> str:
+    """Name of the variable to read: `name`, else the tomogram/labels variable."""
+    present = sorted(dataset.variables)
+    if name is not None:
+        candidates = present
+    else:
+        candidates = [v for v in present if v in _NETCDF_VARIABLES]
+        if not candidates:
+            raise SynthpackInputError(
+                f"{path} has no 'tomo' or 'labels' variable (variables present: "
+                f"{present or 'none'}): pass a Mango tomogram or label file, or use "
+                "read_volume(path, name=...) to pick a variable"
+            )
+    return _choose(candidates, role, name, path, "variable")
+
+
+def _mango_voxel_size(dataset: netCDF4.Dataset, path: Path) -> Metadata:
+    """Voxel size from Mango's global attributes ``voxel_size_xyz`` and ``voxel_unit``."""
+    attrs = dataset.ncattrs()
+    if "voxel_size_xyz" not in attrs or "voxel_unit" not in attrs:
+        return None, None
+    xyz = np.atleast_1d(dataset.getncattr("voxel_size_xyz"))
+    return _attribute_voxel_size(xyz[::-1].tolist(), dataset.getncattr("voxel_unit"), path)
+
+
+def _mask_field_of_view(volume: np.ndarray, var_name: str, path: Path) -> np.ndarray:
+    """Set Mango's outside-the-field-of-view marker (the dtype maximum) in labels to 0."""
+    if var_name not in _NAMES["labels"] or volume.dtype.kind not in "iu":
+        return volume
+    outside = volume == np.iinfo(volume.dtype).max
+    count = int(np.count_nonzero(outside))
+    if count:
+        volume[outside] = 0
+        logger.info("%s: %d voxel(s) outside the field of view (value %d) set to 0",
+                    path, count, np.iinfo(volume.dtype).max)
+    return volume
+
+
+def _choose(
+    available: list[str], role: str | None, name: str | None, path: Path, kind: str
+) -> str:
+    """Pick one of the arrays/variables of a store for `role` or by `name`.
+
+    An explicit `name` must exist. Otherwise the first conventional name for
+    the role wins (``tomogram``/``tomo``/``tomo_float``, ``labels``); failing
+    that, a lone array is taken unless its name says it is the other role.
+    """
+    if name is not None:
+        if name in available:
+            return name
+        raise SynthpackInputError(
+            f"{path} has no {kind} named {name!r}; {kind}s present: {available or 'none'}"
+        )
+    for wanted in _NAMES.get(role, ()):
+        if wanted in available:
+            return wanted
+    other_roles = [n for r, names in _NAMES.items() if role and r != role for n in names]
+    if len(available) == 1 and available[0] not in other_roles:
+        return available[0]
+    looking_for = f"the {role} " if role else ""
+    raise SynthpackInputError(
+        f"cannot tell which {kind} of {path} holds {looking_for}volume; {kind}s "
+        f"present: {available or 'none'}. Name them 'tomogram' and 'labels', or "
+        "read the one you want with read_volume(path, name=...)"
+    )
+
+
+def _attribute_voxel_size(voxel_size: object, unit: object, path: Path) -> Metadata:
+    """Validated voxel size and unit from store attributes, or (None, None)."""
+    if voxel_size is None or unit is None:
+        return None, None
+    try:
+        size = validate_voxel_size(voxel_size)
+    except SynthpackInputError as exc:
+        raise SynthpackInputError(
+            f"{path} records an invalid voxel size {voxel_size!r}: fix its metadata "
+            "or pass the voxel size explicitly"
+        ) from exc
+    unit = _normalise_unit(str(unit))
+    return (None, None) if unit == "px" else (size, unit)
+
+
+# --------------------------------------------------------------------------- #
+# Voxel size and units
+# --------------------------------------------------------------------------- #
+
+
+def _normalise_unit(unit: str) -> str:
+    """Canonical spelling of a length unit: ``"um"`` for micron/µm, ``"px"`` for none."""
+    key = unit.strip()
+    return _UNIT_ALIASES.get(key.lower(), _UNIT_ALIASES.get(key, key))
+
+
+def _convert(size: VoxelSize, unit: str, to: str) -> VoxelSize | None:
+    """`size` from `unit` into `to`, or None if either is not a known length unit."""
+    if unit not in _MICROMETRES or to not in _MICROMETRES:
+        return None
+    factor = _MICROMETRES[unit] / _MICROMETRES[to]
+    return tuple(v * factor for v in size)  # type: ignore[return-value]
+
+
+def _resolve_voxel_size(
+    voxel_size: float | tuple[float, ...] | None,
+    unit: str | None,
+    tomo_meta: Metadata,
+    label_meta: Metadata,
+) -> tuple[VoxelSize, str, str]:
+    """Choose ``(voxel_size, unit, where it came from)`` for read_scan (see its Notes)."""
+    unit = None if unit is None else _normalise_unit(unit)
+    meta_size, meta_unit = tomo_meta if tomo_meta[0] is not None else label_meta
+    origin = "tomogram metadata" if tomo_meta[0] is not None else "labels metadata"
+    if tomo_meta[0] is not None and label_meta[0] is not None and (
+        tomo_meta[1] != label_meta[1] or not np.allclose(tomo_meta[0], label_meta[0])
+    ):
+        logger.info("voxel size in the tomogram metadata (%s %s) and the labels metadata "
+                    "(%s %s) differ; using the tomogram's", *tomo_meta, *label_meta)
+    if voxel_size is not None:
+        size = validate_voxel_size(voxel_size)
+        unit = unit or meta_unit or "um"
+        if meta_size is not None and (unit != meta_unit or not np.allclose(size, meta_size)):
+            logger.info("voxel size %s %s given explicitly overrides %s %s from the %s",
+                        size, unit, meta_size, meta_unit, origin)
+        return size, unit, "argument"
+    if meta_size is not None:
+        if unit is None or unit == meta_unit:
+            return meta_size, meta_unit, origin
+        converted = _convert(meta_size, meta_unit, unit)
+        if converted is not None:
+            return converted, unit, origin
+        logger.info("unit %r given explicitly overrides %r from the %s (no conversion "
+                    "between them is known)", unit, meta_unit, origin)
+        return meta_size, unit, origin
+    if unit is not None:
+        logger.info("unit %r ignored: no voxel size was given or recorded", unit)
+    return (1.0, 1.0, 1.0), "px", "default"
+
+
+# --------------------------------------------------------------------------- #
+# Writing
+# --------------------------------------------------------------------------- #
+
+
+def _require_volume(volume: np.ndarray) -> np.ndarray:
+    volume = np.asarray(volume)
+    if volume.ndim != 3 or volume.size == 0:
+        raise SynthpackInputError(
+            f"cannot write an array of shape {volume.shape}: a non-empty 3D volume "
+            "(z, y, x) is needed"
+        )
+    return volume
+
+
+def _imagej_compatible(volume: np.ndarray, labels: bool) -> np.ndarray:
+    """`volume` as uint8, uint16 or float32, converted by the rule given in write_tiff."""
+    dtype = volume.dtype
+    if dtype == bool:
+        return volume.astype(np.uint8)
+    if dtype in (np.uint8, np.uint16):
+        return volume
+    if np.issubdtype(dtype, np.integer):
+        low, high = volume.min(), volume.max()
+        if low >= 0 and high <= np.iinfo(np.uint16).max:
+            return volume.astype(np.uint16)
+        if labels:
+            raise SynthpackInputError(
+                f"the label volume holds values from {low} to {high}, outside 0..65535, "
+                "the range an ImageJ TIFF holds exactly: write it with write_zarr "
+                "instead (or relabel the particles 1..N first)"
+            )
+        return volume.astype(np.float32)
+    if labels:
+        raise SynthpackInputError(
+            f"cannot write a label volume of dtype {dtype} as TIFF: labels must be "
+            "integers (0 = background, 1..N = particles)"
+        )
+    if not np.issubdtype(dtype, np.floating):
+        raise SynthpackInputError(
+            f"cannot write a volume of dtype {dtype} as TIFF: it must hold real numbers"
+        )
+    if dtype.itemsize > 4 and np.nanmax(np.abs(volume)) > np.finfo(np.float32).max:
+        raise SynthpackInputError(
+            "the volume holds values beyond the float32 range, the widest type ImageJ "
+            "stores: rescale it, or write it with write_zarr"
+        )
+    return volume.astype(np.float32, copy=False)
+
+
+def _imagej_unit(unit: str) -> str:
+    """Unit for ImageJ: ``"micron"`` for µm (Fiji shows µm), ``"pixel"`` for none."""
+    return {"um": "micron", "px": "pixel"}.get(_normalise_unit(unit), unit)
+
+
+# --------------------------------------------------------------------------- #
+# Paths
+# --------------------------------------------------------------------------- #
+
+
+def _is_zarr_store(path: Path) -> bool:
+    return path.is_dir() and any((path / marker).is_file() for marker in _ZARR_MARKERS)
+
+
+def _is_zarr_group(path: Path) -> bool:
+    with _reading(path, "a Zarr store"):
+        return isinstance(zarr.open(str(path), mode="r"), zarr.Group)
+
+
+def _is_empty_dir(path: Path) -> bool:
+    return path.is_dir() and not any(path.iterdir())
+
+
+def _visible_files(folder: Path) -> list[Path]:
+    """Files of `folder`, without hidden ones (e.g. macOS ``._slice.tif``)."""
+    return [f for f in folder.iterdir() if f.is_file() and not f.name.startswith(".")]
+
+
+def _natural_sorted(files: Iterable[Path]) -> list[Path]:
+    """`files` sorted by name with digit runs compared as numbers (2 before 10)."""
+    def key(file: Path) -> list:
+        return [int(part) if part.isdigit() else part.lower()
+                for part in re.split(r"(\d+)", file.name)]
+    return sorted(files, key=key)

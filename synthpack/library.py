@@ -1,0 +1,323 @@
+"""`ParticleLibrary`: the meshed particles of a scan, built once and reused by every pack."""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from tqdm.auto import tqdm
+
+from ._atomic import atomic_directory
+from .errors import SynthpackInputError
+from .meshing import DEFAULT_TARGET_FACES, mesh_from_mask
+from .particles import (
+    DEFAULT_MIN_VOXELS,
+    Particle,
+    ParticleCrop,
+    estimate_background,
+    extract_particles,
+)
+from .scan import Scan
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["ParticleLibrary", "DEFAULT_DENSITY"]
+
+#: Density of quartz in g/cm^3: the default grain density (paper eq. 1).
+DEFAULT_DENSITY = 2.65
+
+_FORMAT = "synthpack-particle-library"
+_FORMAT_VERSION = 1
+_TABLE_COLUMNS = (
+    "index", "label", "z0", "y0", "x0", "z1", "y1", "x1", "voxel_count",
+    "equivalent_diameter", "touches_border", "volume", "mass", "faces",
+)
+
+
+def _mesh_arrays(args: tuple[np.ndarray, tuple[float, float, float], int | None]):
+    mask, voxel_size, target_faces = args
+    mesh = mesh_from_mask(mask, voxel_size, target_faces=target_faces)
+    return mesh.vertices, mesh.faces
+
+
+class ParticleLibrary(Sequence[Particle]):
+    """The particles of one scan with their crops and meshes (paper sections 3.1-3.2).
+
+    Build it with :meth:`from_scan`, save it with :meth:`save` and load it back
+    with :meth:`load`. It is a sequence of :class:`~synthpack.particles.Particle`.
+
+    Parameters
+    ----------
+    particles : list of Particle
+        The meshed particles.
+    voxel_size : tuple of 3 float
+        ``(dz, dy, dx)`` of the source scan, in `unit`.
+    unit : str
+        Length unit.
+    density : float
+        Grain density used for the particles' masses.
+    background : float
+        Pore intensity of the source scan (value outside each particle's mask).
+    source_shape : tuple of 3 int
+        Shape ``(Z, Y, X)`` of the source scan.
+    source : str
+        Description of the source scan.
+    settings : dict
+        The extraction and meshing settings used to build it.
+    """
+
+    def __init__(
+        self,
+        particles: list[Particle],
+        *,
+        voxel_size: tuple[float, float, float],
+        unit: str,
+        density: float,
+        background: float,
+        source_shape: tuple[int, int, int],
+        source: str = "",
+        settings: dict | None = None,
+    ) -> None:
+        self.particles = list(particles)
+        self.voxel_size = tuple(float(v) for v in voxel_size)
+        self.unit = unit
+        self.density = float(density)
+        self.background = float(background)
+        self.source_shape = tuple(int(n) for n in source_shape)
+        self.source = source
+        self.settings = dict(settings or {})
+
+    # -- construction -------------------------------------------------------------
+    @classmethod
+    def from_scan(
+        cls,
+        scan: Scan,
+        *,
+        min_voxels: int = DEFAULT_MIN_VOXELS,
+        include_border: bool = False,
+        density: float = DEFAULT_DENSITY,
+        target_faces: int | None = DEFAULT_TARGET_FACES,
+        workers: int | None = None,
+        progress: bool = True,
+    ) -> ParticleLibrary:
+        """Extract and mesh every particle of `scan`.
+
+        Parameters
+        ----------
+        scan : Scan
+            Tomogram, labels and voxel size.
+        min_voxels : int
+            Drop particles with fewer voxels.
+        include_border : bool
+            Keep particles cut by the scan border (dropped by default).
+        density : float
+            Grain density for masses (default: quartz, 2.65).
+        target_faces : int or None
+            Face budget per mesh after decimation.
+        workers : int, optional
+            Processes used for meshing; default: all cores. 1 meshes in-process.
+        progress : bool
+            Show a progress bar.
+
+        Returns
+        -------
+        ParticleLibrary
+        """
+        if not density > 0:
+            raise SynthpackInputError(f"density must be positive, got {density}")
+        workers = (os.cpu_count() or 1) if workers is None else int(workers)
+        if workers < 1:
+            raise SynthpackInputError(f"workers must be at least 1, got {workers}")
+        background = estimate_background(scan)
+        crops = extract_particles(
+            scan, min_voxels=min_voxels, include_border=include_border, background=background
+        )
+        jobs = [(c.mask, c.voxel_size, target_faces) for c in crops]
+        bar = dict(total=len(jobs), desc="meshing", unit="particle", disable=not progress)
+        if workers == 1:
+            arrays = [_mesh_arrays(job) for job in tqdm(jobs, **bar)]
+        else:
+            chunk = max(1, len(jobs) // (8 * workers))
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                arrays = list(tqdm(pool.map(_mesh_arrays, jobs, chunksize=chunk), **bar))
+        particles = [
+            _meshed(crop, trimesh.Trimesh(v, f, process=False), density)
+            for crop, (v, f) in zip(crops, arrays)
+        ]
+        settings = dict(min_voxels=min_voxels, include_border=include_border,
+                        target_faces=target_faces)
+        return cls(
+            particles, voxel_size=scan.voxel_size, unit=scan.unit, density=density,
+            background=background,
+            source_shape=scan.shape, source=scan.source, settings=settings,
+        )
+
+    # -- sequence protocol ----------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.particles)
+
+    def __getitem__(self, index):  # type: ignore[override]
+        if isinstance(index, slice):
+            return self._subset(self.particles[index])
+        return self.particles[index]
+
+    def __iter__(self) -> Iterator[Particle]:
+        return iter(self.particles)
+
+    def __repr__(self) -> str:
+        d = self.equivalent_diameters
+        return (
+            f"ParticleLibrary({len(self)} particles, d_eq {d.min():.4g}-{d.max():.4g} "
+            f"{self.unit}, voxel_size={self.voxel_size}, source={self.source!r})"
+        )
+
+    # -- sieving (paper section 3: particles are sifted by size) --------------------
+    @property
+    def equivalent_diameters(self) -> np.ndarray:
+        """Equivalent-sphere diameters, shape (N,), in physical units."""
+        return np.array([p.equivalent_diameter for p in self.particles], dtype=float)
+
+    def sieve(self, d_min: float = 0.0, d_max: float = np.inf) -> ParticleLibrary:
+        """The particles with ``d_min <= equivalent diameter < d_max`` (physical units)."""
+        if d_min >= d_max:
+            raise SynthpackInputError(f"sieve needs d_min < d_max, got {d_min} and {d_max}")
+        keep = [p for p in self.particles if d_min <= p.equivalent_diameter < d_max]
+        if not keep:
+            raise SynthpackInputError(
+                f"no particle with equivalent diameter in [{d_min}, {d_max}) {self.unit}; "
+                f"this library spans {self.equivalent_diameters.min():.4g}-"
+                f"{self.equivalent_diameters.max():.4g} {self.unit}"
+            )
+        return self._subset(keep)
+
+    def size_distribution(self, edges: Sequence[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Particle counts per equivalent-diameter class.
+
+        Parameters
+        ----------
+        edges : sequence of float, optional
+            Class edges in physical units; default: 8 classes over the range.
+
+        Returns
+        -------
+        counts : ndarray of int, shape (K,)
+        edges : ndarray of float, shape (K + 1,)
+        """
+        counts, edges = np.histogram(self.equivalent_diameters, bins=8 if edges is None else edges)
+        return counts, edges
+
+    def summary(self) -> str:
+        """A short human-readable description: count and size distribution."""
+        d = self.equivalent_diameters
+        counts, edges = self.size_distribution()
+        lines = [
+            f"{len(self)} particles from {self.source or 'an unnamed scan'} "
+            f"(voxel size {self.voxel_size} {self.unit}, density {self.density})",
+            f"equivalent diameter [{self.unit}]: min {d.min():.4g}, median {np.median(d):.4g}, "
+            f"max {d.max():.4g}",
+            f"{'class [' + self.unit + ']':>24}  count",
+        ]
+        for lo, hi, n in zip(edges[:-1], edges[1:], counts):
+            lines.append(f"{lo:>11.4g} - {hi:<10.4g}  {n:5d}  {'#' * int(round(40 * n / counts.max()))}")
+        return "\n".join(lines)
+
+    def _subset(self, particles: list[Particle]) -> ParticleLibrary:
+        return ParticleLibrary(
+            particles, voxel_size=self.voxel_size, unit=self.unit, density=self.density,
+            background=self.background, source_shape=self.source_shape, source=self.source,
+            settings=self.settings,
+        )
+
+    # -- persistence ------------------------------------------------------------------
+    def save(self, directory: str | os.PathLike) -> Path:
+        """Write the library to `directory` (replaced atomically if it exists).
+
+        Layout: ``library.json`` (metadata and per-particle table),
+        ``particles.csv`` (the same table for spreadsheets), ``crops.npz``
+        (``tomogram_<i>`` float32 and ``mask_<i>`` bool arrays) and ``meshes.npz``
+        (``vertices_<i>`` and ``faces_<i>``).
+        """
+        rows = [self._row(i, p) for i, p in enumerate(self.particles)]
+        meta = dict(
+            format=_FORMAT, version=_FORMAT_VERSION, voxel_size=self.voxel_size,
+            unit=self.unit, density=self.density, background=self.background,
+            source_shape=self.source_shape, source=self.source, settings=self.settings,
+            particles=rows,
+        )
+        with atomic_directory(directory) as staging:
+            (staging / "library.json").write_text(json.dumps(meta, indent=1))
+            with open(staging / "particles.csv", "w", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=_TABLE_COLUMNS)
+                writer.writeheader()
+                writer.writerows(rows)
+            np.savez_compressed(staging / "crops.npz", **{
+                key: value for i, p in enumerate(self.particles)
+                for key, value in ((f"tomogram_{i}", p.tomogram), (f"mask_{i}", p.mask))
+            })
+            np.savez(staging / "meshes.npz", **{
+                key: value for i, p in enumerate(self.particles)
+                for key, value in ((f"vertices_{i}", p.mesh.vertices), (f"faces_{i}", p.mesh.faces))
+            })
+        logger.info("saved %d particles to %s", len(self), directory)
+        return Path(directory)
+
+    @staticmethod
+    def _row(index: int, p: Particle) -> dict:
+        z0, y0, x0, z1, y1, x1 = p.bbox
+        return dict(
+            index=index, label=p.label, z0=z0, y0=y0, x0=x0, z1=z1, y1=y1, x1=x1,
+            voxel_count=p.voxel_count, equivalent_diameter=p.equivalent_diameter,
+            touches_border=p.touches_border, volume=p.volume, mass=p.mass, faces=len(p.mesh.faces),
+        )
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike) -> ParticleLibrary:
+        """Load a library written by :meth:`save`.
+
+        Raises
+        ------
+        SynthpackInputError
+            If the directory is missing, incomplete or corrupt.
+        """
+        directory = Path(directory)
+        hint = "rebuild it with `synthpack library build`"
+        missing = [n for n in ("library.json", "crops.npz", "meshes.npz") if not (directory / n).is_file()]
+        if not directory.is_dir() or missing:
+            what = "does not exist" if not directory.is_dir() else f"lacks {', '.join(missing)}"
+            raise SynthpackInputError(f"particle library {directory} {what}: {hint}")
+        try:
+            meta = json.loads((directory / "library.json").read_text())
+            if meta.get("format") != _FORMAT:
+                raise ValueError("not a synthpack particle library")
+            voxel_size = tuple(meta["voxel_size"])
+            particles = []
+            with np.load(directory / "crops.npz") as crops, np.load(directory / "meshes.npz") as meshes:
+                for row in meta["particles"]:
+                    i = row["index"]
+                    bbox = (row["z0"], row["y0"], row["x0"], row["z1"], row["y1"], row["x1"])
+                    mesh = trimesh.Trimesh(meshes[f"vertices_{i}"], meshes[f"faces_{i}"], process=False)
+                    particles.append(Particle(
+                        row["label"], bbox, crops[f"tomogram_{i}"], crops[f"mask_{i}"],
+                        voxel_size, bool(row["touches_border"]), mesh, meta["density"],
+                    ))
+        except Exception as error:  # any parse/shape/zip error means a corrupt library
+            raise SynthpackInputError(f"particle library {directory} is corrupt ({error}): {hint}") from error
+        return cls(
+            particles, voxel_size=voxel_size, unit=meta["unit"], density=meta["density"],
+            background=meta["background"], source_shape=tuple(meta["source_shape"]),
+            source=meta.get("source", ""), settings=meta.get("settings", {}),
+        )
+
+
+def _meshed(crop: ParticleCrop, mesh: trimesh.Trimesh, density: float) -> Particle:
+    return Particle(
+        crop.label, crop.bbox, crop.tomogram, crop.mask, crop.voxel_size,
+        crop.touches_border, mesh, density,
+    )

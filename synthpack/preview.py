@@ -1,0 +1,105 @@
+"""Preview pictures (PNG) for checking results by eye."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_file
+from .library import ParticleLibrary
+from .scan import Scan
+
+__all__ = ["label_overlay", "save_library_preview"]
+
+
+def label_overlay(image: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> np.ndarray:
+    """Blend a grey slice with one random colour per label.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        Intensities (any range; scaled by its 1st-99th percentiles).
+    labels : ndarray of int, shape (H, W)
+        Instance labels, 0 = background (left grey).
+    alpha : float
+        Opacity of the label colours.
+
+    Returns
+    -------
+    ndarray of float, shape (H, W, 3)
+        RGB in [0, 1].
+    """
+    lo, hi = np.percentile(image, [1, 99])
+    grey = np.clip((image - lo) / max(hi - lo, 1e-12), 0, 1)
+    rgb = np.repeat(grey[..., None], 3, axis=-1)
+    palette = np.random.default_rng(0).uniform(0.2, 1.0, size=(int(labels.max()) + 1, 3))
+    colours = palette[labels]
+    inside = labels > 0
+    rgb[inside] = (1 - alpha) * rgb[inside] + alpha * colours[inside]
+    return rgb
+
+
+def _draw_mesh(ax, mesh, colour) -> None:
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    shading = 0.45 + 0.55 * np.clip(mesh.face_normals @ np.array([0.3, -0.4, 0.87]), 0, 1)
+    faces = Poly3DCollection(mesh.vertices[mesh.faces], linewidths=0.1, edgecolors="k")
+    faces.set_facecolor(np.clip(np.outer(shading, colour), 0, 1))
+    ax.add_collection3d(faces)
+    half = np.abs(mesh.vertices).max()
+    for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
+        setter(-half, half)
+    ax.set_axis_off()
+
+
+def save_library_preview(
+    scan: Scan, library: ParticleLibrary, path: str | os.PathLike, n_meshes: int = 6
+) -> Path:
+    """Write a PNG: the scan's middle slices with labels, the size distribution, and meshes.
+
+    Parameters
+    ----------
+    scan : Scan
+        The source scan.
+    library : ParticleLibrary
+        Its particle library.
+    path : path-like
+        Output PNG.
+    n_meshes : int
+        How many particle meshes to draw (spread over the size range; rounded
+        to a multiple of 3, at least 3).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_meshes = max(3, 3 * (n_meshes // 3))
+    fig = plt.figure(figsize=(13, 7.5), layout="constrained")
+    grid = fig.add_gridspec(2, n_meshes, height_ratios=(1.4, 1))
+    span = n_meshes // 3
+    middle = np.asarray(scan.shape) // 2
+    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :])]
+    for column, (axis, index) in enumerate(views):
+        ax = fig.add_subplot(grid[0, column * span : (column + 1) * span])
+        ax.imshow(label_overlay(scan.tomogram[index], scan.labels[index]), origin="lower")
+        ax.set_title(f"source: middle {axis} slice + labels")
+        ax.set_axis_off()
+    ax = fig.add_subplot(grid[0, 2 * span :])
+    ax.hist(library.equivalent_diameters, bins=20, color="0.4")
+    ax.set_xlabel(f"equivalent diameter [{library.unit}]")
+    ax.set_ylabel("particles")
+    ax.set_title(f"{len(library)} particles in the library")
+    order = np.argsort(library.equivalent_diameters)
+    picks = order[np.linspace(0, len(order) - 1, min(n_meshes, len(order))).astype(int)]
+    for column, index in enumerate(picks):
+        ax = fig.add_subplot(grid[1, column], projection="3d")
+        particle = library[int(index)]
+        _draw_mesh(ax, particle.mesh, np.array([0.85, 0.7, 0.45]))
+        ax.set_title(f"label {particle.label}\n{len(particle.mesh.faces)} faces", fontsize=9)
+    with atomic_file(path) as staging:
+        fig.savefig(staging, dpi=90, format="png")
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,35 @@
+"""Shared fixtures: small labelled volumes and the built-in sample library."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from synthpack.library import ParticleLibrary
+from synthpack.samples import sample_scan
+from synthpack.scan import Scan
+
+
+@pytest.fixture(scope="session")
+def large_scan() -> Scan:
+    """The built-in 'large' sample scan (seed 0)."""
+    return sample_scan("large", seed=0)
+
+
+@pytest.fixture(scope="session")
+def large_library(large_scan: Scan) -> ParticleLibrary:
+    """The particle library of the 'large' sample, built once per test session."""
+    return ParticleLibrary.from_scan(large_scan, workers=1, progress=False)
+
+
+@pytest.fixture
+def blob_scan() -> Scan:
+    """A 30x40x50 scan with four box- and ball-shaped particles, one on the border."""
+    labels = np.zeros((30, 40, 50), dtype=np.int32)
+    labels[5:15, 5:15, 5:20] = 1
+    zz, yy, xx = np.mgrid[:30, :40, :50]
+    labels[(zz - 15) ** 2 + (yy - 25) ** 2 + (xx - 35) ** 2 <= 36] = 2
+    labels[20:26, 2:8, 30:36] = 3
+    labels[0:6, 30:40, 0:8] = 4  # touches three faces of the volume
+    tomogram = np.where(labels > 0, 0.8, 0.2).astype(np.float32) + labels * 0.01
+    return Scan(tomogram, labels, voxel_size=(2.0, 1.0, 1.0), unit="um", source="blobs")

@@ -1,0 +1,100 @@
+import json
+
+import numpy as np
+import pytest
+
+from synthpack.errors import SynthpackInputError
+from synthpack.library import ParticleLibrary
+
+
+def test_library_of_sample_has_meshed_particles(large_library, large_scan):
+    assert len(large_library) > 30
+    assert large_library.source_shape == large_scan.shape
+    for particle in large_library:
+        assert particle.mesh.is_watertight
+        assert not particle.touches_border
+        assert particle.mass == pytest.approx(large_library.density * particle.volume)
+        # the mesh encloses about the mask's volume (voxel count x voxel volume)
+        assert particle.volume == pytest.approx(particle.voxel_count * 1000.0, rel=0.1)
+    # the pore intensity of the sample is below the grains'
+    assert large_library.background < np.median(large_scan.tomogram[large_scan.labels > 0])
+
+
+def test_save_load_round_trip(large_library, tmp_path):
+    out = large_library.save(tmp_path / "lib")
+    loaded = ParticleLibrary.load(out)
+    assert len(loaded) == len(large_library)
+    assert loaded.voxel_size == large_library.voxel_size
+    assert loaded.background == large_library.background
+    for a, b in zip(large_library, loaded):
+        assert (a.label, a.bbox, a.touches_border) == (b.label, b.bbox, b.touches_border)
+        np.testing.assert_array_equal(a.mask, b.mask)
+        np.testing.assert_array_equal(a.tomogram, b.tomogram)
+        np.testing.assert_array_equal(a.mesh.faces, b.mesh.faces)
+        np.testing.assert_allclose(a.center_mass, b.center_mass)
+    assert not list(tmp_path.glob(".lib.tmp-*"))
+
+
+def test_save_replaces_an_existing_library_atomically(large_library, tmp_path):
+    large_library[:5].save(tmp_path / "lib")
+    large_library[:7].save(tmp_path / "lib")
+    assert len(ParticleLibrary.load(tmp_path / "lib")) == 7
+    assert [p.name for p in tmp_path.iterdir()] == ["lib"]
+
+
+def test_sieve_selects_exactly_the_particles_in_range(large_library):
+    d = large_library.equivalent_diameters
+    lo, hi = np.percentile(d, [25, 75])
+    sieved = large_library.sieve(lo, hi)
+    expected = [p.label for p in large_library if lo <= p.equivalent_diameter < hi]
+    assert [p.label for p in sieved] == expected
+    assert 0 < len(sieved) < len(large_library)
+    with pytest.raises(SynthpackInputError, match="no particle"):
+        large_library.sieve(d.max() + 1, d.max() + 2)
+    with pytest.raises(SynthpackInputError, match="d_min < d_max"):
+        large_library.sieve(5, 1)
+
+
+def test_size_distribution_counts_every_particle(large_library):
+    counts, edges = large_library.size_distribution()
+    assert counts.sum() == len(large_library)
+    assert "particles from sample:large" in large_library.summary()
+
+
+def test_parallel_build_equals_serial(large_scan, large_library):
+    parallel = ParticleLibrary.from_scan(large_scan, workers=2, progress=False)
+    assert [p.label for p in parallel] == [p.label for p in large_library]
+    for a, b in zip(parallel, large_library):
+        np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
+
+
+def test_load_missing_or_corrupt_library_says_to_rebuild(large_library, tmp_path):
+    with pytest.raises(SynthpackInputError, match="does not exist"):
+        ParticleLibrary.load(tmp_path / "nowhere")
+    out = large_library[:3].save(tmp_path / "lib")
+    (out / "meshes.npz").write_bytes(b"not a zip file")
+    with pytest.raises(SynthpackInputError, match="corrupt.*rebuild"):
+        ParticleLibrary.load(out)
+    (out / "meshes.npz").unlink()
+    with pytest.raises(SynthpackInputError, match="lacks meshes.npz"):
+        ParticleLibrary.load(out)
+
+
+def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
+    out = large_library[:3].save(tmp_path / "lib")
+    text = (out / "library.json").read_text()
+    (out / "library.json").write_text(text[: len(text) // 2])
+    with pytest.raises(SynthpackInputError, match="corrupt"):
+        ParticleLibrary.load(out)
+    meta = json.loads(text)
+    meta["format"] = "something else"
+    (out / "library.json").write_text(json.dumps(meta))
+    with pytest.raises(SynthpackInputError, match="not a synthpack particle library"):
+        ParticleLibrary.load(out)
+
+
+def test_bad_arguments(large_scan):
+    with pytest.raises(SynthpackInputError, match="density"):
+        ParticleLibrary.from_scan(large_scan, density=0)
+    with pytest.raises(SynthpackInputError, match="workers"):
+        ParticleLibrary.from_scan(large_scan, workers=0)
