@@ -1,0 +1,53 @@
+import subprocess
+import sys
+
+import numpy as np
+
+from synthpack.cli import main
+from synthpack.io import write_tiff
+from synthpack.library import ParticleLibrary
+
+
+def test_library_build_from_sample_writes_library_and_preview(tmp_path, capsys):
+    out, preview = tmp_path / "lib", tmp_path / "preview.png"
+    code = main(["-q", "library", "build", "--sample", "large", "--out", str(out),
+                 "--workers", "1", "--preview", str(preview)])
+    assert code == 0
+    library = ParticleLibrary.load(out)
+    assert len(library) > 30
+    assert preview.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"{len(library)} particles" in capsys.readouterr().out
+    assert main(["library", "info", str(out)]) == 0
+
+
+def test_library_build_from_tiff_files_with_voxel_size(tmp_path, blob_scan):
+    write_tiff(tmp_path / "t.tif", blob_scan.tomogram, (1, 1, 1))
+    write_tiff(tmp_path / "l.tif", blob_scan.labels, (1, 1, 1), labels=True)
+    code = main(["-q", "library", "build", "--tomogram", str(tmp_path / "t.tif"), "--labels",
+                 str(tmp_path / "l.tif"), "--voxel-size", "2", "1", "1", "--min-voxels", "100",
+                 "--out", str(tmp_path / "lib"), "--workers", "1"])
+    assert code == 0
+    library = ParticleLibrary.load(tmp_path / "lib")
+    assert library.voxel_size == (2.0, 1.0, 1.0)
+    assert [p.label for p in library] == [1, 2, 3]
+
+
+def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
+    labels = np.zeros((8, 8, 8), dtype=np.float32)
+    labels[2:5, 2:5, 2:5] = 1.5
+    np.save(tmp_path / "labels.npy", labels)
+    np.save(tmp_path / "tomo.npy", np.ones((8, 8, 8), dtype=np.float32))
+    cases = [
+        (["library", "info", str(tmp_path / "missing")], "does not exist"),
+        (["library", "build", "--tomogram", str(tmp_path / "tomo.npy"), "--labels",
+          str(tmp_path / "labels.npy"), "--out", str(tmp_path / "lib")], "fractional"),
+        (["library", "build", "--tomogram", str(tmp_path / "tomo.npy"), "--out", str(tmp_path / "lib")],
+         "no source scan"),
+    ]
+    for argv, phrase in cases:
+        run = subprocess.run([sys.executable, "-m", "synthpack.cli", "-q", *argv], capture_output=True, text=True)
+        assert run.returncode == 2, run.stderr
+        assert "Traceback" not in run.stderr
+        assert phrase in run.stderr
+        assert len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "lib").exists()
