@@ -22,15 +22,17 @@ on each grain's own bounding box only):
    (a Poisson-disc-like set) in a box one grain larger than the volume, so that
    grains cut by the volume's border are present, as in a real crop.
 2. Each grain is a random star-shaped body: an ellipsoid of random aspect ratio
-   and random orientation whose radius is modulated by a few random low-order
-   harmonics of the direction, cut by a few random planes (flat facets, so the
-   grains are angular rather than round).
+   (axes 1 : 0.55-0.95 : 0.55-0.95) and random orientation whose radius is
+   modulated by a few random low-frequency waves over the directions, cut by a
+   few random planes (flat facets, so the grains are angular rather than round).
 3. Every voxel goes to the grain with the smallest normalised distance
    ``|x - c| / r(direction)`` (a competitive growth, so neighbours meet along
    shared faces); it is solid where that distance is below a threshold chosen
-   so that the solid fraction is the target packing fraction (0.60). Each label
-   is then reduced to its largest face-connected component; tiny pieces (mostly
-   grains only grazing the border) become pore, and labels are renumbered 1..N.
+   so that 62 % of the volume is solid. Each label is then opened with the
+   6-neighbour cross (removing one-voxel slivers) and reduced to its largest
+   face-connected component; tiny pieces (mostly grains only grazing the
+   border) become pore, and labels are renumbered 1..N. The packing fraction
+   that results is about 0.59-0.62.
 4. The tomogram is rendered from the labels: each grain has its own mean
    intensity (about 0.75, a few % spread) and a faint internal texture, voxels
    at grain-grain contacts are slightly darker (the thin gap a real scan shows),
@@ -64,12 +66,21 @@ SAMPLE_NAMES: tuple[str, ...] = ("large", "small")
 
 @dataclass(frozen=True)
 class _SampleSpec:
-    """Generator parameters of one sample (lengths in voxels unless stated)."""
+    """Generator parameters of one sample (lengths in voxels unless stated).
+
+    `diameter_range` bounds the nominal (volume-equivalent) grain diameters;
+    `growth_fraction` is the solid fraction right after the competitive growth,
+    before the clean-up removes a few % of it; `seed_spacing` times the mean
+    nominal diameter of two grains is the least distance between their seeds;
+    `max_threshold` bounds the growth threshold (and so each grain's reach);
+    intensities are in the tomogram's arbitrary units, `noise_fraction` and
+    `contact_darkening` are fractions of the grain-pore contrast.
+    """
 
     shape: tuple[int, int, int]
     voxel_size_um: float
     diameter_range: tuple[float, float]
-    packing_fraction: float = 0.62
+    growth_fraction: float = 0.62
     seed_spacing: float = 0.85
     aspect_range: tuple[float, float] = (0.55, 0.95)
     harmonic_terms: int = 5
@@ -145,7 +156,7 @@ def sample_scan(name: str, seed: int = 0) -> Scan:
 
     centres, diameters = _place_seeds(rng, spec)
     best_d, owner = _competitive_growth(rng, spec, centres, diameters)
-    threshold = _threshold_for_fraction(best_d, spec.packing_fraction, spec.max_threshold)
+    threshold = _threshold_for_fraction(best_d, spec.growth_fraction, spec.max_threshold)
     labels = _clean_labels(_open_labels(np.where(best_d < threshold, owner, 0)), spec.min_voxels)
     tomogram = _render(rng, spec, labels)
 
@@ -191,7 +202,7 @@ def _place_seeds(rng: np.random.Generator, spec: _SampleSpec) -> tuple[np.ndarra
     lo = np.full(3, -margin)
     hi = np.asarray(spec.shape, dtype=float) - 1.0 + margin
     mean_volume = np.pi / 6.0 * (d_hi**4 - d_lo**4) / (4.0 * (d_hi - d_lo))
-    n_target = int(round(spec.packing_fraction * np.prod(hi - lo) / mean_volume))
+    n_target = int(round(spec.growth_fraction * np.prod(hi - lo) / mean_volume))
 
     centres = np.empty((0, 3))
     diameters = np.empty(0)
@@ -416,7 +427,7 @@ def _clean_labels(owner: np.ndarray, min_voxels: int) -> np.ndarray:
     -------
     ndarray, int32, shape (Z, Y, X)
         Labels 0..N, consecutive, each positive label one face-connected component,
-        numbered in order of first appearance in the raw labels.
+        in the order of the raw labels they come from.
     """
     labels = owner.copy()
     for index, box in enumerate(ndimage.find_objects(owner), start=1):

@@ -121,8 +121,8 @@ def test_grains_touch(sample):
 
 
 def test_grains_not_spherical(large):
-    whole = np.flatnonzero(~_border_labels(large.labels)) 
-    props = [p for p in regionprops(large.labels) if p.label in set(whole)]
+    border = _border_labels(large.labels)
+    props = [p for p in regionprops(large.labels) if not border[p.label]]
     ratios = [p.axis_major_length / p.axis_minor_length for p in props]
     assert len(ratios) > 30
     assert np.median(ratios) > 1.2
@@ -145,8 +145,8 @@ def test_intensity_contrast_and_partial_volume(sample):
     # Noise and texture: grain cores are not flat, but vary by only a few % of the contrast.
     assert 0.01 < float(image[core].std()) / (grain_level - pore_level) < 0.15
     # Grains differ from each other in mean intensity.
-    means = ndimage.mean(image, labels=np.where(core, labels, 0), index=np.arange(1, labels.max() + 1))
-    means = means[np.isfinite(means)]
+    core_labels = np.where(core, labels, 0)
+    means = ndimage.mean(image, labels=core_labels, index=np.unique(core_labels[core_labels > 0]))
     assert np.std(means) > 0.005
     # Partial volume: grain voxels next to the pore lie between the two levels.
     edge = solid & ~ndimage.binary_erosion(solid)
