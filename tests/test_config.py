@@ -1,0 +1,50 @@
+import pytest
+
+from synthpack.config import PackConfig, load_config
+from synthpack.errors import SynthpackInputError
+
+
+def test_defaults_and_partial_override(tmp_path):
+    path = tmp_path / "pack.yaml"
+    path.write_text("seed: 7\npour:\n  n_particles: 40\n  scale: [0.9, 1.1]\npostprocess: []\n")
+    config = load_config(path)
+    assert config.seed == 7
+    assert config.pour.n_particles == 40 and config.pour.scale == [0.9, 1.1]
+    assert config.pour.batch_size == PackConfig().pour.batch_size
+    assert config.postprocess == []
+    assert PackConfig.from_dict(config.to_dict()) == config
+
+
+def test_replace_merges_sections():
+    config = PackConfig().replace(pour={"n_particles": 12}, seed=3)
+    assert config.pour.n_particles == 12 and config.seed == 3
+    assert config.pour.engine == "pybullet"
+
+
+@pytest.mark.parametrize(
+    "data, phrase",
+    [
+        ({"pour": {"n_partcles": 5}}, "unknown config key 'pour.n_partcles'"),
+        ({"colour": 1}, "unknown config key 'colour'"),
+        ({"pour": {"n_particles": "many"}}, "'pour.n_particles' has the wrong type"),
+        ({"pour": {"n_particles": 2.5}}, "'pour.n_particles' has the wrong type"),
+        ({"library": {"include_border": 1}}, "'library.include_border' has the wrong type"),
+        ({"pour": {"n_particles": 0}}, "'pour.n_particles' is out of range"),
+        ({"pour": {"engine": "havok"}}, "'pour.engine' is out of range"),
+        ({"pour": {"restitution": 1.5}}, "'pour.restitution' is out of range"),
+        ({"reconstruct": {"chunks": [64, 0, 64]}}, "'reconstruct.chunks' is out of range"),
+        ({"pour": 3}, "must be a mapping"),
+    ],
+)
+def test_bad_key_type_or_value_is_named(data, phrase):
+    with pytest.raises(SynthpackInputError, match=phrase.replace("(", r"\(")):
+        PackConfig.from_dict(data)
+
+
+def test_missing_or_invalid_yaml_file(tmp_path):
+    with pytest.raises(SynthpackInputError, match="does not exist"):
+        load_config(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("pour: [unclosed\n")
+    with pytest.raises(SynthpackInputError, match="not valid YAML"):
+        load_config(bad)

@@ -1,0 +1,136 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from synthpack.errors import SynthpackInputError
+from synthpack.reconstruct import Grid, Phases, pose_maps, reconstruct
+
+
+def _tight(volume):
+    nonzero = np.nonzero(volume)
+    return volume[tuple(slice(i.min(), i.max() + 1) for i in nonzero)]
+
+
+@pytest.fixture
+def particle():
+    rng = np.random.default_rng(0)
+    mask = np.zeros((7, 9, 11), dtype=bool)
+    mask[1:6, 2:8, 3:9] = rng.random((5, 6, 6)) > 0.3
+    tomogram = np.where(mask, rng.random(mask.shape), 0.1).astype(np.float32)
+    return tomogram, mask
+
+
+GRID = Grid((30, 30, 30), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+
+
+def _render(crops, index, rotations, positions, scales=None, grid=GRID, **kwargs):
+    n = len(index)
+    maps = pose_maps([c[1].shape for c in crops], np.asarray(index), np.asarray(rotations),
+                     np.asarray(positions, dtype=float), np.ones(n) if scales is None else scales, grid)
+    return reconstruct(crops, maps, grid, Phases(0.1), **kwargs)
+
+
+def test_identity_rotation_and_integer_translation_reproduce_the_voxels(particle):
+    tomogram, mask = particle
+    # crop centre (5, 4, 3) in (x, y, z) index units goes to world (15, 12, 10)
+    out, labels, contested = _render([particle], [0], [np.eye(3)], [[15, 12, 10]])
+    window = (slice(7, 14), slice(8, 17), slice(10, 21))
+    np.testing.assert_array_equal(labels[window] == 1, mask)
+    np.testing.assert_array_equal(out[window][mask], tomogram[mask])
+    assert labels.sum() == mask.sum() and contested == 0
+    assert np.all(out[labels == 0] == np.float32(0.1))
+
+
+@pytest.mark.parametrize("quarter_turns", [1, 2, 3])
+def test_quarter_turn_about_z_equals_rot90(particle, quarter_turns):
+    tomogram, mask = particle
+    rotation = Rotation.from_euler("z", 90 * quarter_turns, degrees=True).as_matrix()
+    out, labels, _ = _render([particle], [0], [rotation], [[15, 12, 10]])
+    # +90 degrees about z turns x into y: in (z, y, x) arrays that is rot90 from axis 2 to 1
+    expected_mask = np.rot90(mask, k=quarter_turns, axes=(2, 1))
+    np.testing.assert_array_equal(_tight(labels == 1), _tight(expected_mask))
+    expected = np.rot90(np.where(mask, tomogram, 0), k=quarter_turns, axes=(2, 1))
+    np.testing.assert_allclose(_tight(np.where(labels == 1, out, 0)), _tight(expected), atol=1e-6)
+
+
+def test_chunking_does_not_change_the_result(large_library):
+    rng = np.random.default_rng(1)
+    crops = [(p.tomogram, p.mask) for p in large_library]
+    n = 12
+    index = rng.integers(0, len(crops), n)
+    rotations = Rotation.random(n, random_state=2).as_matrix()
+    positions = rng.uniform(-200, 200, size=(n, 3))
+    grid = Grid.covering(400.0, -300.0, 300.0, large_library.voxel_size)
+    phases = Phases(0.2, 0.05, 0.5)
+    maps = pose_maps([c[1].shape for c in crops], index, rotations, positions, np.ones(n), grid)
+    whole = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=grid.shape, seed=4)
+    chunked = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=(13, 17, 29), seed=4)
+    np.testing.assert_array_equal(whole[0], chunked[0])
+    np.testing.assert_array_equal(whole[1], chunked[1])
+    assert whole[2] == chunked[2] > 0  # random positions overlap
+
+
+def test_rotated_voxel_counts_within_3_percent(large_library):
+    rng = np.random.default_rng(5)
+    crops = [(p.tomogram, p.mask) for p in large_library]
+    index = np.arange(0, len(crops), 4)
+    n = len(index)
+    rotations = Rotation.random(n, random_state=6).as_matrix()
+    # far apart on a line, so no two particles touch
+    positions = np.stack([np.zeros(n), np.zeros(n), 400.0 * np.arange(n)], axis=1)
+    grid = Grid.covering(250.0, -250.0, 400.0 * n, large_library.voxel_size)
+    maps = pose_maps([c[1].shape for c in crops], index, rotations, positions, np.ones(n), grid)
+    _, labels, contested = reconstruct(crops, maps, grid, Phases(0.2))
+    counts = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    source = np.array([crops[i][1].sum() for i in index])
+    assert contested == 0
+    np.testing.assert_allclose(counts, source, rtol=0.03)
+
+
+def test_scale_changes_volume_by_its_cube(particle):
+    big_mask = np.zeros((20, 20, 20), dtype=bool)
+    zz, yy, xx = np.mgrid[:20, :20, :20]
+    big_mask[(zz - 9.5) ** 2 + (yy - 9.5) ** 2 + (xx - 9.5) ** 2 < 64] = True
+    crop = (big_mask.astype(np.float32), big_mask)
+    grid = Grid((60, 60, 60), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    _, labels, _ = _render([crop], [0], [np.eye(3)], [[30, 30, 30]], scales=np.array([1.5]), grid=grid)
+    assert labels.sum() == pytest.approx(big_mask.sum() * 1.5**3, rel=0.05)
+
+
+def test_contested_voxels_go_to_the_larger_mask_value_whatever_the_order():
+    block = np.ones((6, 6, 6), dtype=bool)
+    crop = (np.ones((6, 6, 6), dtype=np.float32), block)
+    grid = Grid((20, 20, 20), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    # block A is grid-aligned on x = 6..11 (mask value 1); block B is shifted by 0.3 voxel,
+    # so its first layer, x = 11, has mask value 0.7 and A must win it in either order
+    positions = [[8.5, 8.5, 8.5], [13.8, 8.5, 8.5]]
+    _, labels_ab, contested_ab = _render([crop], [0, 0], [np.eye(3)] * 2, positions, grid=grid)
+    _, labels_ba, contested_ba = _render([crop], [0, 0], [np.eye(3)] * 2, positions[::-1], grid=grid)
+    assert contested_ab == contested_ba == 36
+    np.testing.assert_array_equal(labels_ab, np.where(labels_ba > 0, 3 - labels_ba, 0))
+    assert np.all(labels_ab[6:12, 6:12, 11] == 1)
+    # on an exact tie the earlier placement keeps the voxel
+    tie = [[8.5, 8.5, 8.5], [11.5, 8.5, 8.5]]
+    _, labels_tie, contested_tie = _render([crop], [0, 0], [np.eye(3)] * 2, tie, grid=grid)
+    assert contested_tie == 3 * 36 and np.all(labels_tie[6:12, 6:12, 9:12] == 1)
+
+
+def test_background_texture_and_tube_wall():
+    grid = Grid.covering(50.0, -10.0, 40.0, (1.0, 1.0, 1.0))
+    crops, maps = [], pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
+    out, labels, _ = reconstruct(crops, maps, grid, Phases(0.2, 0.03, 0.6), tube=(40.0, 45.0, -5.0))
+    z, y, x = np.meshgrid(*(grid.origin[a] + np.arange(grid.shape[a]) for a in range(3)), indexing="ij")
+    radius = np.hypot(x, y)
+    pores = (radius < 38) & (z > 1)
+    wall = (radius > 41) & (radius < 44) & (z > 1)
+    assert out[pores].mean() == pytest.approx(0.2, abs=0.002)
+    assert out[pores].std() == pytest.approx(0.03, rel=0.05)
+    assert out[wall].mean() == pytest.approx(0.6, abs=0.005)
+    assert not labels.any()
+
+
+def test_bad_settings_are_rejected(particle):
+    with pytest.raises(SynthpackInputError, match="order"):
+        _render([particle], [0], [np.eye(3)], [[15, 12, 10]], order=2)
+    with pytest.raises(SynthpackInputError, match="chunk"):
+        _render([particle], [0], [np.eye(3)], [[15, 12, 10]], chunks=(0, 4, 4))
