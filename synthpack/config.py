@@ -8,7 +8,7 @@ optional and falls back to the default shown by ``synthpack generate
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256]}
-    postprocess: default          # or a list of artefact transforms, or [] for none
+    postprocess: default          # or none, match_source, or a list of artefact transforms
 
 Unknown keys, wrong types and out-of-range values raise
 :class:`~synthpack.errors.SynthpackInputError` naming the key.
@@ -35,6 +35,14 @@ __all__ = [
     "ReconstructConfig",
     "load_config",
 ]
+
+
+def _valid_pipeline(transforms: list) -> bool:
+    """Build the artefact pipeline once, so a bad one fails when the config is read."""
+    from .artefacts import from_config
+
+    from_config(transforms)
+    return True
 
 
 def _positive(value) -> bool:
@@ -106,7 +114,11 @@ class PackConfig:
     library: LibraryConfig = field(default_factory=LibraryConfig)
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
-    postprocess: str | list = _spec("default", None, "'default', 'none', or a list of artefact transforms")
+    postprocess: str | list = _spec(
+        "default", lambda v: _valid_pipeline(v) if isinstance(v, list) else v in ("default", "none", "match_source"),
+        "'default', 'none', 'match_source' (Gaussian noise up to the source scan's noise level) "
+        "or a list of artefact transforms",
+    )
 
     def to_dict(self) -> dict:
         """A plain, YAML/JSON-able dict of every value."""

@@ -15,13 +15,14 @@ import trimesh
 from tqdm.auto import tqdm
 
 from ._atomic import atomic_directory
+from .artefacts import estimate_noise
 from .errors import SynthpackInputError
 from .meshing import DEFAULT_TARGET_FACES, mesh_from_mask
 from .particles import (
     DEFAULT_MIN_VOXELS,
     Particle,
     ParticleCrop,
-    estimate_background,
+    estimate_phases,
     extract_particles,
 )
 from .scan import Scan
@@ -63,8 +64,11 @@ class ParticleLibrary(Sequence[Particle]):
         Length unit.
     density : float
         Grain density used for the particles' masses.
-    background : float
-        Pore intensity of the source scan (value outside each particle's mask).
+    phases : dict
+        Intensity statistics of the source scan: ``pore_mean`` (the value outside
+        each particle's mask in its clean crop), ``pore_std`` and ``grain_mean``
+        (see :func:`~synthpack.particles.estimate_phases`), and ``noise_std``
+        (see :func:`~synthpack.artefacts.estimate_noise`).
     source_shape : tuple of 3 int
         Shape ``(Z, Y, X)`` of the source scan.
     source : str
@@ -80,7 +84,7 @@ class ParticleLibrary(Sequence[Particle]):
         voxel_size: tuple[float, float, float],
         unit: str,
         density: float,
-        background: float,
+        phases: dict[str, float],
         source_shape: tuple[int, int, int],
         source: str = "",
         settings: dict | None = None,
@@ -89,7 +93,7 @@ class ParticleLibrary(Sequence[Particle]):
         self.voxel_size = tuple(float(v) for v in voxel_size)
         self.unit = unit
         self.density = float(density)
-        self.background = float(background)
+        self.phases = {key: float(value) for key, value in phases.items()}
         self.source_shape = tuple(int(n) for n in source_shape)
         self.source = source
         self.settings = dict(settings or {})
@@ -135,9 +139,10 @@ class ParticleLibrary(Sequence[Particle]):
         workers = (os.cpu_count() or 1) if workers is None else int(workers)
         if workers < 1:
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")
-        background = estimate_background(scan)
+        phases = dict(estimate_phases(scan), noise_std=estimate_noise(scan.tomogram, scan.labels)["std"])
         crops = extract_particles(
-            scan, min_voxels=min_voxels, include_border=include_border, background=background
+            scan, min_voxels=min_voxels, include_border=include_border,
+            background=phases["pore_mean"],
         )
         jobs = [(c.mask, c.voxel_size, target_faces) for c in crops]
         bar = dict(total=len(jobs), desc="meshing", unit="particle", disable=not progress)
@@ -155,8 +160,7 @@ class ParticleLibrary(Sequence[Particle]):
                         target_faces=target_faces)
         return cls(
             particles, voxel_size=scan.voxel_size, unit=scan.unit, density=density,
-            background=background,
-            source_shape=scan.shape, source=scan.source, settings=settings,
+            phases=phases, source_shape=scan.shape, source=scan.source, settings=settings,
         )
 
     # -- sequence protocol ----------------------------------------------------------
@@ -177,6 +181,11 @@ class ParticleLibrary(Sequence[Particle]):
             f"ParticleLibrary({len(self)} particles, d_eq {d.min():.4g}-{d.max():.4g} "
             f"{self.unit}, voxel_size={self.voxel_size}, source={self.source!r})"
         )
+
+    @property
+    def background(self) -> float:
+        """Pore intensity of the source scan: the value outside each clean crop's mask."""
+        return self.phases["pore_mean"]
 
     # -- sieving (paper section 3: particles are sifted by size) --------------------
     @property
@@ -231,7 +240,7 @@ class ParticleLibrary(Sequence[Particle]):
     def _subset(self, particles: list[Particle]) -> ParticleLibrary:
         return ParticleLibrary(
             particles, voxel_size=self.voxel_size, unit=self.unit, density=self.density,
-            background=self.background, source_shape=self.source_shape, source=self.source,
+            phases=self.phases, source_shape=self.source_shape, source=self.source,
             settings=self.settings,
         )
 
@@ -247,7 +256,7 @@ class ParticleLibrary(Sequence[Particle]):
         rows = [self._row(i, p) for i, p in enumerate(self.particles)]
         meta = dict(
             format=_FORMAT, version=_FORMAT_VERSION, voxel_size=self.voxel_size,
-            unit=self.unit, density=self.density, background=self.background,
+            unit=self.unit, density=self.density, phases=self.phases,
             source_shape=self.source_shape, source=self.source, settings=self.settings,
             particles=rows,
         )
@@ -307,13 +316,16 @@ class ParticleLibrary(Sequence[Particle]):
                         row["label"], bbox, crops[f"tomogram_{i}"], crops[f"mask_{i}"],
                         voxel_size, bool(row["touches_border"]), mesh, meta["density"],
                     ))
-        except Exception as error:  # any parse/shape/zip error means a corrupt library
-            raise SynthpackInputError(f"particle library {directory} is corrupt ({error}): {hint}") from error
-        return cls(
-            particles, voxel_size=voxel_size, unit=meta["unit"], density=meta["density"],
-            background=meta["background"], source_shape=tuple(meta["source_shape"]),
-            source=meta.get("source", ""), settings=meta.get("settings", {}),
-        )
+            return cls(
+                particles, voxel_size=voxel_size, unit=meta["unit"], density=meta["density"],
+                phases=meta["phases"], source_shape=tuple(meta["source_shape"]),
+                source=meta.get("source", ""), settings=meta.get("settings", {}),
+            )
+        except Exception as error:  # any parse, key, shape or zip error means a corrupt library
+            raise SynthpackInputError(
+                f"particle library {directory} is corrupt or from an older synthpack "
+                f"({type(error).__name__}: {error}): {hint}"
+            ) from error
 
 
 def _meshed(crop: ParticleCrop, mesh: trimesh.Trimesh, density: float) -> Particle:

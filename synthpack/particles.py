@@ -20,7 +20,7 @@ from .scan import Scan
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Particle", "ParticleCrop", "extract_particles", "estimate_background"]
+__all__ = ["Particle", "ParticleCrop", "extract_particles", "estimate_phases"]
 
 #: Particles smaller than this many voxels are dropped by default: below it a
 #: marching-cubes surface is little more than a voxel blob.
@@ -115,8 +115,8 @@ class Particle(ParticleCrop):
         )
 
 
-def estimate_background(scan: Scan, max_samples: int = 2_000_000) -> float:
-    """Median intensity of the pore phase (label 0) of `scan`.
+def estimate_phases(scan: Scan, max_samples: int = 2_000_000) -> dict[str, float]:
+    """Intensity statistics of the pore (label 0) and grain phases of `scan`.
 
     Parameters
     ----------
@@ -128,17 +128,24 @@ def estimate_background(scan: Scan, max_samples: int = 2_000_000) -> float:
 
     Returns
     -------
-    float
-        The background intensity, in the tomogram's units. Falls back to the 1st
-        percentile of the whole tomogram when fewer than 0.1% of voxels are pores.
+    dict
+        ``pore_mean`` (the median pore intensity: the background value of the
+        clean crops), ``pore_std`` (robust standard deviation, 1.4826 x the median
+        absolute deviation) and ``grain_mean`` (median grain intensity), in the
+        tomogram's units. With fewer than 0.1% pore voxels the pore values fall
+        back to the 1st intensity percentile and 0.
     """
     stride = max(1, int(np.ceil((scan.labels.size / max_samples) ** (1.0 / 3.0))))
-    tomo = scan.tomogram[::stride, ::stride, ::stride]
+    tomo = scan.tomogram[::stride, ::stride, ::stride].astype(np.float64)
     pores = scan.labels[::stride, ::stride, ::stride] == 0
+    grain_mean = float(np.median(tomo[~pores])) if (~pores).any() else float(np.median(tomo))
     if np.count_nonzero(pores) < 0.001 * pores.size:
         logger.warning("almost no background voxels: using the 1st intensity percentile")
-        return float(np.percentile(tomo, 1))
-    return float(np.median(tomo[pores]))
+        return dict(pore_mean=float(np.percentile(tomo, 1)), pore_std=0.0, grain_mean=grain_mean)
+    values = tomo[pores]
+    median = float(np.median(values))
+    spread = 1.4826 * float(np.median(np.abs(values - median)))
+    return dict(pore_mean=median, pore_std=spread, grain_mean=grain_mean)
 
 
 def _largest_component(mask: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -170,7 +177,7 @@ def extract_particles(
         cut by the field of view; excluded by default).
     background : float, optional
         Value written outside each particle's mask in its clean crop. Default: the
-        pore intensity from :func:`estimate_background`.
+        pore intensity from :func:`estimate_phases`.
 
     Returns
     -------
@@ -181,7 +188,7 @@ def extract_particles(
     if min_voxels < 1:
         raise SynthpackInputError(f"min_voxels must be at least 1, got {min_voxels}")
     if background is None:
-        background = estimate_background(scan)
+        background = estimate_phases(scan)["pore_mean"]
     labels, tomogram, shape = scan.labels, scan.tomogram, scan.shape
     boxes = ndimage.find_objects(labels)
     crops: list[ParticleCrop] = []

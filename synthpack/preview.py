@@ -103,3 +103,74 @@ def save_library_preview(
         fig.savefig(staging, dpi=90, format="png")
     plt.close(fig)
     return Path(path)
+
+
+def equivalent_diameters(labels: np.ndarray, voxel_size: tuple[float, float, float]) -> np.ndarray:
+    """Equivalent-sphere diameter of every label present, physical units, shape (N,)."""
+    counts = np.bincount(np.asarray(labels).ravel())[1:]
+    volumes = counts[counts > 0] * float(np.prod(voxel_size))
+    return (6.0 * volumes / np.pi) ** (1.0 / 3.0)
+
+
+def save_pack_preview(
+    tomogram: np.ndarray,
+    clean: np.ndarray,
+    labels: np.ndarray,
+    voxel_size: tuple[float, float, float],
+    unit: str,
+    source_diameters: np.ndarray,
+    path: str | os.PathLike,
+) -> Path:
+    """Write a PNG to check a synthetic pack by eye.
+
+    Top row: the middle z, y and x slices of the post-processed tomogram with the
+    labels overlaid. Bottom row: one slice before and after post-processing, and
+    the grain-size distribution of the source particles against the synthetic
+    pack's grains.
+
+    Parameters
+    ----------
+    tomogram, clean : ndarray, shape (Z, Y, X)
+        Post-processed and clean tomograms.
+    labels : ndarray of int, shape (Z, Y, X)
+        Instance labels.
+    voxel_size : tuple of 3 float
+        ``(dz, dy, dx)``.
+    unit : str
+        Length unit.
+    source_diameters : ndarray, shape (M,)
+        Equivalent diameters of the source particles (e.g. the library's).
+    path : path-like
+        Output PNG.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")
+    middle = np.asarray(labels.shape) // 2
+    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :]), ("x", np.s_[:, :, middle[2]])]
+    for ax, (axis, index) in zip(axes[0], views):
+        ax.imshow(label_overlay(np.asarray(tomogram[index]), np.asarray(labels[index])), origin="lower")
+        ax.set_title(f"synthetic: middle {axis} slice + labels")
+        ax.set_axis_off()
+    lo, hi = np.percentile(clean, [0.5, 99.5])
+    for ax, volume, title in ((axes[1, 0], clean, "before post-processing"),
+                              (axes[1, 1], tomogram, "after post-processing")):
+        ax.imshow(volume[middle[0]], cmap="gray", vmin=lo, vmax=hi, origin="lower")
+        ax.set_title(f"middle z slice, {title}")
+        ax.set_axis_off()
+    ax = axes[1, 2]
+    synthetic = equivalent_diameters(labels, voxel_size)
+    bins = np.linspace(0, max(source_diameters.max(), synthetic.max()) * 1.05, 25)
+    ax.hist(source_diameters, bins=bins, density=True, alpha=0.6, label=f"source particles ({len(source_diameters)})")
+    ax.hist(synthetic, bins=bins, density=True, alpha=0.6, label=f"synthetic grains ({len(synthetic)})")
+    ax.set_xlabel(f"equivalent diameter [{unit}]")
+    ax.set_ylabel("density")
+    ax.legend()
+    ax.set_title("grain-size distribution")
+    with atomic_file(path) as staging:
+        fig.savefig(staging, dpi=80, format="png")
+    plt.close(fig)
+    return Path(path)

@@ -38,6 +38,10 @@ __all__ = [
     "chunk_boxes",
 ]
 
+#: Correlation length (Gaussian sigma, voxels) of the pore texture: CT noise is not
+#: white after reconstruction and detector blur.
+_TEXTURE_SIGMA = 0.8
+
 # (x, y, z) <-> (z, y, x): the permutation matrix is its own inverse.
 _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 
@@ -103,7 +107,8 @@ class Phases:
     pore_mean, pore_std : float
         Mean and standard deviation of the pore phase of the source scan. The
         space between grains is filled with this mean plus white noise of this
-        standard deviation (the pore texture of a CT scan before blur).
+        standard deviation, correlated over about one voxel (the pore texture of
+        a CT scan).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
     """
@@ -220,16 +225,37 @@ def _hash_normal(seed: int, index: tuple[np.ndarray, np.ndarray, np.ndarray], sh
     return (np.sqrt(-2.0 * np.log1p(-u1)) * np.cos(2.0 * np.pi * u2)).astype(np.float32)
 
 
+def _pore_texture(grid: Grid, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
+    """Unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA` voxels.
+
+    White noise hashed from the global voxel index over the box plus a halo, then
+    smoothed with a fixed, truncated Gaussian kernel and cropped back: the same
+    voxel gets the same value whatever box it is rendered in.
+    """
+    radius = int(np.ceil(3 * _TEXTURE_SIGMA))
+    halo_lo, halo_hi = lo - radius, hi + radius
+    index = np.ogrid[halo_lo[0] : halo_hi[0], halo_lo[1] : halo_hi[1], halo_lo[2] : halo_hi[2]]
+    shifted = tuple(np.broadcast_arrays(*(i + radius for i in index)))  # non-negative
+    padded_shape = tuple(n + 2 * radius for n in grid.shape)
+    white = _hash_normal(seed, shifted, padded_shape)
+    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / _TEXTURE_SIGMA) ** 2)
+    taps /= np.sqrt(np.sum(taps**2))  # unit variance gain per axis, so unit in 3D
+    smooth = white
+    for axis in range(3):
+        smooth = ndimage.correlate1d(smooth, taps, axis=axis, mode="constant")
+    core = tuple(slice(radius, -radius) for _ in range(3))
+    return smooth[core].astype(np.float32)
+
+
 def _background(
     grid: Grid, lo: np.ndarray, hi: np.ndarray, phases: Phases, tube: tuple[float, float, float] | None, seed: int
 ) -> np.ndarray:
-    index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
-    full = tuple(np.broadcast_arrays(*index))
     values = np.full(tuple(hi - lo), phases.pore_mean, dtype=np.float32)
     if phases.pore_std > 0:
-        values += np.float32(phases.pore_std) * _hash_normal(seed, full, grid.shape)
+        values += np.float32(phases.pore_std) * _pore_texture(grid, lo, hi, seed)
     if tube is not None and phases.wall is not None:
         inner, outer, base = tube
+        index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
         z, y, x = (grid.origin[a] + index[a] * grid.voxel_size[a] for a in range(3))
         radius = np.sqrt(x**2 + y**2)
         in_wall = (radius <= outer) & (z >= base) & ((radius >= inner) | (z < 0))

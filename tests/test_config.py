@@ -48,3 +48,12 @@ def test_missing_or_invalid_yaml_file(tmp_path):
     bad.write_text("pour: [unclosed\n")
     with pytest.raises(SynthpackInputError, match="not valid YAML"):
         load_config(bad)
+
+
+def test_postprocess_pipeline_is_validated_when_read():
+    config = PackConfig.from_dict({"postprocess": [{"name": "gaussian_noise", "std": 0.05}]})
+    assert config.postprocess[0]["std"] == 0.05
+    with pytest.raises(SynthpackInputError, match="gaussian_nois"):
+        PackConfig.from_dict({"postprocess": [{"name": "gaussian_nois", "std": 0.05}]})
+    with pytest.raises(SynthpackInputError, match="'postprocess' is out of range"):
+        PackConfig.from_dict({"postprocess": "fancy"})

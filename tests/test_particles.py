@@ -3,7 +3,7 @@ import pytest
 from scipy import ndimage
 
 from synthpack.errors import SynthpackInputError
-from synthpack.particles import estimate_background, extract_particles
+from synthpack.particles import estimate_phases, extract_particles
 from synthpack.scan import Scan
 
 
@@ -55,8 +55,11 @@ def test_random_volume_matches_brute_force():
 
 def test_clean_crop_masks_out_neighbours_with_background(blob_scan):
     crop = next(c for c in extract_particles(blob_scan) if c.label == 2)
-    background = estimate_background(blob_scan)
+    phases = estimate_phases(blob_scan)
+    background = phases["pore_mean"]
     assert background == pytest.approx(0.2)
+    assert phases["pore_std"] == 0.0
+    assert phases["grain_mean"] == pytest.approx(0.81, abs=0.011)
     assert np.all(crop.tomogram[~crop.mask] == np.float32(background))
     assert np.allclose(crop.tomogram[crop.mask], 0.82)
 

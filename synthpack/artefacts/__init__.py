@@ -1,0 +1,63 @@
+"""CT noise and artefacts for synthetic tomograms (paper section 3.5), as composable seeded transforms.
+
+Every transform takes a volume (Z, Y, X) or a single slice (H, W) of intensities
+and returns a new float32 array of the same shape; axis 0 is the slice axis and
+the scanner's rotation axis, which passes through the centre of every slice.
+Parameters are fixed values or ``(min, max)`` ranges drawn per call, and every
+random draw comes from the generator passed at call time::
+
+    out = transform(volume, rng)              # rng: int seed, numpy Generator or None
+    out, record = transform.apply(volume, rng)  # record: list of applied configs
+
+Transforms, by config name:
+
+========================  =============================================================
+``gaussian_noise``        `GaussianNoise` (std): additive white noise
+``speckle_noise``         `SpeckleNoise` (std): ``x * (1 + n)``
+``poisson_noise``         `PoissonNoise` (photons): counting noise, variance ~ intensity
+``gaussian_blur``         `GaussianBlur` (sigma): detector / focal-spot blur
+``motion_blur``           `MotionBlur` (length, angle): in-slice line kernel
+``ring_artefacts``        `RingArtefacts` (amplitude, n_rings, width, radii)
+``beam_hardening``        `BeamHardening` (strength): radial cupping
+``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
+                          filter_name): projection, photon noise, gain errors, FBP
+``compose``               `Compose` (transforms)
+========================  =============================================================
+
+Every transform also has ``p``, the probability that it is applied at a call.
+`from_config` builds a pipeline from a list of dicts such as
+``[{"name": "gaussian_blur", "sigma": [0.5, 1.0]}, {"name": "gaussian_noise", "std": 0.05}]``
+and ``to_dict`` / ``Compose.to_config`` write it back. `default_postprocessing` is
+the default pipeline; `estimate_noise` and `matched_noise` measure a real scan's
+noise and match it.
+"""
+
+from ._base import Compose, Transform, available_transforms, from_config
+from ._param import Param
+from .blur import GaussianBlur, MotionBlur, line_kernel
+from .calibrate import estimate_noise, matched_noise, noise_to_add
+from .ct import CTSimulation
+from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
+from .presets import default_postprocessing
+from .radial import BeamHardening, RingArtefacts
+
+__all__ = [
+    "BeamHardening",
+    "CTSimulation",
+    "Compose",
+    "GaussianBlur",
+    "GaussianNoise",
+    "MotionBlur",
+    "Param",
+    "PoissonNoise",
+    "RingArtefacts",
+    "SpeckleNoise",
+    "Transform",
+    "available_transforms",
+    "default_postprocessing",
+    "estimate_noise",
+    "from_config",
+    "line_kernel",
+    "matched_noise",
+    "noise_to_add",
+]

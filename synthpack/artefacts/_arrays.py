@@ -1,0 +1,71 @@
+"""Array helpers shared by the artefacts: input checking, slabs and the slice radius."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from ..errors import SynthpackInputError
+
+__all__ = ["SLAB_VOXELS", "as_image", "radius_grid", "slabs"]
+
+#: Noise is drawn in slabs of at most this many voxels along axis 0, so the extra
+#: memory a noise transform needs is bounded whatever the volume's size.
+SLAB_VOXELS = 1 << 22
+
+
+def as_image(image: Any) -> np.ndarray:
+    """Return `image` as a float32 array (no copy when it already is one).
+
+    Parameters
+    ----------
+    image : array_like, shape (Z, Y, X) or (H, W)
+        A volume (axis 0 = slice axis = rotation axis) or a single slice.
+
+    Raises
+    ------
+    SynthpackInputError
+        If it is not 2D or 3D or does not hold real numbers.
+    """
+    array = np.asarray(image)
+    if array.ndim not in (2, 3):
+        raise SynthpackInputError(
+            f"artefacts apply to a volume (z, y, x) or a slice (y, x), got an array of shape "
+            f"{array.shape}: pass one volume or one 2D slice at a time"
+        )
+    if not np.issubdtype(array.dtype, np.number) or np.iscomplexobj(array):
+        raise SynthpackInputError(
+            f"artefacts need real-valued intensities, got dtype {array.dtype}"
+        )
+    return array.astype(np.float32, copy=False)
+
+
+def slabs(shape: tuple[int, ...], max_voxels: int = SLAB_VOXELS) -> Iterator[slice]:
+    """Yield slices of axis 0 covering `shape`, each at most about `max_voxels` voxels."""
+    per_row = max(1, math.prod(shape[1:]))
+    step = max(1, max_voxels // per_row)
+    for start in range(0, shape[0], step):
+        yield slice(start, min(start + step, shape[0]))
+
+
+def radius_grid(shape: tuple[int, ...]) -> np.ndarray:
+    """Distance (voxels) of each pixel of a slice from the slice centre.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image shape; its last two axes (Y, X) are the slice.
+
+    Returns
+    -------
+    ndarray of float32, shape (Y, X)
+        ``hypot(y - (Y-1)/2, x - (X-1)/2)``: the distance from the rotation axis,
+        which passes through the centre of every slice along axis 0.
+    """
+    ny, nx = shape[-2:]
+    y = np.arange(ny, dtype=np.float32) - (ny - 1) / 2
+    x = np.arange(nx, dtype=np.float32) - (nx - 1) / 2
+    return np.hypot(y[:, None], x[None, :])

@@ -1,0 +1,132 @@
+"""Reconstruction artefacts centred on the rotation axis: rings and beam-hardening cupping.
+
+The rotation axis of the scan is axis 0 (z) and passes through the centre of every
+slice, ``((Y-1)/2, (X-1)/2)``; both artefacts are functions of the distance ``r``
+(voxels) from it only, and are the same in every slice (constant along z), as
+they are in a real scan. A 2D input is treated as one slice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._arrays import radius_grid
+from ._base import Transform
+from ._param import IntRange, Param, Range
+
+__all__ = ["BeamHardening", "RingArtefacts"]
+
+_FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+
+
+def _ring_pattern(
+    shape: tuple[int, ...], radii: np.ndarray, amplitudes: np.ndarray, width: float
+) -> np.ndarray:
+    """Sum of Gaussian ring profiles ``a_k exp(-(r - r_k)^2 / 2 s^2)`` on one slice.
+
+    The radial profile is tabulated every 1/8 voxel and interpolated at each
+    pixel's radius, so the cost is one pass over the slice whatever the number of
+    rings. Returns float32, shape (Y, X).
+    """
+    r = radius_grid(shape)
+    table_r = np.arange(0.0, float(r.max()) + 1.0, 0.125)
+    sigma = width * _FWHM_TO_SIGMA
+    profile = (amplitudes[:, None] * np.exp(-0.5 * ((table_r[None, :] - radii[:, None]) / sigma) ** 2)).sum(0)
+    return np.interp(r, table_r, profile).astype(np.float32)
+
+
+class RingArtefacts(Transform):
+    """Concentric rings about the rotation axis, constant along z.
+
+    A detector pixel whose response is slightly off shifts every projection ray
+    it records by the same amount; filtered back-projection turns that into a
+    ring at the pixel's distance from the axis. Here each ring is an additive
+    Gaussian profile in ``r`` of full width at half maximum `width`, its
+    amplitude ``sign * amplitude * U(0.5, 1)`` with a random sign (brighter or
+    darker ring), at a radius drawn uniformly in ``[0, min(Y, X) / 2]`` (the
+    field of view) unless `radii` fixes them.
+
+    Parameters
+    ----------
+    amplitude : float or (float, float)
+        Largest ring amplitude, in intensity units (>= 0). Default 0.02.
+    n_rings : int or (int, int)
+        Number of rings (>= 0), used when `radii` is None. Default (3, 10).
+    width : float or (float, float)
+        Ring FWHM in voxels (> 0). Default 1.5.
+    radii : list of float or None
+        Fixed ring radii in voxels; overrides `n_rings`. Default None.
+    p : float
+        Probability of applying the transform at a call. Default 1.
+    """
+
+    name = "ring_artefacts"
+    params = (
+        Param("amplitude", minimum=0.0),
+        Param("n_rings", kind="int", minimum=0),
+        Param("width", minimum=0.0, exclusive_minimum=True),
+        Param("radii", kind="floats", minimum=0.0, optional=True, rangeable=False),
+    )
+
+    def __init__(
+        self,
+        amplitude: Range = 0.02,
+        n_rings: IntRange = (3, 10),
+        width: Range = 1.5,
+        radii: Sequence[float] | None = None,
+        *,
+        p: float = 1.0,
+    ) -> None:
+        super().__init__(amplitude=amplitude, n_rings=n_rings, width=width, radii=radii, p=p)
+
+    def _transform(
+        self,
+        image: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        amplitude: float,
+        n_rings: int,
+        width: float,
+        radii: tuple[float, ...] | None,
+    ) -> np.ndarray:
+        if radii is None:
+            ring_radii = rng.uniform(0.0, min(image.shape[-2:]) / 2.0, size=n_rings)
+        else:
+            ring_radii = np.asarray(radii, dtype=np.float64)
+        signs = rng.choice([-1.0, 1.0], size=ring_radii.size)
+        amplitudes = amplitude * signs * rng.uniform(0.5, 1.0, size=ring_radii.size)
+        pattern = _ring_pattern(image.shape, ring_radii, amplitudes, width)
+        return image + pattern
+
+
+class BeamHardening(Transform):
+    """Cupping: intensities fall off towards the centre of each slice.
+
+    A polychromatic beam hardens (loses its soft photons) along long paths, so
+    rays through the middle of the sample look less attenuating and the
+    reconstruction is darker in the centre. Modelled as the radial factor
+    ``out = image * (1 - strength * max(1 - (r / R)^2, 0))`` with ``R = min(Y, X) / 2``
+    (the field of view): the centre is scaled by ``1 - strength``, the rim of the
+    field of view and everything outside it is unchanged.
+
+    Parameters
+    ----------
+    strength : float or (float, float)
+        Relative darkening of the centre, in [0, 1]. Default 0.05.
+    p : float
+        Probability of applying the transform at a call. Default 1.
+    """
+
+    name = "beam_hardening"
+    params = (Param("strength", minimum=0.0, maximum=1.0),)
+
+    def __init__(self, strength: Range = 0.05, *, p: float = 1.0) -> None:
+        super().__init__(strength=strength, p=p)
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float) -> np.ndarray:
+        r = radius_grid(image.shape)
+        radius = min(image.shape[-2:]) / 2.0
+        factor = 1.0 - np.float32(strength) * np.clip(1.0 - (r / np.float32(radius)) ** 2, 0.0, 1.0)
+        return image * factor.astype(np.float32)
