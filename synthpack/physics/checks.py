@@ -1,0 +1,303 @@
+"""Quality checks of a finished pour, computed from the placed meshes (engine-independent).
+
+* **Grains outside the tube**: a grain is outside if any of its vertices lies more
+  than `tolerance` beyond the inner wall (radially) or below the floor. Must be 0.
+  Grains reaching above the rim are counted separately (the tube was overfilled).
+* **Wall penetration**: the largest distance any vertex reaches into the wall or
+  floor (exact for the meshes: the tube is analytic).
+* **Grain-grain penetration**: the largest penetration depth between the CONVEX
+  HULLS of the placed meshes (full hulls, not the simplified collision hulls),
+  from pybullet's GJK/EPA contact query at the final poses (with a tiny margin,
+  taken off again). For
+  convex grains this is the true depth; for concave grains it is an upper bound.
+* **Overlap fraction**: the fraction of the solid Monte-Carlo sample points (below)
+  that lie inside two or more grains' meshes: a mesh-exact measure of overlap.
+* **Packing fraction of the bulk**: the solid volume fraction inside a sub-cylinder
+  one median grain diameter away from the wall and the floor and two diameters
+  below the pack's top (the highest grain point), estimated by sampling
+  `n_samples` uniform random points in it and testing each against every nearby
+  grain's convex hull (a cheap half-space test) and, if inside it, against the
+  grain's mesh with the generalized winding number (robust for watertight
+  meshes; standard error about ``sqrt(f (1 - f) / n_samples)``, ~0.004 at 20,000).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial.transform import Rotation
+
+from .container import Tube
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["PourChecks", "compute_checks", "winding_number"]
+
+# Collision margin (in grain diameters) of the penetration query; subtracted twice
+# from the reported depth. Bullet's EPA is wrong with a zero margin (measured: two
+# cubes overlapping by 0.3 gave 0.173 = 0.3 / sqrt(3)), exact with a small one.
+_QUERY_MARGIN = 1e-3
+
+
+@dataclass
+class PourChecks:
+    """Checks of one pour; lengths in physical units, and in voxels where named so.
+
+    Attributes
+    ----------
+    n_outside : int
+        Grains reaching more than `tolerance` into the wall or floor (must be 0).
+    n_above_rim : int
+        Grains reaching above the tube's rim.
+    tolerance : float
+        Tolerance used for `n_outside`, physical units.
+    max_wall_penetration, max_wall_penetration_voxels : float
+        Deepest reach of a grain into the wall or floor (0 if none).
+    max_grain_penetration, max_grain_penetration_voxels : float
+        Largest penetration depth between two grains' convex hulls (0 if none).
+    overlap_fraction : float
+        Fraction of solid sample points inside two or more grains.
+    packing_fraction : float
+        Solid fraction of the bulk region (NaN if the pack is too shallow for one).
+    packing_region : dict
+        ``radius``, ``z_min``, ``z_max`` of the bulk sub-cylinder, ``n_samples``.
+    fill_height : float
+        Highest point of any grain (the pack top).
+    steps_per_batch : list of int
+        Engine steps per batch.
+    settled_per_batch : list of bool
+        Whether each batch met the settle criteria (False: hit the step cap).
+    seconds : float
+        Wall-clock time of the engine run.
+    """
+
+    n_outside: int
+    n_above_rim: int
+    tolerance: float
+    max_wall_penetration: float
+    max_wall_penetration_voxels: float
+    max_grain_penetration: float
+    max_grain_penetration_voxels: float
+    overlap_fraction: float
+    packing_fraction: float
+    packing_region: dict[str, float]
+    fill_height: float
+    steps_per_batch: list[int] = field(default_factory=list)
+    settled_per_batch: list[bool] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dictionary (NaN becomes None)."""
+        data = asdict(self)
+        return {k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in data.items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PourChecks:
+        """Inverse of :meth:`to_dict`."""
+        values = dict(data)
+        if values.get("packing_fraction") is None:
+            values["packing_fraction"] = float("nan")
+        return cls(**values)
+
+    def summary(self) -> str:
+        """One line for logs."""
+        return (
+            f"outside={self.n_outside} above_rim={self.n_above_rim} "
+            f"packing={self.packing_fraction:.3f} "
+            f"max_penetration grain={self.max_grain_penetration_voxels:.2f} vx "
+            f"wall={self.max_wall_penetration_voxels:.2f} vx overlap={self.overlap_fraction:.4f} "
+            f"steps={sum(self.steps_per_batch)} unsettled={self.settled_per_batch.count(False)}"
+        )
+
+
+def compute_checks(
+    meshes: Sequence[tuple[np.ndarray, np.ndarray]],
+    indices: np.ndarray,
+    positions: np.ndarray,
+    quaternions: np.ndarray,
+    scales: np.ndarray,
+    tube: Tube,
+    *,
+    voxel_size: float,
+    length_scale: float,
+    steps_per_batch: Sequence[int] = (),
+    settled_per_batch: Sequence[bool] = (),
+    seconds: float = 0.0,
+    n_samples: int = 20_000,
+    seed: int = 0,
+) -> PourChecks:
+    """Check a pour's final state.
+
+    Parameters
+    ----------
+    meshes : sequence of (vertices (V, 3) float, faces (F, 3) int)
+        Local-frame meshes of the library, physical units, indexed by `indices`.
+    indices : numpy.ndarray
+        (N,) library index of each placed grain.
+    positions : numpy.ndarray
+        (N, 3) world position of each grain's local origin, physical units.
+    quaternions : numpy.ndarray
+        (N, 4) unit quaternions (w, x, y, z), local -> world.
+    scales : numpy.ndarray
+        (N,) scale factors.
+    tube : Tube
+        The container, physical units.
+    voxel_size : float
+        Length of one voxel, physical units: penetrations are also given in voxels
+        and `n_outside` tolerates half a voxel.
+    length_scale : float
+        A typical grain diameter, physical units: sets the bulk region's margins.
+    steps_per_batch, settled_per_batch, seconds
+        Engine statistics, stored as given.
+    n_samples : int
+        Monte-Carlo points for the packing and overlap fractions.
+    seed : int
+        Seed of the sample points.
+
+    Returns
+    -------
+    PourChecks
+    """
+    rotations = Rotation.from_quat(np.asarray(quaternions), scalar_first=True)
+    world = [
+        rotations[k].apply(meshes[i][0] * scales[k]) + positions[k] for k, i in enumerate(indices)
+    ]
+    tolerance = 0.5 * voxel_size
+    radial_excess = np.array([np.hypot(w[:, 0], w[:, 1]).max() - tube.inner_radius for w in world])
+    below_floor = np.array([-w[:, 2].min() for w in world])
+    tops = np.array([w[:, 2].max() for w in world])
+    n_outside = int(np.count_nonzero((radial_excess > tolerance) | (below_floor > tolerance)))
+    wall_pen = float(max(0.0, radial_excess.max(), below_floor.max()))
+    fill = float(tops.max())
+    grain_pen = _max_hull_penetration(world, length_scale)
+    packing, overlap, region = _packing(
+        meshes, indices, positions, rotations, scales, world, tube, fill, length_scale,
+        n_samples, seed,
+    )
+    checks = PourChecks(
+        n_outside=n_outside,
+        n_above_rim=int(np.count_nonzero(tops > tube.height)),
+        tolerance=tolerance,
+        max_wall_penetration=wall_pen,
+        max_wall_penetration_voxels=wall_pen / voxel_size,
+        max_grain_penetration=grain_pen,
+        max_grain_penetration_voxels=grain_pen / voxel_size,
+        overlap_fraction=overlap,
+        packing_fraction=packing,
+        packing_region=region,
+        fill_height=fill,
+        steps_per_batch=[int(s) for s in steps_per_batch],
+        settled_per_batch=[bool(s) for s in settled_per_batch],
+        seconds=float(seconds),
+    )
+    logger.info("Pour checks: %s", checks.summary())
+    if checks.n_outside:
+        logger.warning("%d grains ended outside the tube.", checks.n_outside)
+    if checks.n_above_rim:
+        logger.warning("%d grains reach above the tube's rim: use a taller tube.",
+                       checks.n_above_rim)
+    return checks
+
+
+def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Generalized winding number of a closed triangle mesh at `points`.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (M, 3) query points.
+    vertices, faces : numpy.ndarray
+        (V, 3) float and (F, 3) int triangle mesh with outward normals.
+
+    Returns
+    -------
+    numpy.ndarray
+        (M,) float: ~1 inside a watertight mesh, ~0 outside (Van Oosterom-Strackee
+        solid angles summed over triangles, divided by 4 pi).
+    """
+    out = np.empty(len(points))
+    tri = vertices[faces]  # (F, 3, 3)
+    chunk = max(1, 200_000 // max(len(faces), 1))
+    for start in range(0, len(points), chunk):
+        d = tri[None, :, :, :] - points[start:start + chunk, None, None, :]  # (m, F, 3, 3)
+        a, b, c = d[:, :, 0], d[:, :, 1], d[:, :, 2]
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        det = np.einsum("mfi,mfi->mf", a, np.cross(b, c))
+        div = (la * lb * lc + np.einsum("mfi,mfi->mf", a, b) * lc
+               + np.einsum("mfi,mfi->mf", a, c) * lb + np.einsum("mfi,mfi->mf", b, c) * la)
+        out[start:start + chunk] = np.arctan2(det, div).sum(axis=1) / (2 * np.pi)
+    return out
+
+
+def _max_hull_penetration(world: list[np.ndarray], length_scale: float) -> float:
+    """Largest penetration depth between the convex hulls of the placed grains."""
+    from ._bullet import connect
+    from ._bullet import pybullet as p
+
+    client = connect()
+    try:
+        for vertices in world:
+            hull = vertices[ConvexHull(vertices).vertices] / length_scale
+            shape = p.createCollisionShape(p.GEOM_MESH, vertices=hull.tolist(),
+                                           physicsClientId=client)
+            body = p.createMultiBody(1.0, shape, useMaximalCoordinates=True, physicsClientId=client)
+            p.changeDynamics(body, -1, collisionMargin=_QUERY_MARGIN, physicsClientId=client)
+        p.performCollisionDetection(physicsClientId=client)
+        contacts = p.getContactPoints(physicsClientId=client)
+        depth = max((-c[8] - 2 * _QUERY_MARGIN for c in contacts), default=0.0)
+    finally:
+        p.disconnect(physicsClientId=client)
+    return max(depth, 0.0) * length_scale
+
+
+def _packing(
+    meshes: Sequence[tuple[np.ndarray, np.ndarray]],
+    indices: np.ndarray,
+    positions: np.ndarray,
+    rotations: Rotation,
+    scales: np.ndarray,
+    world: list[np.ndarray],
+    tube: Tube,
+    fill: float,
+    margin: float,
+    n_samples: int,
+    seed: int,
+) -> tuple[float, float, dict[str, float]]:
+    """(packing fraction of the bulk, overlap fraction, region) by Monte-Carlo sampling."""
+    radius, z_min, z_max = tube.inner_radius - margin, margin, fill - 2 * margin
+    region = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
+    if radius <= 0 or z_max <= z_min:
+        logger.info("The pack is too shallow or narrow for a bulk region: no packing fraction.")
+        return float("nan"), 0.0, region
+    rng = np.random.default_rng(seed)
+    rho = radius * np.sqrt(rng.uniform(0, 1, n_samples))
+    angle = rng.uniform(0, 2 * np.pi, n_samples)
+    points = np.column_stack([rho * np.cos(angle), rho * np.sin(angle),
+                              rng.uniform(z_min, z_max, n_samples)])
+    tree = cKDTree(points)
+    hits = np.zeros(n_samples, dtype=np.int32)
+    hulls: dict[int, np.ndarray] = {}
+    for k, i in enumerate(indices):
+        lo, hi = world[k].min(axis=0), world[k].max(axis=0)
+        if hi[2] < z_min or lo[2] > z_max:
+            continue
+        centre = (lo + hi) / 2
+        near = tree.query_ball_point(centre, np.linalg.norm(hi - lo) / 2)
+        near = np.asarray(near, dtype=np.int64)
+        if near.size == 0:
+            continue
+        local = rotations[k].inv().apply(points[near] - positions[k]) / scales[k]
+        vertices, faces = meshes[i]
+        if i not in hulls:
+            hulls[i] = ConvexHull(vertices).equations
+        in_hull = (local @ hulls[i][:, :3].T + hulls[i][:, 3]).max(axis=1) <= 0
+        near, local = near[in_hull], local[in_hull]
+        inside = winding_number(local, vertices, faces) > 0.5
+        hits[near[inside]] += 1
+    solid = int(np.count_nonzero(hits))
+    overlap = float(np.count_nonzero(hits > 1) / solid) if solid else 0.0
+    return solid / n_samples, overlap, region

@@ -1,0 +1,204 @@
+"""The container grains are poured into: a closed-bottom cylindrical tube."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import trimesh
+
+from ..errors import SynthpackInputError
+from .engine import TubeSpec
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Tube", "DEFAULT_PACKING_FRACTION"]
+
+#: Packing fraction assumed when sizing a tube for a number of grains: a loose
+#: random packing of angular grains poured under gravity.
+DEFAULT_PACKING_FRACTION = 0.55
+
+
+class _LibraryLike(Protocol):
+    """What :meth:`Tube.for_library` needs from a particle library."""
+
+    voxel_size: tuple[float, float, float]
+    source_shape: tuple[int, int, int]
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Tube:
+    """A static, closed-bottom cylindrical tube in physical units.
+
+    The tube's axis is the world z axis through ``x = y = 0``; the inner floor is at
+    ``z = 0`` and the wall rises to ``z = height``. The wall occupies
+    ``inner_radius <= sqrt(x**2 + y**2) <= inner_radius + wall_thickness`` and the base
+    ``-base_thickness <= z <= 0``. Grains fall inside it (it is concave).
+
+    Parameters
+    ----------
+    inner_radius : float
+        Inner radius of the wall, physical units (the library's ``unit``).
+    height : float
+        Height of the wall above the inner floor, physical units.
+    wall_thickness : float
+        Radial thickness of the wall, physical units.
+    base_thickness : float
+        Thickness of the floor, physical units.
+
+    Raises
+    ------
+    SynthpackInputError
+        If a dimension is not a finite positive number.
+    """
+
+    inner_radius: float
+    height: float
+    wall_thickness: float
+    base_thickness: float
+
+    def __post_init__(self) -> None:
+        for name in ("inner_radius", "height", "wall_thickness", "base_thickness"):
+            value = getattr(self, name)
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                number = math.nan
+            if not math.isfinite(number) or number <= 0:
+                raise SynthpackInputError(
+                    f"Tube {name} must be a finite positive length, got {value!r}; "
+                    "give it in the library's physical unit."
+                )
+            object.__setattr__(self, name, number)
+
+    @property
+    def outer_radius(self) -> float:
+        """Outer radius of the wall, physical units."""
+        return self.inner_radius + self.wall_thickness
+
+    @classmethod
+    def for_library(
+        cls,
+        library: _LibraryLike,
+        n_particles: int,
+        *,
+        scale: float = 1.0,
+        packing_fraction: float = DEFAULT_PACKING_FRACTION,
+        headroom: float = 1.3,
+        inner_radius: float | None = None,
+        height: float | None = None,
+    ) -> Tube:
+        """Size a tube for pouring `n_particles` grains of `library`.
+
+        The inner radius is half the source scan's smaller lateral extent
+        (``source_shape[1:] * voxel_size[1:]``) minus the wall and two voxels, so a
+        reconstruction on the source's lateral grid holds the whole tube. Wall and
+        base are three voxels thick. The height holds the expected fill height
+        (``n_particles`` grains of the library's mean volume times ``scale**3`` at
+        `packing_fraction`) times `headroom`, plus four of the largest grains.
+
+        Parameters
+        ----------
+        library : ParticleLibrary
+            Needs ``voxel_size`` (dz, dy, dx), ``source_shape`` (Z, Y, X) and particles
+            with ``volume`` and ``equivalent_diameter``.
+        n_particles : int
+            Number of grains to pour.
+        scale : float
+            Largest scale factor the grains will get.
+        packing_fraction : float
+            Expected solid fraction of the pack, in (0, 1).
+        headroom : float
+            Factor (>= 1) on the expected fill height.
+        inner_radius : float, optional
+            Use this inner radius (physical units) instead; the height is then sized
+            for it.
+        height : float, optional
+            Use this height (physical units) instead.
+
+        Returns
+        -------
+        Tube
+        """
+        voxel = float(min(library.voxel_size))
+        lateral = min(
+            library.source_shape[1] * library.voxel_size[1],
+            library.source_shape[2] * library.voxel_size[2],
+        )
+        wall = 3.0 * voxel
+        if inner_radius is None:
+            radius = lateral / 2.0 - wall - 2.0 * voxel
+            if radius <= 0:
+                raise SynthpackInputError(
+                    f"The source scan's lateral extent ({lateral:g}) is too small to size a "
+                    "tube; give the inner radius explicitly."
+                )
+        else:
+            radius = cls(inner_radius, 1.0, wall, wall).inner_radius  # validates it
+        volumes = np.array([library[i].volume for i in range(len(library))], dtype=float)
+        diameters = np.array([library[i].equivalent_diameter for i in range(len(library))])
+        solid = n_particles * float(volumes.mean()) * scale**3
+        fill = solid / (packing_fraction * math.pi * radius**2)
+        if height is None:
+            height = fill * headroom + 4.0 * float(diameters.max()) * scale
+        tube = cls(inner_radius=radius, height=height, wall_thickness=wall, base_thickness=wall)
+        logger.info(
+            "Tube for %d grains: inner radius %.4g, height %.4g (expected fill %.4g)",
+            n_particles, radius, height, fill,
+        )
+        return tube
+
+    def spec(self, length_scale: float) -> TubeSpec:
+        """The tube in simulation units (lengths divided by `length_scale`)."""
+        return TubeSpec(
+            inner_radius=self.inner_radius / length_scale,
+            height=self.height / length_scale,
+            wall_thickness=self.wall_thickness / length_scale,
+            base_thickness=self.base_thickness / length_scale,
+        )
+
+    def mesh(self, sections: int = 64) -> trimesh.Trimesh:
+        """Watertight surface of the wall and base, physical units.
+
+        Parameters
+        ----------
+        sections : int
+            Number of segments around the circumference.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            The solid tube (wall + base) as one closed mesh with outward normals,
+            made by revolving its (r, z) profile about the z axis.
+        """
+        r, big_r = self.inner_radius, self.outer_radius
+        profile = np.array(
+            [
+                [0.0, -self.base_thickness],
+                [big_r, -self.base_thickness],
+                [big_r, self.height],
+                [r, self.height],
+                [r, 0.0],
+                [0.0, 0.0],
+            ]
+        )
+        mesh = trimesh.creation.revolve(profile, sections=sections)
+        if mesh.volume < 0:
+            mesh.invert()
+        return mesh
+
+    def to_dict(self) -> dict[str, float]:
+        """JSON-able dictionary of the four dimensions."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Tube:
+        """Inverse of :meth:`to_dict`."""
+        names = ("inner_radius", "height", "wall_thickness", "base_thickness")
+        return cls(**{k: data[k] for k in names})

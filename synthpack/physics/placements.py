@@ -1,0 +1,230 @@
+"""The result of a pour: where every grain ended up, plus how it got there."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .._atomic import atomic_file
+from ..errors import SynthpackInputError
+from .checks import PourChecks
+from .container import Tube
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Placements", "FORMAT_VERSION"]
+
+#: Version of the JSON layout written by :meth:`Placements.save`.
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Placements:
+    """Final poses of the poured grains (paper section 3.3's simulation result).
+
+    Positions are in physical units (the library's ``unit``) in the world frame
+    (x, y, z; z up the tube axis, inner floor at z = 0) and locate each grain's
+    particle-LOCAL ORIGIN (the centre of its crop box). Rotations map local to world
+    coordinates; the grain's mesh is scaled by ``scales`` about its local origin
+    before it is rotated.
+
+    Attributes
+    ----------
+    indices : numpy.ndarray
+        (N,) int64 library index of each grain.
+    positions : numpy.ndarray
+        (N, 3) float64 world position of each grain's local origin.
+    quaternions : numpy.ndarray
+        (N, 4) float64 unit quaternions (w, x, y, z), local -> world, with w >= 0.
+    scales : numpy.ndarray
+        (N,) float64 scale factors.
+    batches : numpy.ndarray
+        (N,) int64 batch number of each grain.
+    tube : Tube
+        The container, physical units.
+    unit : str
+        Physical length unit.
+    voxel_size : tuple of 3 float
+        (dz, dy, dx) of the library's source scan (the default reconstruction grid).
+    seed : int
+        Seed of the pour.
+    engine : str
+        Engine that ran it (``"pybullet"`` or ``"blender"``).
+    parameters : dict
+        The pour's parameters (JSON-able): n_particles, batch_size, scale,
+        size_classes, material, settle, length_scale, engine options.
+    checks : PourChecks
+        Quality checks and engine statistics.
+    snapshots : list of (numpy.ndarray, numpy.ndarray) or None
+        Diagnostic, only when asked for and NOT saved: per batch k, positions (n_k, 3)
+        and quaternions (n_k, 4) of the grains of batches 0..k right after batch k
+        was locked.
+    """
+
+    indices: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+    scales: np.ndarray
+    batches: np.ndarray
+    tube: Tube
+    unit: str
+    voxel_size: tuple[float, float, float]
+    seed: int
+    engine: str
+    parameters: dict[str, Any]
+    checks: PourChecks
+    snapshots: list[tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        self.indices = np.asarray(self.indices, dtype=np.int64).reshape(-1)
+        n = len(self.indices)
+        self.positions = np.asarray(self.positions, dtype=np.float64).reshape(n, 3)
+        quaternions = np.asarray(self.quaternions, dtype=np.float64).reshape(n, 4)
+        self.quaternions = quaternions * np.where(quaternions[:, :1] < 0, -1.0, 1.0)
+        self.scales = np.asarray(self.scales, dtype=np.float64).reshape(n)
+        self.batches = np.asarray(self.batches, dtype=np.int64).reshape(n)
+        self.voxel_size = tuple(float(v) for v in self.voxel_size)  # type: ignore[assignment]
+
+    def __len__(self) -> int:
+        return int(self.indices.shape[0])
+
+    def __repr__(self) -> str:
+        return (
+            f"Placements(n={len(self)}, batches={int(self.batches.max()) + 1 if len(self) else 0}, "
+            f"engine={self.engine!r}, seed={self.seed}, unit={self.unit!r}, "
+            f"packing={self.checks.packing_fraction:.3f})"
+        )
+
+    def rotations(self) -> Rotation:
+        """The rotations as one :class:`scipy.spatial.transform.Rotation` of length N."""
+        return Rotation.from_quat(self.quaternions, scalar_first=True)
+
+    def rotation_matrices(self) -> np.ndarray:
+        """(N, 3, 3) float64 rotation matrices R (local -> world: ``x_world = R @ x_local``)."""
+        return self.rotations().as_matrix()
+
+    def euler_angles(self) -> np.ndarray:
+        """(N, 3) float64 angles ``(theta, phi, psi)`` in radians (paper eq. 2-4).
+
+        ``R = Rz(psi) @ Ry(phi) @ Rx(theta)``: rotations about the FIXED x, then y,
+        then z axes (scipy's extrinsic ``"xyz"`` sequence). theta, psi in (-pi, pi],
+        phi in [-pi/2, pi/2].
+        """
+        return self.rotations().as_euler("xyz")
+
+    def voxel_positions(
+        self,
+        voxel_size: Sequence[float] | None = None,
+        origin: Sequence[float] | None = None,
+    ) -> np.ndarray:
+        """Positions of the local origins as fractional voxel indices of a grid.
+
+        Parameters
+        ----------
+        voxel_size : (dz, dy, dx), optional
+            The grid's voxel size, physical units; default the library's.
+        origin : (x, y, z), optional
+            World position (physical units) of the CENTRE of voxel (0, 0, 0); default
+            ``(-R, -R, -base)`` with ``R`` the tube's outer radius, i.e. a grid whose
+            corner is the corner of the tube's bounding box.
+
+        Returns
+        -------
+        numpy.ndarray
+            (N, 3) float64 indices ``(k, j, i)`` along array axes (z, y, x).
+        """
+        dz, dy, dx = (float(v) for v in (voxel_size if voxel_size is not None else self.voxel_size))
+        if origin is None:
+            big_r = self.tube.outer_radius
+            origin = (-big_r, -big_r, -self.tube.base_thickness)
+        ox, oy, oz = (float(v) for v in origin)
+        x, y, z = self.positions.T
+        return np.column_stack([(z - oz) / dz, (y - oy) / dy, (x - ox) / dx])
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dictionary (without `snapshots`)."""
+        return {
+            "format": "synthpack.placements",
+            "version": FORMAT_VERSION,
+            "unit": self.unit,
+            "voxel_size": list(self.voxel_size),
+            "seed": self.seed,
+            "engine": self.engine,
+            "tube": self.tube.to_dict(),
+            "parameters": self.parameters,
+            "checks": self.checks.to_dict(),
+            "indices": self.indices.tolist(),
+            "positions": self.positions.tolist(),
+            "quaternions": self.quaternions.tolist(),
+            "scales": self.scales.tolist(),
+            "batches": self.batches.tolist(),
+        }
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the placements as JSON, atomically (temporary name, then rename).
+
+        Returns
+        -------
+        pathlib.Path
+            The written file.
+        """
+        final = Path(path)
+        with atomic_file(final) as staging:
+            staging.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
+        logger.info("Saved %d placements to %s", len(self), final)
+        return final
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Placements:
+        """Read placements written by :meth:`save`.
+
+        Raises
+        ------
+        SynthpackInputError
+            If the file is missing, not JSON, or not a placements file of a known
+            version.
+        """
+        source = Path(path)
+        try:
+            data = json.loads(source.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise SynthpackInputError(
+                f"No placements file at {source}; run `synthpack pour` to make one."
+            ) from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise SynthpackInputError(
+                f"Cannot read placements file {source} ({error}); it is corrupt: pour again."
+            ) from None
+        if not isinstance(data, dict) or data.get("format") != "synthpack.placements":
+            raise SynthpackInputError(f"{source} is not a synthpack placements file.")
+        if data.get("version") != FORMAT_VERSION:
+            raise SynthpackInputError(
+                f"{source} has placements format version {data.get('version')!r}; this "
+                f"synthpack reads version {FORMAT_VERSION}: pour again."
+            )
+        try:
+            return cls(
+                indices=data["indices"],
+                positions=data["positions"],
+                quaternions=data["quaternions"],
+                scales=data["scales"],
+                batches=data["batches"],
+                tube=Tube.from_dict(data["tube"]),
+                unit=str(data["unit"]),
+                voxel_size=data["voxel_size"],
+                seed=int(data["seed"]),
+                engine=str(data["engine"]),
+                parameters=dict(data["parameters"]),
+                checks=PourChecks.from_dict(data["checks"]),
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise SynthpackInputError(
+                f"Placements file {source} is incomplete or corrupt ({error!r}): pour again."
+            ) from None

@@ -1,0 +1,312 @@
+"""Pouring: plan, engine (pybullet, real simulation), locking, checks, placements I/O."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from synthpack.errors import SynthpackInputError
+from synthpack.physics import Material, Placements, SettleCriteria, Tube, pour
+from synthpack.physics.checks import compute_checks, winding_number
+from synthpack.physics.plan import make_plan
+
+TOLERANCE_VOXELS = 0.5  # largest interpenetration accepted, grain-grain and grain-tube
+
+
+@pytest.fixture(scope="module")
+def narrow_tube(large_library) -> Tube:
+    """A tube about 3.6 median grain diameters wide, so 45 grains make a deep pack."""
+    d = float(np.median(large_library.equivalent_diameters))
+    return Tube(inner_radius=1.8 * d, height=12 * d, wall_thickness=30.0, base_thickness=30.0)
+
+
+@pytest.fixture(scope="module")
+def poured(large_library, narrow_tube) -> Placements:
+    """45 real grains in 3 batches, with per-batch snapshots."""
+    return pour(
+        large_library, 45, 15, seed=3, container=narrow_tube, progress=False,
+        engine_options={"record_snapshots": True},
+    )
+
+
+def _world_vertices(library, placements: Placements) -> list[np.ndarray]:
+    rotations = placements.rotation_matrices()
+    return [
+        (library[i].mesh.vertices * s) @ r.T + t
+        for i, s, r, t in zip(
+            placements.indices, placements.scales, rotations, placements.positions
+        )
+    ]
+
+
+def test_every_grain_rests_inside_the_tube_below_the_fill_height(large_library, poured):
+    tube, voxel = poured.tube, min(large_library.voxel_size)
+    checks = poured.checks
+    assert len(poured) == 45 and poured.batches.tolist() == [0] * 15 + [1] * 15 + [2] * 15
+    assert all(checks.settled_per_batch) and len(checks.steps_per_batch) == 3
+    assert max(checks.steps_per_batch) < 4000  # settled, not capped
+    world = _world_vertices(large_library, poured)
+    radial = max(np.hypot(w[:, 0], w[:, 1]).max() for w in world)
+    lowest = min(w[:, 2].min() for w in world)
+    top = max(w[:, 2].max() for w in world)
+    assert radial <= tube.inner_radius + TOLERANCE_VOXELS * voxel
+    assert lowest >= -TOLERANCE_VOXELS * voxel
+    assert top == pytest.approx(checks.fill_height) and top < tube.height
+    assert checks.n_outside == 0 and checks.n_above_rim == 0
+    # the grains fell: the pack is far below the spawn heights, about 4-6 diameters deep
+    d = np.median(large_library.equivalent_diameters)
+    assert 3 * d < top < 7 * d
+
+
+def test_no_two_grains_interpenetrate(poured):
+    checks = poured.checks
+    assert checks.max_grain_penetration_voxels < TOLERANCE_VOXELS
+    assert checks.max_wall_penetration_voxels < TOLERANCE_VOXELS
+    assert checks.overlap_fraction < 0.01
+    # a plausible random loose-to-dense packing of angular grains
+    assert 0.45 < checks.packing_fraction < 0.68
+
+
+def test_locked_batches_never_move_again(poured):
+    snapshots = poured.snapshots
+    assert [len(pos) for pos, _ in snapshots] == [15, 30, 45]
+    for pos, quat in snapshots[:-1]:
+        n = len(pos)
+        np.testing.assert_array_equal(poured.positions[:n], pos)
+        np.testing.assert_array_equal(poured.quaternions[:n], quat)
+    # ... while the grains of the next batch did move after they spawned
+    first, _ = snapshots[0]
+    assert not np.allclose(snapshots[1][0][15:], first[:15])
+
+
+def test_same_seed_same_pack_other_seed_other_pack(large_library, narrow_tube):
+    def run(seed):
+        return pour(large_library, 16, 8, seed=seed, container=narrow_tube, progress=False)
+
+    a, b, c = run(11), run(11), run(12)
+    for name in ("indices", "positions", "quaternions", "scales", "batches"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.checks.steps_per_batch == b.checks.steps_per_batch
+    assert not np.array_equal(a.indices, c.indices)
+    assert not np.allclose(a.positions, c.positions)
+
+
+def _rx(t):
+    return np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+
+
+def _ry(t):
+    return np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+
+
+def _rz(t):
+    return np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+
+
+def test_euler_angles_and_quaternions_describe_the_same_rotation(poured):
+    matrices = poured.rotation_matrices()
+    angles = poured.euler_angles()
+    for (theta, phi, psi), m, q in zip(angles, matrices, poured.quaternions):
+        # paper eq. 2-4: R = Rz(psi) Ry(phi) Rx(theta)
+        np.testing.assert_allclose(_rz(psi) @ _ry(phi) @ _rx(theta), m, atol=1e-10)
+        w, x, y, z = q
+        from_quat = np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])
+        np.testing.assert_allclose(from_quat, m, atol=1e-10)
+    assert np.all(poured.quaternions[:, 0] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(poured.quaternions, axis=1), 1.0, atol=1e-12)
+    assert np.all(np.abs(angles[:, 1]) <= np.pi / 2 + 1e-12)
+
+
+def test_save_load_round_trip(poured, tmp_path):
+    path = poured.save(tmp_path / "out" / "placements.json")
+    loaded = Placements.load(path)
+    assert [p.name for p in path.parent.iterdir()] == ["placements.json"]  # no temp file left
+    for name in ("indices", "positions", "quaternions", "scales", "batches"):
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(poured, name))
+    assert loaded.tube == poured.tube and loaded.seed == 3 and loaded.engine == "pybullet"
+    assert loaded.checks == poured.checks
+    assert loaded.parameters["batch_size"] == 15 and loaded.unit == poured.unit
+    np.testing.assert_allclose(loaded.voxel_positions(), poured.voxel_positions())
+
+
+def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
+    with pytest.raises(SynthpackInputError, match="No placements file"):
+        Placements.load(tmp_path / "nope.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{ not json")
+    with pytest.raises(SynthpackInputError, match="corrupt"):
+        Placements.load(bad)
+    data = poured.to_dict()
+    del data["positions"]
+    bad.write_text(json.dumps(data))
+    with pytest.raises(SynthpackInputError, match="incomplete or corrupt"):
+        Placements.load(bad)
+    bad.write_text(json.dumps({"format": "other"}))
+    with pytest.raises(SynthpackInputError, match="not a synthpack placements"):
+        Placements.load(bad)
+
+
+def test_voxel_positions_map_world_to_grid_indices(poured):
+    vox = poured.voxel_positions(voxel_size=(2.0, 4.0, 5.0), origin=(10.0, 20.0, 30.0))
+    x, y, z = poured.positions.T
+    np.testing.assert_allclose(vox, np.column_stack([(z - 30) / 2, (y - 20) / 4, (x - 10) / 5]))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"n_particles": 0}, "n_particles must be a whole number"),
+        ({"batch_size": 0}, "batch_size must be a whole number"),
+        ({"seed": -1}, "seed must be a whole number >= 0"),
+        ({"n_particles": 2.5}, "n_particles must be a whole number"),
+        ({"engine": "bullet3"}, "Unknown engine 'bullet3'; choose one of: pybullet, blender"),
+        ({"scale": -1.0}, "scale must be a finite positive"),
+        ({"scale": (2.0, 1.0)}, "max < min"),
+        ({"size_classes": [(5.0, 1.0, 1.0)]}, "d_min < d_max"),
+        ({"size_classes": [(1.0, 2.0, 1.0)]}, "No grain of the library"),
+        ({"engine_options": {"warp_speed": 9}}, "does not take the options"),
+        ({"container": Tube(50.0, 1000.0, 10.0, 10.0)}, "too narrow for the largest grain"),
+        ({"material": Material(restitution=1.5)}, r"restitution must be a number in \[0, 1\]"),
+        ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps must be"),
+        ({"settle": SettleCriteria(min_steps=10, max_steps=5)}, "min_steps must be"),
+    ],
+)
+def test_bad_arguments_raise_clear_errors(large_library, kwargs, match):
+    args = {"n_particles": 4, "batch_size": 2, "progress": False, **kwargs}
+    with pytest.raises(SynthpackInputError, match=match):
+        pour(large_library, **args)
+
+
+def test_empty_library_and_bad_tube_raise():
+    class Empty:
+        def __len__(self):
+            return 0
+
+    with pytest.raises(SynthpackInputError, match="library is empty"):
+        pour(Empty(), 3, 1, progress=False)
+    with pytest.raises(SynthpackInputError, match="inner_radius must be a finite positive"):
+        Tube(0.0, 1.0, 1.0, 1.0)
+
+
+def test_plan_spawns_without_overlap_inside_the_tube(large_library, narrow_tube):
+    plan = make_plan(large_library, 60, 30, narrow_tube, seed=5, scale=(0.8, 1.2))
+    assert np.all((plan.scales >= 0.8) & (plan.scales <= 1.2))
+    for b in range(plan.n_batches):
+        members = np.flatnonzero(plan.batches == b)
+        xyz, radii = plan.spawn_offsets[members], plan.bounding_radii[members]
+        gaps = np.linalg.norm(xyz[:, None] - xyz[None], axis=2) - (radii[:, None] + radii[None])
+        assert gaps[~np.eye(len(members), dtype=bool)].min() > 0
+        assert np.all(np.hypot(xyz[:, 0], xyz[:, 1]) + radii < narrow_tube.inner_radius)
+        assert np.all(xyz[:, 2] - radii > 0)  # above the pack top
+    rotations = Rotation.from_quat(plan.quaternions, scalar_first=True)
+    # uniform orientations: the mean rotated z axis is near 0
+    assert np.linalg.norm(rotations.apply([0, 0, 1]).mean(axis=0)) < 0.35
+
+
+def test_plan_follows_size_classes(large_library, narrow_tube):
+    d = large_library.equivalent_diameters
+    cut = float(np.median(d))
+    classes = [(0.0, cut, 0.25), (cut, float(d.max()) + 1, 0.75)]
+    plan = make_plan(large_library, 100, 10, narrow_tube, seed=1, size_classes=classes)
+    small = np.count_nonzero(d[plan.indices] < cut)
+    assert small == 25
+    assert len(set(plan.batches[d[plan.indices] < cut].tolist())) > 3  # classes are mixed
+
+
+def test_default_tube_fits_the_source_scan_and_the_grains(large_library):
+    tube = Tube.for_library(large_library, 500)
+    lateral = large_library.source_shape[2] * large_library.voxel_size[2]
+    assert tube.outer_radius < lateral / 2
+    solid = 500 * np.mean([p.volume for p in large_library])
+    assert tube.height > solid / (0.55 * np.pi * tube.inner_radius**2)
+    mesh = tube.mesh()
+    assert mesh.is_watertight
+    expected = np.pi * (tube.outer_radius**2 * (tube.height + tube.base_thickness)
+                        - tube.inner_radius**2 * tube.height)
+    assert mesh.volume == pytest.approx(expected, rel=0.01)
+    # a narrower tube given by radius is made taller for the same grains
+    narrower = Tube.for_library(large_library, 500, inner_radius=tube.inner_radius / 2)
+    assert narrower.inner_radius == pytest.approx(tube.inner_radius / 2)
+    assert narrower.height > 3 * tube.height
+    assert Tube.for_library(large_library, 500, height=123.0).height == 123.0
+    with pytest.raises(SynthpackInputError, match="inner_radius must be a finite positive"):
+        Tube.for_library(large_library, 500, inner_radius=-1.0)
+
+
+def test_checks_measure_known_overlap_and_packing():
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    meshes = [(np.asarray(box.vertices), np.asarray(box.faces))]
+    tube = Tube(inner_radius=10.0, height=20.0, wall_thickness=1.0, base_thickness=1.0)
+    # two unit cubes overlapping by 0.3 along x, resting on the floor
+    positions = np.array([[0.0, 0.0, 0.5], [0.7, 0.0, 0.5]])
+    identity = np.tile([1.0, 0, 0, 0], (2, 1))
+    checks = compute_checks(
+        meshes, np.array([0, 0]), positions, identity, np.ones(2), tube,
+        voxel_size=0.1, length_scale=1.0,
+    )
+    assert checks.max_grain_penetration == pytest.approx(0.3, abs=1e-3)
+    assert checks.max_grain_penetration_voxels == pytest.approx(3.0, abs=1e-2)
+    assert checks.n_outside == 0 and checks.max_wall_penetration == pytest.approx(0.0, abs=1e-9)
+    # a cube sticking 0.5 through the wall is outside
+    checks = compute_checks(
+        meshes, np.array([0]), np.array([[10.0, 0.0, 0.5]]), identity[:1], np.ones(1), tube,
+        voxel_size=0.1, length_scale=1.0,
+    )
+    assert checks.n_outside == 1
+    assert checks.max_wall_penetration == pytest.approx(np.hypot(10.5, 0.5) - 10.0)  # corner
+
+
+def test_checks_packing_fraction_of_a_solid_column():
+    # cubes of side 1 stacked in a 6x6 grid, 8 high: the bulk cylinder (radius 2.9) is solid
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    grid = np.stack(np.meshgrid(np.arange(-2.5, 3), np.arange(-2.5, 3), np.arange(0.5, 8)), -1)
+    positions = grid.reshape(-1, 3)
+    n = len(positions)
+    checks = compute_checks(
+        [(np.asarray(box.vertices), np.asarray(box.faces))], np.zeros(n, dtype=int), positions,
+        np.tile([1.0, 0, 0, 0], (n, 1)), np.ones(n),
+        Tube(inner_radius=3.9, height=10.0, wall_thickness=1.0, base_thickness=1.0),
+        voxel_size=0.1, length_scale=1.0, n_samples=3000,
+    )
+    assert checks.packing_fraction == pytest.approx(1.0)
+    assert checks.overlap_fraction == 0.0
+
+
+def test_winding_number_separates_inside_from_outside():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    points = np.array([[0, 0, 0], [0.5, 0.3, 0.1], [1.2, 0, 0], [0, 0, -1.5]])
+    w = winding_number(points, np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    np.testing.assert_allclose(w, [1, 1, 0, 0], atol=1e-6)
+
+
+def test_convex_decomposition_option_pours_a_concave_aware_pack(large_library):
+    one = large_library[:1]  # one distinct grain: a single V-HACD run
+    placements = pour(one, 3, 3, seed=2, progress=False,
+                      engine_options={"convex_decomposition": True})
+    assert placements.checks.n_outside == 0 and all(placements.checks.settled_per_batch)
+    assert placements.parameters["engine_options"] == {"convex_decomposition": True}
+
+
+def test_bad_engine_option_values_raise(large_library):
+    with pytest.raises(SynthpackInputError, match="max_hull_vertices must be"):
+        pour(large_library, 2, 2, progress=False, engine_options={"max_hull_vertices": 3})
+
+
+def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow_tube, caplog):
+    tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)
+    with caplog.at_level("DEBUG", logger="synthpack.physics.pybullet_engine"):
+        placements = pour(large_library, 140, 20, seed=4, container=tall, progress=False,
+                          engine_options={"record_snapshots": True})
+    assert any("Retired" in r.message for r in caplog.records)
+    checks = placements.checks
+    assert checks.n_outside == 0 and all(checks.settled_per_batch)
+    assert checks.max_grain_penetration_voxels < TOLERANCE_VOXELS
+    np.testing.assert_array_equal(placements.snapshots[2][0], placements.positions[:60])
