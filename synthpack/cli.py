@@ -7,6 +7,7 @@ line on stderr and exit code 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -86,7 +87,80 @@ def _cmd_library_info(args: argparse.Namespace) -> None:
     print(ParticleLibrary.load(args.library).summary())
 
 
+def _load_config(args: argparse.Namespace):
+    from .config import load_config
+
+    config = load_config(args.config)
+    pour = {key: value for key, value in (
+        ("n_particles", args.n_particles), ("batch_size", args.batch_size), ("engine", args.engine),
+    ) if value is not None}
+    changes = {"pour": pour} if pour else {}
+    if args.seed is not None:
+        changes["seed"] = args.seed
+    return config.replace(**changes) if changes else config
+
+
+def _cmd_generate(args: argparse.Namespace) -> None:
+    config = _load_config(args)
+    if args.print_config:
+        import yaml
+
+        print(yaml.safe_dump(config.to_dict(), sort_keys=False), end="")
+        return
+    from .generate import generate_packs
+    from .library import ParticleLibrary
+
+    if args.library:
+        library = ParticleLibrary.load(args.library)
+        source = library.source
+    else:
+        scan = _read_source_scan(args)
+        source = scan.source
+        library = ParticleLibrary.from_scan(scan, **vars(config.library))
+    paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source)
+    if args.preview:
+        _write_pack_preview(paths[0], library, paths[0] / "preview.png")
+    print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
+
+
+def _write_pack_preview(pack_path: Path, library, png: Path) -> Path:
+    from .pack import open_pack
+    from .preview import save_pack_preview
+
+    pack = open_pack(pack_path)
+    return save_pack_preview(
+        pack.tomogram[:], pack.clean[:], pack.labels[:], pack.voxel_size, pack.unit,
+        library.equivalent_diameters, png,
+    )
+
+
+def _cmd_pour(args: argparse.Namespace) -> None:
+    import math
+
+    from .library import ParticleLibrary
+    from .physics import pour
+
+    library = ParticleLibrary.load(args.library)
+    container = None
+    if args.tube_radius or args.tube_height:
+        from .physics import Tube
+
+        container = Tube.for_library(library, args.n_particles, inner_radius=args.tube_radius,
+                                     height=args.tube_height)
+    placements = pour(library, args.n_particles, args.batch_size, engine=args.engine, seed=args.seed,
+                      container=container)
+    placements.save(args.out)
+    checks = placements.checks
+    packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
+               else f"{checks.packing_fraction:.3f}")
+    print(f"poured {len(placements)} grains in {len(checks.steps_per_batch)} batches: "
+          f"{checks.n_outside} outside the tube, packing fraction {packing}, "
+          f"max interpenetration {checks.max_grain_penetration_voxels:.2f} voxels; wrote {args.out}")
+
+
 def _cmd_demo(args: argparse.Namespace) -> None:
+    from .config import PackConfig
+    from .generate import generate_packs
     from .io import write_tiff
     from .library import ParticleLibrary
     from .preview import save_library_preview
@@ -103,14 +177,22 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     start = time.perf_counter()
     library = ParticleLibrary.from_scan(scan)
     library.save(out / "library")
+    save_library_preview(scan, library, out / "library_preview.png")
     timings["particle library"] = time.perf_counter() - start
 
+    config = PackConfig().replace(seed=args.seed)
+    (path,) = generate_packs(library, out / "packs", 1, config, source=scan.source)
+    manifest = json.loads((path / "manifest.json").read_text())
+    timings.update(manifest["timings"])
+
     start = time.perf_counter()
-    preview = save_library_preview(scan, library, out / "library_preview.png")
+    preview = _write_pack_preview(path, library, out / "pack_preview.png")
     timings["preview"] = time.perf_counter() - start
 
     print(library.summary())
-    print(f"\nwrote {out}/source/{{tomogram,labels}}.tif, {out}/library/ and {preview}")
+    print(f"\nsynthetic pack: {path} ({manifest['n_labels']} grains, "
+          f"{'x'.join(map(str, manifest['shape']))} voxels, {manifest['contested_voxels']} contested voxels)")
+    print(f"pictures: {out / 'library_preview.png'}, {preview}")
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
 
 
@@ -129,6 +211,32 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--sample", choices=("large", "small"), default="large", help="built-in sample (default large)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the sample scan (default 0)")
     demo.set_defaults(run=_cmd_demo)
+
+    generate = commands.add_parser("generate", help="make synthetic packs from a labelled scan or a library")
+    _add_scan_arguments(generate)
+    generate.add_argument("--library", type=Path, help="use a saved particle library instead of a scan")
+    generate.add_argument("--out", type=Path, required=True, help="output folder: one pack_NNNN folder per pack")
+    generate.add_argument("--n-packs", type=int, default=1, help="number of packs (default 1)")
+    generate.add_argument("--n-particles", type=int, help="grains per pack (config pour.n_particles)")
+    generate.add_argument("--batch-size", type=int, help="grains per batch (config pour.batch_size)")
+    generate.add_argument("--engine", choices=("pybullet", "blender"), help="rigid-body engine (config pour.engine)")
+    generate.add_argument("--seed", type=int, help="run seed (config seed)")
+    generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
+    generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff", help="volume format (default tiff)")
+    generate.add_argument("--preview", action="store_true", help="write preview.png into the first pack")
+    generate.add_argument("--print-config", action="store_true", help="print the full config and exit")
+    generate.set_defaults(run=_cmd_generate)
+
+    pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
+    pour.add_argument("--library", type=Path, required=True, help="particle library folder")
+    pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
+    pour.add_argument("--n-particles", type=int, default=150, help="grains to pour (default 150)")
+    pour.add_argument("--batch-size", type=int, default=50, help="grains per batch (default 50)")
+    pour.add_argument("--engine", choices=("pybullet", "blender"), default="pybullet", help="rigid-body engine")
+    pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    pour.add_argument("--tube-radius", type=float, help="inner tube radius, physical units (default: from the scan)")
+    pour.add_argument("--tube-height", type=float, help="tube height, physical units (default: from N)")
+    pour.set_defaults(run=_cmd_pour)
 
     library = commands.add_parser("library", help="build or inspect a particle library")
     library_commands = library.add_subparsers(dest="library_command", required=True, metavar="ACTION")

@@ -51,3 +51,25 @@ def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
         assert phrase in run.stderr
         assert len(run.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "lib").exists()
+
+
+def test_pour_and_generate_commands(tmp_path, large_library):
+    from synthpack.pack import open_pack
+    from synthpack.physics import Placements
+
+    library_dir = large_library.save(tmp_path / "lib")
+    assert main(["-q", "pour", "--library", str(library_dir), "--out", str(tmp_path / "p.json"),
+                 "--n-particles", "12", "--batch-size", "6", "--seed", "3"]) == 0
+    placements = Placements.load(tmp_path / "p.json")
+    assert len(placements) == 12 and placements.checks.n_outside == 0
+    config = tmp_path / "pack.yaml"
+    config.write_text("postprocess: none\nreconstruct:\n  wall: false\n")
+    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "packs"),
+                 "--n-particles", "8", "--batch-size", "8", "--config", str(config), "--preview"]) == 0
+    pack = open_pack(tmp_path / "packs" / "pack_0000")
+    assert pack.manifest["config"]["pour"]["n_particles"] == 8
+    assert (tmp_path / "packs" / "pack_0000" / "preview.png").is_file()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("pour:\n  n_particle: 8\n")
+    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "x"),
+                 "--config", str(bad)]) == 2

@@ -1,0 +1,180 @@
+"""A synthetic pack on disk: volumes, placements and manifest, written atomically.
+
+Layout of one pack directory (names scripts and the dataset rely on)::
+
+    tomogram.tif     post-processed tomogram (float32, ImageJ stack with voxel size)
+    clean.tif        the same before post-processing
+    labels.tif       instance labels (uint16 when they fit, else the pack is Zarr)
+    placements.json  the pour: library index, pose, scale and batch of every grain
+    manifest.json    config, seeds, source, versions, timings, counts; written last
+
+With ``format="zarr"`` the three volumes are arrays of one store ``pack.zarr``
+under the same names (``tomogram``, ``clean``, ``labels``).
+
+The directory is built under a temporary name and renamed when complete, so an
+interrupted run leaves no directory that looks complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+import zarr
+
+from ._atomic import atomic_directory
+from .errors import SynthpackInputError
+from .io import write_tiff, write_zarr
+
+__all__ = ["PACK_VOLUMES", "Pack", "write_pack", "is_complete_pack", "open_pack"]
+
+#: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
+PACK_VOLUMES = ("tomogram", "clean", "labels")
+_FORMATS = ("tiff", "zarr")
+
+
+@dataclass
+class Pack:
+    """An opened pack: volumes are read lazily (memory-mapped TIFF or Zarr arrays).
+
+    Attributes
+    ----------
+    path : Path
+        The pack directory.
+    tomogram, clean, labels : array-like, shape (Z, Y, X)
+        Slicing reads only what is asked for.
+    manifest : dict
+        The pack's ``manifest.json``.
+    """
+
+    path: Path
+    tomogram: Any
+    clean: Any
+    labels: Any
+    manifest: dict
+
+    @property
+    def voxel_size(self) -> tuple[float, float, float]:
+        """``(dz, dy, dx)`` in :attr:`unit`."""
+        return tuple(self.manifest["voxel_size"])  # type: ignore[return-value]
+
+    @property
+    def unit(self) -> str:
+        """Length unit of the voxel size."""
+        return self.manifest["unit"]
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Volume shape ``(Z, Y, X)``."""
+        return tuple(self.labels.shape)  # type: ignore[return-value]
+
+
+def write_pack(
+    directory: str | os.PathLike,
+    volumes: dict[str, np.ndarray],
+    placements,
+    manifest: dict,
+    *,
+    voxel_size: tuple[float, float, float],
+    unit: str,
+    format: str = "tiff",
+) -> Path:
+    """Write one pack directory atomically.
+
+    Parameters
+    ----------
+    directory : path-like
+        The pack directory (replaced if it exists).
+    volumes : dict
+        ``{"tomogram": float32, "clean": float32, "labels": int}`` arrays of one shape.
+    placements : synthpack.physics.Placements
+        Saved as ``placements.json``.
+    manifest : dict
+        JSON-able; ``format``, ``voxel_size``, ``unit`` and ``complete`` are added.
+    voxel_size, unit
+        Voxel size ``(dz, dy, dx)`` and its unit.
+    format : {"tiff", "zarr"}
+        Volume format.
+    """
+    if format not in _FORMATS:
+        raise SynthpackInputError(f"pack format must be one of {', '.join(_FORMATS)}, got {format!r}")
+    missing = [name for name in PACK_VOLUMES if name not in volumes]
+    if missing:
+        raise SynthpackInputError(f"a pack needs the volumes {', '.join(missing)}")
+    with atomic_directory(directory) as staging:
+        for name in PACK_VOLUMES:
+            if format == "tiff":
+                write_tiff(staging / f"{name}.tif", volumes[name], voxel_size, unit, labels=name == "labels")
+            else:
+                write_zarr(staging / "pack.zarr", volumes[name], voxel_size, unit, name=name)
+        placements.save(staging / "placements.json")
+        full = dict(manifest, format=format, voxel_size=list(voxel_size), unit=unit, complete=True)
+        (staging / "manifest.json").write_text(json.dumps(full, indent=1, default=_json_default))
+    return Path(directory)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def _read_manifest(directory: Path) -> dict | None:
+    try:
+        manifest = json.loads((directory / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return manifest if isinstance(manifest, dict) and manifest.get("complete") is True else None
+
+
+def _volume_paths(directory: Path, manifest: dict) -> list[Path]:
+    if manifest.get("format") == "zarr":
+        return [directory / "pack.zarr" / name for name in PACK_VOLUMES]
+    return [directory / f"{name}.tif" for name in PACK_VOLUMES]
+
+
+def is_complete_pack(directory: str | os.PathLike) -> bool:
+    """True when `directory` holds a complete pack (manifest and every file present)."""
+    directory = Path(directory)
+    manifest = _read_manifest(directory)
+    if manifest is None or not (directory / "placements.json").is_file():
+        return False
+    return all(path.exists() for path in _volume_paths(directory, manifest))
+
+
+def open_pack(directory: str | os.PathLike) -> Pack:
+    """Open a pack for lazy slice access.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the directory is missing, incomplete or corrupt.
+    """
+    directory = Path(directory)
+    manifest = _read_manifest(directory)
+    if manifest is None or not is_complete_pack(directory):
+        raise SynthpackInputError(
+            f"{directory} is not a complete synthpack pack (manifest.json missing, unreadable "
+            "or incomplete): generate it again with `synthpack generate`"
+        )
+    try:
+        if manifest["format"] == "zarr":
+            store = zarr.open_group(str(directory / "pack.zarr"), mode="r")
+            arrays = [store[name] for name in PACK_VOLUMES]
+        else:
+            arrays = [tifffile.memmap(path, mode="r") for path in _volume_paths(directory, manifest)]
+    except Exception as error:
+        raise SynthpackInputError(f"pack {directory} is corrupt ({error}): generate it again") from error
+    shapes = {tuple(a.shape) for a in arrays}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 3:
+        raise SynthpackInputError(f"pack {directory} is corrupt: volumes of shapes {sorted(shapes)}")
+    return Pack(directory, *arrays, manifest=manifest)

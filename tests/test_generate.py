@@ -1,0 +1,98 @@
+import json
+
+import numpy as np
+import pytest
+
+import synthpack.pack as pack_module
+from synthpack.config import PackConfig
+from synthpack.generate import build_pack, generate_packs, pack_seed
+from synthpack.pack import is_complete_pack, open_pack
+
+SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
+
+
+@pytest.fixture(scope="module")
+def small_pack(large_library):
+    return build_pack(large_library, SMALL, seed=11, progress=False)
+
+
+def test_labels_are_consecutive_and_map_to_placements(small_pack):
+    present = np.unique(small_pack.labels)
+    np.testing.assert_array_equal(present, np.arange(len(small_pack.placements) + 1))
+    assert small_pack.manifest["n_labels"] == len(small_pack.placements)
+
+
+def test_voxel_counts_match_the_source_particles(small_pack, large_library):
+    counts = np.bincount(small_pack.labels.ravel())[1:]
+    source = np.array([large_library[int(i)].voxel_count for i in small_pack.placements.indices])
+    expected = source * small_pack.placements.scales**3
+    np.testing.assert_allclose(counts, expected, rtol=0.03)
+
+
+def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
+    clean, tomogram, labels = small_pack.clean, small_pack.tomogram, small_pack.labels
+    grains = labels > 0
+    pore = large_library.phases["pore_mean"]
+    assert np.median(clean[grains]) > pore + 0.5 * (large_library.phases["grain_mean"] - pore)
+    assert not np.array_equal(clean, tomogram)  # post-processing applied
+    assert small_pack.manifest["postprocessing"]  # and recorded
+    # the tube wall is brighter than the pores in the clean volume, at the outer radius
+    tube = small_pack.placements.tube
+    grid = small_pack.grid
+    z0 = labels.shape[0] // 2
+    y = grid.origin[1] + np.arange(labels.shape[1]) * grid.voxel_size[1]
+    x = grid.origin[2] + np.arange(labels.shape[2]) * grid.voxel_size[2]
+    radius = np.hypot(*np.meshgrid(y, x, indexing="ij"))
+    wall = (radius > tube.inner_radius + 5) & (radius < tube.outer_radius - 5)
+    assert clean[z0][wall].mean() > pore + 0.2 * (large_library.phases["grain_mean"] - pore)
+
+
+def test_same_seed_same_pack(small_pack, large_library):
+    again = build_pack(large_library, SMALL, seed=11, progress=False)
+    np.testing.assert_array_equal(again.labels, small_pack.labels)
+    np.testing.assert_array_equal(again.tomogram, small_pack.tomogram)
+
+
+def test_generate_writes_complete_packs_and_skips_them_on_rerun(large_library, tmp_path):
+    config = SMALL.replace(pour={"n_particles": 10, "batch_size": 10})
+    (path,) = generate_packs(large_library, tmp_path, 1, config, progress=False)
+    assert is_complete_pack(path)
+    names = sorted(p.name for p in path.iterdir())
+    assert names == ["clean.tif", "labels.tif", "manifest.json", "placements.json", "tomogram.tif"]
+    manifest = json.loads((path / "manifest.json").read_text())
+    assert manifest["seed"] == pack_seed(config.seed, 0)
+    assert manifest["config"]["pour"]["n_particles"] == 10
+    assert {"pour", "reconstruct", "postprocess"} <= set(manifest["timings"])
+    assert "numpy" in manifest["versions"] and "contested_voxels" in manifest
+    pack = open_pack(path)
+    assert isinstance(pack.labels, np.memmap)
+    assert pack.voxel_size == large_library.voxel_size
+    before = (path / "tomogram.tif").stat().st_mtime_ns
+    generate_packs(large_library, tmp_path, 1, config, progress=False)
+    assert (path / "tomogram.tif").stat().st_mtime_ns == before
+
+
+def test_interrupted_write_leaves_no_complete_looking_pack(large_library, tmp_path, monkeypatch):
+    config = SMALL.replace(pour={"n_particles": 6, "batch_size": 6})
+    real_write_tiff = pack_module.write_tiff
+
+    def failing_write_tiff(path, volume, *args, **kwargs):
+        if path.name == "labels.tif":
+            raise OSError("disk full")
+        return real_write_tiff(path, volume, *args, **kwargs)
+
+    monkeypatch.setattr(pack_module, "write_tiff", failing_write_tiff)
+    with pytest.raises(OSError, match="disk full"):
+        generate_packs(large_library, tmp_path, 1, config, progress=False)
+    assert list(tmp_path.iterdir()) == []
+    assert not is_complete_pack(tmp_path / "pack_0000")
+
+
+def test_zarr_packs_open_lazily(large_library, tmp_path):
+    config = SMALL.replace(pour={"n_particles": 6, "batch_size": 6}, postprocess="none")
+    (path,) = generate_packs(large_library, tmp_path, 1, config, format="zarr", progress=False)
+    pack = open_pack(path)
+    assert pack.manifest["format"] == "zarr"
+    middle = pack.labels.shape[0] // 2
+    np.testing.assert_array_equal(pack.tomogram[middle], pack.clean[middle])  # no post-processing
+    assert pack.labels[middle].max() >= 1
