@@ -102,6 +102,6 @@ def _decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
         simplified = mesh.simplify_quadric_decimation(face_count=int(target_faces * factor))
         if simplified.is_watertight and simplified.volume > 0:
             return simplified
-    logger.warning("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
+    logger.info("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
                    target_faces, len(mesh.faces))
     return mesh
