@@ -10,7 +10,6 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -124,7 +123,7 @@ def build_pack(
     rec = config.reconstruct
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=rec.margin)
-    maps = pose_maps([p.mask.shape for p in library], placements.indices,
+    maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid)
     phases = library.phases
     wall = rec.wall_intensity if rec.wall_intensity is not None else (

@@ -17,8 +17,12 @@ global voxel position, so the result does not depend on the chunking.
 
 from __future__ import annotations
 
+import itertools
 import logging
+import os
+from collections import deque
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,7 +145,7 @@ class PoseMaps:
 
 
 def pose_maps(
-    crop_shapes: Sequence[tuple[int, int, int]],
+    masks: Sequence[np.ndarray],
     library_index: np.ndarray,
     rotations: np.ndarray,
     positions: np.ndarray,
@@ -152,8 +156,8 @@ def pose_maps(
 
     Parameters
     ----------
-    crop_shapes : sequence of (nz, ny, nx)
-        Crop shape of every LIBRARY particle (indexed by `library_index`).
+    masks : sequence of ndarray of bool, shape (nz, ny, nx)
+        Mask crop of every LIBRARY particle (indexed by `library_index`).
     library_index : ndarray of int, shape (N,)
         Library particle of each placement.
     rotations : ndarray, shape (N, 3, 3)
@@ -179,18 +183,33 @@ def pose_maps(
     rot_zyx = _XYZ_TO_ZYX @ rotations @ _XYZ_TO_ZYX
     inverse = np.transpose(rot_zyx, (0, 2, 1)) / scales[:, None, None]
     matrix = inverse * spacing[None, None, :] / spacing[None, :, None]
-    shapes = np.array([crop_shapes[i] for i in library_index], dtype=float).reshape(n, 3)
+    shapes = np.array([masks[i].shape for i in library_index], dtype=float).reshape(n, 3)
     centre_index = (shapes - 1.0) / 2.0
     t_zyx = positions[:, ::-1]
     offset = np.einsum("nij,nj->ni", inverse, origin - t_zyx) / spacing + centre_index
-    # Rotated crop corners (paper eq. 5) -> reachable output box (eqs. 6-11).
-    corners = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, 8).T
-    crop_corners = corners[None] * shapes[:, None, :] - 0.5  # voxel extents, (N, 8, 3)
-    forward = np.linalg.inv(matrix)
-    out_corners = np.einsum("nij,nkj->nki", forward, crop_corners - offset[:, None, :])
-    box_lo = np.clip(np.floor(out_corners.min(axis=1)).astype(np.int64), 0, grid.shape)
-    box_hi = np.clip(np.ceil(out_corners.max(axis=1)).astype(np.int64) + 1, 0, grid.shape)
+    # The paper pads each crop to the box of its rotated corners (eqs. 5-11). The box
+    # of the rotated MASK voxels is tighter (about 2.4x fewer voxels for sand grains)
+    # and still holds every output voxel whose interpolated mask value is non-zero:
+    # such a voxel maps to within one crop voxel (per axis) of a mask voxel, which
+    # the forward map stretches by at most the row sums of |forward|.
+    forward = np.linalg.inv(matrix) if n else np.zeros((0, 3, 3))
+    reach = np.abs(forward).sum(axis=2)
+    surfaces = {int(i): _surface_voxels(masks[int(i)]) for i in np.unique(library_index)}
+    box_lo = np.empty((n, 3), dtype=np.int64)
+    box_hi = np.empty((n, 3), dtype=np.int64)
+    for k in range(n):
+        mapped = (surfaces[int(library_index[k])] - offset[k]) @ forward[k].T
+        box_lo[k] = np.floor(mapped.min(axis=0) - reach[k])
+        box_hi[k] = np.ceil(mapped.max(axis=0) + reach[k]) + 1
+    box_lo = np.clip(box_lo, 0, grid.shape)
+    box_hi = np.clip(box_hi, 0, grid.shape)
     return PoseMaps(library_index, matrix, offset, box_lo, box_hi)
+
+
+def _surface_voxels(mask: np.ndarray) -> np.ndarray:
+    """Indices (K, 3), float, of the mask voxels on its surface (their hull bounds the mask)."""
+    surface = mask & ~ndimage.binary_erosion(mask)
+    return np.argwhere(surface).astype(float)
 
 
 def chunk_boxes(shape: tuple[int, int, int], chunks: tuple[int, int, int]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -204,25 +223,33 @@ def chunk_boxes(shape: tuple[int, int, int], chunks: tuple[int, int, int]) -> It
 
 
 def _hash_normal(seed: int, index: tuple[np.ndarray, np.ndarray, np.ndarray], shape3: tuple[int, int, int]) -> np.ndarray:
-    """Standard normal noise that is a pure function of (seed, global voxel index).
+    """Standard normal noise (float32) that is a pure function of (seed, global voxel index).
 
-    A splitmix64 hash of the flat voxel index gives two uniforms per voxel (Box-Muller),
-    so any sub-box of the volume gets the same values whatever the chunking.
+    One splitmix64 hash of the flat voxel index gives two 32-bit uniforms per voxel
+    (its high and low halves) for a Box-Muller draw, so any sub-box of the volume
+    gets the same values whatever the chunking.
     """
     z, y, x = index
-    flat = (z.astype(np.uint64) * np.uint64(shape3[1]) + y.astype(np.uint64)) * np.uint64(shape3[2]) + x.astype(np.uint64)
+    state = (z.astype(np.uint64) * np.uint64(shape3[1]) + y.astype(np.uint64)) * np.uint64(shape3[2])
+    state += x.astype(np.uint64)
     with np.errstate(over="ignore"):
-        state = flat * np.uint64(2) + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
-
-        def mix(v: np.ndarray) -> np.ndarray:
-            v = v + np.uint64(0x9E3779B97F4A7C15)
-            v = (v ^ (v >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-            v = (v ^ (v >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-            return v ^ (v >> np.uint64(31))
-
-        u1 = (mix(state) >> np.uint64(11)).astype(np.float64) * (1.0 / 2**53)
-        u2 = (mix(state + np.uint64(1)) >> np.uint64(11)).astype(np.float64) * (1.0 / 2**53)
-    return (np.sqrt(-2.0 * np.log1p(-u1)) * np.cos(2.0 * np.pi * u2)).astype(np.float32)
+        state += np.uint64(seed & 0xFFFFFFFF) * np.uint64(0xD1B54A32D192ED03) + np.uint64(0x9E3779B97F4A7C15)
+        state ^= state >> np.uint64(30)
+        state *= np.uint64(0xBF58476D1CE4E5B9)
+        state ^= state >> np.uint64(27)
+        state *= np.uint64(0x94D049BB133111EB)
+        state ^= state >> np.uint64(31)
+    scale = np.float32(1.0 / 2**32)
+    u1 = (state >> np.uint64(32)).astype(np.float32) * scale
+    u2 = (state & np.uint64(0xFFFFFFFF)).astype(np.float32) * scale
+    np.negative(u1, out=u1)
+    np.log1p(u1, out=u1)
+    u1 *= np.float32(-2.0)
+    np.sqrt(u1, out=u1)
+    u2 *= np.float32(2.0 * np.pi)
+    np.cos(u2, out=u2)
+    u1 *= u2
+    return u1
 
 
 def _pore_texture(grid: Grid, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
@@ -330,11 +357,11 @@ def render_chunk(
         region_claim = claim[window]
         contested += int(np.count_nonzero(inside & (region_claim > 0.5)))
         wins = inside & (weight > region_claim)
-        values = ndimage.affine_transform(
-            crop_tomogram, maps.matrix[i], offset=offset, output_shape=out_shape,
-            order=order, mode="nearest", prefilter=order > 1,
+        where = np.nonzero(wins)
+        coordinates = maps.matrix[i] @ np.array(where, dtype=float) + offset[:, None]
+        tomogram[window][where] = ndimage.map_coordinates(
+            crop_tomogram, coordinates, order=order, mode="nearest", prefilter=order > 1,
         )
-        tomogram[window][wins] = values[wins]
         labels[window][wins] = i + 1
         region_claim[wins] = weight[wins]
     return tomogram, labels, contested
@@ -350,9 +377,14 @@ def reconstruct(
     order: int = 1,
     seed: int = 0,
     chunks: tuple[int, int, int] = (64, 256, 256),
+    workers: int | None = None,
     out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see :func:`render_chunk`).
+
+    Chunks are rendered by a pool of threads (SciPy's interpolation releases the
+    GIL), at most ``2 * workers`` chunks in flight, so memory stays bounded by the
+    output plus a few chunks' work. Each chunk is written by one thread only.
 
     Parameters
     ----------
@@ -360,6 +392,8 @@ def reconstruct(
         As in :func:`render_chunk`.
     chunks : tuple of 3 int
         Chunk shape in voxels.
+    workers : int, optional
+        Threads; default: the number of CPU cores. The result does not depend on it.
     out : (tomogram, labels), optional
         Arrays (or array-likes supporting slice assignment, e.g. Zarr arrays) of
         ``grid.shape`` to write into; new arrays by default.
@@ -375,16 +409,27 @@ def reconstruct(
         raise SynthpackInputError(f"interpolation order must be 0, 1 or 3, got {order}")
     if any(c < 1 for c in chunks):
         raise SynthpackInputError(f"chunk shape must be positive, got {chunks}")
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise SynthpackInputError(f"workers must be at least 1, got {workers}")
     if out is None:
         out = (np.empty(grid.shape, dtype=np.float32), np.empty(grid.shape, dtype=np.int32))
     tomogram, labels = out
     contested = 0
-    for lo, hi in chunk_boxes(grid.shape, chunks):
-        chunk_tomogram, chunk_labels, chunk_contested = render_chunk(
-            crops, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed
-        )
-        window = tuple(slice(a, b) for a, b in zip(lo, hi))
-        tomogram[window] = chunk_tomogram
-        labels[window] = chunk_labels
-        contested += chunk_contested
+
+    def render(box: tuple[np.ndarray, np.ndarray]):
+        lo, hi = box
+        return box, render_chunk(crops, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
+
+    boxes = iter(list(chunk_boxes(grid.shape, chunks)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = deque(pool.submit(render, box) for box in itertools.islice(boxes, 2 * workers))
+        while pending:
+            (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) = pending.popleft().result()
+            for box in itertools.islice(boxes, 1):
+                pending.append(pool.submit(render, box))
+            window = tuple(slice(a, b) for a, b in zip(lo, hi))
+            tomogram[window] = chunk_tomogram
+            labels[window] = chunk_labels
+            contested += chunk_contested
     return tomogram, labels, contested

@@ -25,7 +25,7 @@ GRID = Grid((30, 30, 30), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
 
 def _render(crops, index, rotations, positions, scales=None, grid=GRID, **kwargs):
     n = len(index)
-    maps = pose_maps([c[1].shape for c in crops], np.asarray(index), np.asarray(rotations),
+    maps = pose_maps([c[1] for c in crops], np.asarray(index), np.asarray(rotations),
                      np.asarray(positions, dtype=float), np.ones(n) if scales is None else scales, grid)
     return reconstruct(crops, maps, grid, Phases(0.1), **kwargs)
 
@@ -62,16 +62,17 @@ def test_chunking_does_not_change_the_result(large_library):
     positions = rng.uniform(-200, 200, size=(n, 3))
     grid = Grid.covering(400.0, -300.0, 300.0, large_library.voxel_size)
     phases = Phases(0.2, 0.05, 0.5)
-    maps = pose_maps([c[1].shape for c in crops], index, rotations, positions, np.ones(n), grid)
+    maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(n), grid)
     whole = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=grid.shape, seed=4)
-    chunked = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=(13, 17, 29), seed=4)
-    np.testing.assert_array_equal(whole[0], chunked[0])
-    np.testing.assert_array_equal(whole[1], chunked[1])
-    assert whole[2] == chunked[2] > 0  # random positions overlap
+    for workers in (1, 2):
+        chunked = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=(13, 17, 29),
+                              seed=4, workers=workers)
+        np.testing.assert_array_equal(whole[0], chunked[0])
+        np.testing.assert_array_equal(whole[1], chunked[1])
+        assert whole[2] == chunked[2] > 0  # random positions overlap
 
 
 def test_rotated_voxel_counts_within_3_percent(large_library):
-    rng = np.random.default_rng(5)
     crops = [(p.tomogram, p.mask) for p in large_library]
     index = np.arange(0, len(crops), 4)
     n = len(index)
@@ -79,7 +80,7 @@ def test_rotated_voxel_counts_within_3_percent(large_library):
     # far apart on a line, so no two particles touch
     positions = np.stack([np.zeros(n), np.zeros(n), 400.0 * np.arange(n)], axis=1)
     grid = Grid.covering(250.0, -250.0, 400.0 * n, large_library.voxel_size)
-    maps = pose_maps([c[1].shape for c in crops], index, rotations, positions, np.ones(n), grid)
+    maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(n), grid)
     _, labels, contested = reconstruct(crops, maps, grid, Phases(0.2))
     counts = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     source = np.array([crops[i][1].sum() for i in index])
