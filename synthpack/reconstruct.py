@@ -45,6 +45,7 @@ __all__ = [
 #: Correlation length (Gaussian sigma, voxels) of the pore texture: CT noise is not
 #: white after reconstruction and detector blur.
 _TEXTURE_SIGMA = 0.8
+_NOISE_TILE = 32  # voxels per edge of the cubes the pore noise is drawn in
 
 # (x, y, z) <-> (z, y, x): the permutation matrix is its own inverse.
 _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -222,56 +223,40 @@ def chunk_boxes(shape: tuple[int, int, int], chunks: tuple[int, int, int]) -> It
                 yield lo, np.minimum(lo + np.asarray(chunks), shape)
 
 
-def _hash_normal(seed: int, index: tuple[np.ndarray, np.ndarray, np.ndarray], shape3: tuple[int, int, int]) -> np.ndarray:
-    """Standard normal noise (float32) that is a pure function of (seed, global voxel index).
+def _white_noise(seed: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Standard normal float32 noise over the global index box ``[lo, hi)`` (``lo >= 0``).
 
-    One splitmix64 hash of the flat voxel index gives two 32-bit uniforms per voxel
-    (its high and low halves) for a Box-Muller draw, so any sub-box of the volume
-    gets the same values whatever the chunking.
+    The index space is tiled with fixed cubes of `_NOISE_TILE` voxels; each tile's
+    values come from its own generator seeded by ``(seed, tile index)``. A voxel
+    therefore gets the same value whatever box it is drawn in.
     """
-    z, y, x = index
-    state = (z.astype(np.uint64) * np.uint64(shape3[1]) + y.astype(np.uint64)) * np.uint64(shape3[2])
-    state += x.astype(np.uint64)
-    with np.errstate(over="ignore"):
-        state += np.uint64(seed & 0xFFFFFFFF) * np.uint64(0xD1B54A32D192ED03) + np.uint64(0x9E3779B97F4A7C15)
-        state ^= state >> np.uint64(30)
-        state *= np.uint64(0xBF58476D1CE4E5B9)
-        state ^= state >> np.uint64(27)
-        state *= np.uint64(0x94D049BB133111EB)
-        state ^= state >> np.uint64(31)
-    scale = np.float32(1.0 / 2**32)
-    u1 = (state >> np.uint64(32)).astype(np.float32) * scale
-    u2 = (state & np.uint64(0xFFFFFFFF)).astype(np.float32) * scale
-    np.negative(u1, out=u1)
-    np.log1p(u1, out=u1)
-    u1 *= np.float32(-2.0)
-    np.sqrt(u1, out=u1)
-    u2 *= np.float32(2.0 * np.pi)
-    np.cos(u2, out=u2)
-    u1 *= u2
-    return u1
+    out = np.empty(tuple(hi - lo), dtype=np.float32)
+    first, last = lo // _NOISE_TILE, (hi - 1) // _NOISE_TILE
+    for tile in itertools.product(*(range(a, b + 1) for a, b in zip(first, last))):
+        start = np.asarray(tile) * _NOISE_TILE
+        values = np.random.default_rng([seed, *tile]).standard_normal((_NOISE_TILE,) * 3, dtype=np.float32)
+        a, b = np.maximum(start, lo), np.minimum(start + _NOISE_TILE, hi)
+        out[tuple(slice(i, j) for i, j in zip(a - lo, b - lo))] = values[
+            tuple(slice(i, j) for i, j in zip(a - start, b - start))]
+    return out
 
 
-def _pore_texture(grid: Grid, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
+def _pore_texture(lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
     """Unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA` voxels.
 
-    White noise hashed from the global voxel index over the box plus a halo, then
+    White noise drawn per global voxel index over the box plus a halo, then
     smoothed with a fixed, truncated Gaussian kernel and cropped back: the same
     voxel gets the same value whatever box it is rendered in.
     """
     radius = int(np.ceil(3 * _TEXTURE_SIGMA))
-    halo_lo, halo_hi = lo - radius, hi + radius
-    index = np.ogrid[halo_lo[0] : halo_hi[0], halo_lo[1] : halo_hi[1], halo_lo[2] : halo_hi[2]]
-    shifted = tuple(np.broadcast_arrays(*(i + radius for i in index)))  # non-negative
-    padded_shape = tuple(n + 2 * radius for n in grid.shape)
-    white = _hash_normal(seed, shifted, padded_shape)
+    white = _white_noise(seed, lo, hi + 2 * radius)  # the box plus halo, shifted to be >= 0
     taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / _TEXTURE_SIGMA) ** 2)
     taps /= np.sqrt(np.sum(taps**2))  # unit variance gain per axis, so unit in 3D
     smooth = white
     for axis in range(3):
         smooth = ndimage.correlate1d(smooth, taps, axis=axis, mode="constant")
     core = tuple(slice(radius, -radius) for _ in range(3))
-    return smooth[core].astype(np.float32)
+    return smooth[core]
 
 
 def _background(
@@ -279,7 +264,7 @@ def _background(
 ) -> np.ndarray:
     values = np.full(tuple(hi - lo), phases.pore_mean, dtype=np.float32)
     if phases.pore_std > 0:
-        values += np.float32(phases.pore_std) * _pore_texture(grid, lo, hi, seed)
+        values += np.float32(phases.pore_std) * _pore_texture(lo, hi, seed)
     if tube is not None and phases.wall is not None:
         inner, outer, base = tube
         index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
@@ -307,7 +292,7 @@ def render_chunk(
     Parameters
     ----------
     crops : sequence of (tomogram, mask)
-        Clean crop (float32) and mask (bool) of every library particle.
+        Clean crop (float32) and mask (bool, or float32 0/1) of every library particle.
     maps : PoseMaps
         From :func:`pose_maps`.
     grid : Grid
@@ -347,7 +332,8 @@ def render_chunk(
         crop_tomogram, crop_mask = crops[maps.library_index[i]]
         offset = maps.offset[i] + maps.matrix[i] @ sub_lo
         weight = ndimage.affine_transform(
-            crop_mask.astype(np.float32), maps.matrix[i], offset=offset,
+            crop_mask if crop_mask.dtype == np.float32 else crop_mask.astype(np.float32),
+            maps.matrix[i], offset=offset,
             output_shape=out_shape, order=1, mode="grid-constant", cval=0.0,
         )
         inside = weight > 0.5
@@ -417,9 +403,12 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
+    # Masks are interpolated as float32: convert each library mask once, not per chunk.
+    weighted = [(tomo, mask.astype(np.float32)) for tomo, mask in crops]
+
     def render(box: tuple[np.ndarray, np.ndarray]):
         lo, hi = box
-        return box, render_chunk(crops, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
+        return box, render_chunk(weighted, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
 
     boxes = iter(list(chunk_boxes(grid.shape, chunks)))
     with ThreadPoolExecutor(max_workers=workers) as pool:
