@@ -17,6 +17,7 @@ global voxel position, so the result does not depend on the chunking.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import os
@@ -38,6 +39,7 @@ __all__ = [
     "Phases",
     "pose_maps",
     "reconstruct",
+    "prepare_crops",
     "render_chunk",
     "chunk_boxes",
 ]
@@ -45,7 +47,7 @@ __all__ = [
 #: Correlation length (Gaussian sigma, voxels) of the pore texture: CT noise is not
 #: white after reconstruction and detector blur.
 _TEXTURE_SIGMA = 0.8
-_NOISE_TILE = 32  # voxels per edge of the cubes the pore noise is drawn in
+_TEXTURE_TILE = 64  # period of the pore texture, voxels
 
 # (x, y, z) <-> (z, y, x): the permutation matrix is its own inverse.
 _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -223,40 +225,29 @@ def chunk_boxes(shape: tuple[int, int, int], chunks: tuple[int, int, int]) -> It
                 yield lo, np.minimum(lo + np.asarray(chunks), shape)
 
 
-def _white_noise(seed: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Standard normal float32 noise over the global index box ``[lo, hi)`` (``lo >= 0``).
+@functools.lru_cache(maxsize=8)
+def _texture_tile(seed: int) -> np.ndarray:
+    """A periodic cube of unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA`.
 
-    The index space is tiled with fixed cubes of `_NOISE_TILE` voxels; each tile's
-    values come from its own generator seeded by ``(seed, tile index)``. A voxel
-    therefore gets the same value whatever box it is drawn in.
+    White noise from ``seed``, smoothed with wrap-around boundaries, so copies of
+    the cube tile space seamlessly. Read-only; shape ``(_TEXTURE_TILE,) * 3``.
     """
-    out = np.empty(tuple(hi - lo), dtype=np.float32)
-    first, last = lo // _NOISE_TILE, (hi - 1) // _NOISE_TILE
-    for tile in itertools.product(*(range(a, b + 1) for a, b in zip(first, last))):
-        start = np.asarray(tile) * _NOISE_TILE
-        values = np.random.default_rng([seed, *tile]).standard_normal((_NOISE_TILE,) * 3, dtype=np.float32)
-        a, b = np.maximum(start, lo), np.minimum(start + _NOISE_TILE, hi)
-        out[tuple(slice(i, j) for i, j in zip(a - lo, b - lo))] = values[
-            tuple(slice(i, j) for i, j in zip(a - start, b - start))]
-    return out
+    white = np.random.default_rng([seed, 0x7E47]).standard_normal((_TEXTURE_TILE,) * 3)
+    smooth = ndimage.gaussian_filter(white, _TEXTURE_SIGMA, mode="wrap")
+    tile = ((smooth - smooth.mean()) / smooth.std()).astype(np.float32)
+    tile.flags.writeable = False
+    return tile
 
 
 def _pore_texture(lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
-    """Unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA` voxels.
+    """The pore texture over the global index box ``[lo, hi)``, float32, unit variance.
 
-    White noise drawn per global voxel index over the box plus a halo, then
-    smoothed with a fixed, truncated Gaussian kernel and cropped back: the same
-    voxel gets the same value whatever box it is rendered in.
+    The texture repeats every `_TEXTURE_TILE` voxels (far beyond its correlation
+    length, so the repetition is invisible) and is a pure function of the global
+    voxel index: the same voxel gets the same value whatever box it is rendered in.
     """
-    radius = int(np.ceil(3 * _TEXTURE_SIGMA))
-    white = _white_noise(seed, lo, hi + 2 * radius)  # the box plus halo, shifted to be >= 0
-    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / _TEXTURE_SIGMA) ** 2)
-    taps /= np.sqrt(np.sum(taps**2))  # unit variance gain per axis, so unit in 3D
-    smooth = white
-    for axis in range(3):
-        smooth = ndimage.correlate1d(smooth, taps, axis=axis, mode="constant")
-    core = tuple(slice(radius, -radius) for _ in range(3))
-    return smooth[core]
+    wrapped = (np.arange(a, b) % _TEXTURE_TILE for a, b in zip(lo, hi))
+    return _texture_tile(seed)[np.ix_(*wrapped)]
 
 
 def _background(
@@ -275,6 +266,21 @@ def _background(
     return values
 
 
+def prepare_crops(crops: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Crops as :func:`render_chunk` takes them: masks as float32, padded by one empty voxel.
+
+    With the pad, SciPy's fast ``"constant"`` boundary mode interpolates the mask
+    towards 0 beyond its edge exactly as the slower ``"grid-constant"`` would.
+
+    Parameters
+    ----------
+    crops : sequence of (tomogram, mask)
+        Clean crop (float32, shape (nz, ny, nx)) and mask (bool, same shape) of every
+        library particle.
+    """
+    return [(tomogram, np.pad(mask.astype(np.float32), 1)) for tomogram, mask in crops]
+
+
 def render_chunk(
     crops: Sequence[tuple[np.ndarray, np.ndarray]],
     maps: PoseMaps,
@@ -291,8 +297,8 @@ def render_chunk(
 
     Parameters
     ----------
-    crops : sequence of (tomogram, mask)
-        Clean crop (float32) and mask (bool, or float32 0/1) of every library particle.
+    crops : sequence of (tomogram, padded_mask)
+        Every library particle's clean crop and mask, from :func:`prepare_crops`.
     maps : PoseMaps
         From :func:`pose_maps`.
     grid : Grid
@@ -332,9 +338,8 @@ def render_chunk(
         crop_tomogram, crop_mask = crops[maps.library_index[i]]
         offset = maps.offset[i] + maps.matrix[i] @ sub_lo
         weight = ndimage.affine_transform(
-            crop_mask if crop_mask.dtype == np.float32 else crop_mask.astype(np.float32),
-            maps.matrix[i], offset=offset,
-            output_shape=out_shape, order=1, mode="grid-constant", cval=0.0,
+            crop_mask, maps.matrix[i], offset=offset + 1.0,  # the mask is padded by one voxel
+            output_shape=out_shape, order=1, mode="constant", cval=0.0,
         )
         inside = weight > 0.5
         if not inside.any():
@@ -374,7 +379,9 @@ def reconstruct(
 
     Parameters
     ----------
-    crops, maps, grid, phases, tube, order, seed
+    crops : sequence of (tomogram, mask)
+        Clean crop (float32) and mask (bool) of every library particle.
+    maps, grid, phases, tube, order, seed
         As in :func:`render_chunk`.
     chunks : tuple of 3 int
         Chunk shape in voxels.
@@ -403,12 +410,11 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    # Masks are interpolated as float32: convert each library mask once, not per chunk.
-    weighted = [(tomo, mask.astype(np.float32)) for tomo, mask in crops]
+    prepared = prepare_crops(crops)
 
     def render(box: tuple[np.ndarray, np.ndarray]):
         lo, hi = box
-        return box, render_chunk(weighted, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
+        return box, render_chunk(prepared, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
 
     boxes = iter(list(chunk_boxes(grid.shape, chunks)))
     with ThreadPoolExecutor(max_workers=workers) as pool:
