@@ -27,6 +27,8 @@ _LAZY = {
     "pour": "synthpack.physics",
     "Placements": "synthpack.physics",
     "Tube": "synthpack.physics",
+    "SyntheticParticlePackDataset": "synthpack.dataset",
+    "ScanSliceDataset": "synthpack.dataset",
 }
 
 __all__ = ["Scan", "SynthpackInputError", "__version__", *sorted(_LAZY)]

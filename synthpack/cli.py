@@ -196,6 +196,30 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
 
 
+def _cmd_export_yolo(args: argparse.Namespace) -> None:
+    from .export import export_yolo
+
+    summary = export_yolo(
+        args.out, packs=args.packs or (), real=[tuple(pair) for pair in args.real or ()], axis=args.axis,
+        split=args.split, val_fraction=args.val_fraction, postprocess=args.postprocess,
+        window=None if args.window is None else tuple(args.window), min_area=args.min_area,
+        tolerance=args.tolerance, truth_splits=args.truth_splits,
+    )
+    lo, hi = summary.window
+    print(summary.table())
+    print(f"\nYOLO dataset {args.out / 'data.yaml'}: {len(summary.sources)} source(s), "
+          f"intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from})")
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> None:
+    from .metrics import evaluate_folders
+
+    report = evaluate_folders(args.pred, args.truth, per=args.per, axis=args.axis, iou_threshold=args.iou)
+    paths = report.write(args.out)
+    print(report.markdown(rows=False), end="")
+    print(f"\nreport: {', '.join(str(p) for p in paths.values())}")
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="synthpack",
@@ -237,6 +261,42 @@ def _parser() -> argparse.ArgumentParser:
     pour.add_argument("--tube-radius", type=float, help="inner tube radius, physical units (default: from the scan)")
     pour.add_argument("--tube-height", type=float, help="tube height, physical units (default: from N)")
     pour.set_defaults(run=_cmd_pour)
+
+    export = commands.add_parser("export-yolo", help="write packs and real scans as a YOLO segmentation dataset")
+    export.add_argument("--packs", type=Path, nargs="+", action="extend", metavar="DIR",
+                        help="pack folders, or folders holding pack_NNNN folders")
+    export.add_argument("--real", type=Path, nargs=2, action="append", metavar=("TOMOGRAM", "LABELS"),
+                        help="a labelled real scan (repeat for several)")
+    export.add_argument("--out", type=Path, required=True, help="dataset folder (new, empty or an earlier export)")
+    export.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help="slicing axis (default 0)")
+    export.add_argument("--split", choices=("paper", "real-test"), default="paper",
+                        help="paper: every volume gives train/val/test (central 20%% test); "
+                             "real-test: synthetic packs give training slices only (default paper)")
+    export.add_argument("--val-fraction", type=float, default=0.1,
+                        help="validation slices per volume, next to the test block (default 0.1)")
+    export.add_argument("--postprocess", action=argparse.BooleanOptionalAction, default=True,
+                        help="synthetic images from the post-processed tomogram (default) or the clean volume")
+    export.add_argument("--window", type=float, nargs=2, metavar=("LO", "HI"),
+                        help="intensity window for 8 bits (default: 0.5/99.5 percentiles of the real scans, "
+                             "else of the first pack's clean volume)")
+    export.add_argument("--min-area", type=int, default=10,
+                        help="parts below this many pixels get no label (default 10)")
+    export.add_argument("--tolerance", type=float, default=0.0,
+                        help="polygon simplification in pixels (default 0: exact outlines)")
+    export.add_argument("--truth-splits", nargs="*", choices=("train", "val", "test"), default=["test"],
+                        help="splits that also get truth/ instance images for `evaluate` (default test)")
+    export.set_defaults(run=_cmd_export_yolo)
+
+    evaluate = commands.add_parser("evaluate", help="Dice scores of predicted label images against the truth")
+    evaluate.add_argument("--pred", type=Path, required=True, help="folder of predicted label images")
+    evaluate.add_argument("--truth", type=Path, required=True,
+                          help="folder of true label images (.png/.tif/.npy, 2D or 3D, paired by file name)")
+    evaluate.add_argument("--out", type=Path, required=True, help="report folder: evaluation.json, .csv, .md")
+    evaluate.add_argument("--per", choices=("slice", "volume"), default="slice",
+                          help="rows per 2D slice (default) or per 3D file (instances matched in 3D)")
+    evaluate.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help="slicing axis of 3D files (default 0)")
+    evaluate.add_argument("--iou", type=float, default=0.5, help="IoU threshold of a matched instance (default 0.5)")
+    evaluate.set_defaults(run=_cmd_evaluate)
 
     library = commands.add_parser("library", help="build or inspect a particle library")
     library_commands = library.add_subparsers(dest="library_command", required=True, metavar="ACTION")

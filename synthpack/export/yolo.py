@@ -1,0 +1,671 @@
+"""Export packs and labelled real scans as an Ultralytics YOLO instance-segmentation dataset.
+
+Layout of the output folder ``OUT``::
+
+    data.yaml                  path, train, val, test, names {0: particle}; the window in a comment
+    export.json                settings, intensity window, sources, counts (also marks OUT as an export)
+    images/{train,val,test}/   8-bit grey PNG slices
+    labels/{train,val,test}/   one .txt per image: ``0 x1 y1 x2 y2 ...`` per polygon
+    truth/test/                16-bit PNG instance images of the test slices, for `synthpack evaluate`
+
+File names are ``<source>_a<axis>_s<slice:04d>`` where ``<source>`` is
+``syn_<pack folder name>`` for a synthetic pack and ``real_<tomogram file
+stem>`` for a real scan (``-2``, ``-3``... appended if two sources share a name).
+
+Format decisions
+----------------
+Intensity window
+    Slices are mapped to 8 bits by ``round(255 * clip((v - lo) / (hi - lo), 0, 1))``
+    with ONE window for every source, so that real and synthetic slices of one
+    material look alike: by default the 0.5 and 99.5 percentiles of the real
+    scans' tomograms (pooled), or, without real scans, of the first pack's
+    clean (not post-processed) volume, so that exports with and without
+    post-processing share the window. It is recorded in ``data.yaml`` and
+    ``export.json``; pass `window` to fix it.
+Polygons
+    Each instance's section in a slice is split into its 4-connected parts
+    (a grain that the slice cuts into several pieces gives several parts), and
+    each part is ONE label line: its outer boundary traced by
+    `skimage.measure.find_contours` at level 0.5 (along the pixel edges), the
+    vertices on straight runs removed (lossless, about 2.4x fewer vertices),
+    then moved a quarter pixel inwards. Coordinates are continuous image
+    coordinates normalised by the image size: ``x = (column + 0.5) / W``,
+    ``y = (row + 0.5) / H``, so the image spans [0, 1]. The quarter-pixel inset
+    makes the polygon rasterise back to the part exactly (holes aside) both
+    ways it is read: by "pixel centre inside the polygon" (skimage.draw.polygon,
+    `rasterize_yolo_labels`) and by Ultralytics' own ``polygon2mask``
+    (cv2.fillPoly on truncated vertices, boundary pixels included), which
+    widens polygons traced along the pixel edges by one pixel on the right and
+    bottom (mean part Dice 0.94 instead of 1.0 on a sample pack's small
+    grain sections). At other training resolutions cv2.fillPoly still adds up
+    to one resized pixel; no polygon can avoid that at every scale.
+    `tolerance` > 0 simplifies the outline with
+    `skimage.measure.approximate_polygon`, but its chords cut the corners of
+    convex outlines, so masks shrink: on a 150-grain sample pack (sections
+    ~10-40 px across; bench/bench_export.py) the mean part Dice falls from
+    0.9999 to 0.977, 0.966 and 0.952 (0.991, 0.980 and 0.971 as Ultralytics
+    rasterises) at 0.5, 0.75 and 1 px, for label files 1.8x, 2.9x and 3.8x
+    smaller. That bias is of the size of the effects the paper measures, so
+    the default is exact (0).
+Holes
+    A polygon cannot encode a hole, so holes inside a part are filled. They are
+    rare in grain sections; the filled pixels are counted (``hole_pixels``;
+    the Dice of a filled part with ``A`` pixels and ``H`` hole pixels is
+    ``2A / (2A + H)``).
+Fragments
+    Parts smaller than `min_area` pixels get no label line and are counted
+    (``dropped_fragments``).
+Splits
+    Along the slicing axis, the paper's central 20% of each volume's slices
+    (`synthpack.split.split_slices`) is the test set. Validation slices are the
+    training slices nearest the test block on both sides: the central
+    ``20% + val_fraction`` block (`synthpack.split.central_block`) minus the
+    test block. So val touches train only at its two outer ends, and it also
+    separates the remaining training slices from the test slices. With
+    ``split="real-test"`` synthetic packs give training slices only (all of
+    them), so val and test hold real slices only (the paper's experiment:
+    train on real + synthetic, test on real).
+Truth images
+    For the splits in `truth_splits` (default test) ``truth/<split>/<name>.png``
+    holds the slice's exact instances with the ids of the label lines (line
+    ``k`` is id ``k + 1``; dropped fragments follow them), for scoring
+    predictions with `synthpack.metrics.evaluate_folders`. The folder is not
+    called ``masks``: Ultralytics would take that for semantic masks.
+
+The output folder is built under a temporary name and renamed when complete;
+an existing folder is only replaced if it is an earlier export.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+from PIL import Image
+from scipy import ndimage
+from skimage.draw import polygon as draw_polygon
+from skimage.measure import approximate_polygon, find_contours
+from skimage.measure import label as connected_parts
+from tqdm.auto import tqdm
+
+from .. import __version__
+from .._atomic import atomic_directory
+from ..errors import SynthpackInputError
+from ..io import read_scan
+from ..pack import is_complete_pack, open_pack
+from ..scan import Scan
+from ..split import TEST_FRACTION, central_block
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "SPLITS",
+    "SPLIT_MODES",
+    "ExportSummary",
+    "SlicePolygons",
+    "slice_splits",
+    "intensity_window",
+    "to_uint8",
+    "slice_polygons",
+    "yolo_label_text",
+    "rasterize_yolo_labels",
+    "export_yolo",
+]
+
+SPLITS = ("train", "val", "test")
+#: ``"paper"``: every volume split train/val/test; ``"real-test"``: synthetic packs train only.
+SPLIT_MODES = ("paper", "real-test")
+CLASS_NAMES = {0: "particle"}
+_EIGHT = np.ones((3, 3), dtype=bool)
+# Polygons run this far (pixels) inside the pixel edges: see "Polygons" in the module docstring.
+_INSET = 0.25
+
+
+# --------------------------------------------------------------------------- #
+# Splits and intensities
+# --------------------------------------------------------------------------- #
+
+
+def slice_splits(n_slices: int, val_fraction: float = 0.1) -> dict[str, np.ndarray]:
+    """Slice indices of train, val and test for a volume of `n_slices` slices.
+
+    Test is the paper's central 20% block; val is the central
+    ``(20% + val_fraction)`` block minus the test block; train is the rest.
+
+    Returns
+    -------
+    dict
+        ``{"train", "val", "test"}`` -> sorted int64 indices; they partition
+        ``range(n_slices)``.
+    """
+    if not 0 <= val_fraction < 1 - TEST_FRACTION:
+        raise SynthpackInputError(f"val_fraction must be in [0, {1 - TEST_FRACTION:g}), got {val_fraction}")
+    start, stop = central_block(n_slices)
+    wide_start, wide_stop = central_block(n_slices, TEST_FRACTION + val_fraction) if val_fraction else (start, stop)
+    every = np.arange(n_slices, dtype=np.int64)
+    test = (every >= start) & (every < stop)
+    val = (every >= wide_start) & (every < wide_stop) & ~test
+    return {"train": every[~test & ~val], "val": every[val], "test": every[test]}
+
+
+def intensity_window(volumes: Sequence[Any], percentiles: tuple[float, float] = (0.5, 99.5),
+                     max_samples: int = 1 << 22) -> tuple[float, float]:
+    """Percentiles of the pooled intensities of `volumes`, from an even subsample.
+
+    Parameters
+    ----------
+    volumes : sequence of array-like, shape (Z, Y, X)
+        NumPy arrays, memory maps or Zarr arrays (read with a stride).
+    percentiles : (low, high)
+        In percent.
+    max_samples : int
+        About this many voxels are read from each volume (every ``s``-th along
+        each axis).
+
+    Returns
+    -------
+    (float, float)
+        ``(lo, hi)`` with ``lo < hi``.
+    """
+    samples = []
+    for volume in volumes:
+        stride = max(1, math.ceil((math.prod(volume.shape) / max_samples) ** (1 / 3)))
+        samples.append(np.asarray(volume[::stride, ::stride, ::stride], dtype=np.float64).ravel())
+    lo, hi = np.percentile(np.concatenate(samples), percentiles)
+    if not hi > lo:
+        raise SynthpackInputError(
+            f"the intensity window ({lo:g}, {hi:g}) is empty (constant volume?): give the window explicitly"
+        )
+    return float(lo), float(hi)
+
+
+def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
+    """``round(255 * clip((image - lo) / (hi - lo), 0, 1))`` as uint8, same shape."""
+    lo, hi = window
+    scaled = (np.asarray(image, dtype=np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
+    return np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- #
+# Polygons
+# --------------------------------------------------------------------------- #
+
+
+@dataclass
+class SlicePolygons:
+    """Polygons of one label slice (see `slice_polygons`).
+
+    Attributes
+    ----------
+    polygons : list of ndarray, shape (K, 2), float64
+        Outer boundary of each kept part, a quarter pixel inside the pixel
+        edges, vertices ``(row, column)`` in pixel index coordinates (pixel
+        centres at integers), not repeated at the end.
+    instance_ids : ndarray of int64, shape (len(polygons),)
+        Label (instance id in the slice) each polygon belongs to.
+    parts : ndarray of int32, shape (H, W)
+        Part ids: polygon ``k`` is ``k + 1``, dropped fragments follow; 0 = background.
+    dropped_fragments : int
+        Parts below the minimum area (no polygon).
+    instance_pixels : int
+        Pixels of the kept parts.
+    hole_pixels : int
+        Pixels of holes that the polygons fill.
+    """
+
+    polygons: list[np.ndarray]
+    instance_ids: np.ndarray
+    parts: np.ndarray
+    dropped_fragments: int
+    instance_pixels: int
+    hole_pixels: int
+
+
+def _outer_contour(mask: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Outer boundary (row, col) of a padded 4-connected part, and whether it has holes."""
+    contours = find_contours(mask, 0.5)
+    if len(contours) == 1:
+        return contours[0], False
+    areas = [abs(_shoelace(c)) for c in contours]
+    return contours[int(np.argmax(areas))], True
+
+
+def _previous(vertices: np.ndarray) -> np.ndarray:
+    return np.concatenate((vertices[-1:], vertices[:-1]))
+
+
+def _next(vertices: np.ndarray) -> np.ndarray:
+    return np.concatenate((vertices[1:], vertices[:1]))
+
+
+def _shoelace(contour: np.ndarray) -> float:
+    """Signed area of a closed polygon of (row, col) vertices."""
+    previous = _previous(contour)
+    return 0.5 * float(np.dot(contour[:, 0], previous[:, 1]) - np.dot(contour[:, 1], previous[:, 0]))
+
+
+def _inset(vertices: np.ndarray, distance: float) -> np.ndarray:
+    """Move every edge of a closed polygon `distance` inwards (mitred corners, the miter capped at 2x)."""
+    before = vertices - _previous(vertices)
+    after = _next(vertices) - vertices
+    sign = 1.0 if _shoelace(vertices) >= 0 else -1.0
+    normals = [sign * np.stack([e[:, 1], -e[:, 0]], axis=1) / np.hypot(e[:, 0], e[:, 1])[:, None]
+               for e in (before, after)]
+    miter = (normals[0] + normals[1]) / np.maximum(1 + np.sum(normals[0] * normals[1], axis=1), 0.5)[:, None]
+    return vertices + distance * miter
+
+
+def _drop_collinear(vertices: np.ndarray) -> np.ndarray:
+    """The vertices of a closed polygon (not repeated at the end) where it turns."""
+    before = vertices - _previous(vertices)
+    after = _next(vertices) - vertices
+    return vertices[before[:, 0] * after[:, 1] != before[:, 1] * after[:, 0]]
+
+
+def slice_polygons(labels: np.ndarray, *, min_area: int = 10, tolerance: float = 0.0) -> SlicePolygons:
+    """Polygons of the 4-connected parts of every instance in a label slice.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Instance labels, 0 = background.
+    min_area : int
+        Parts with fewer pixels get no polygon (counted as dropped fragments).
+    tolerance : float
+        Simplification tolerance, pixels. 0 (default) keeps the exact outline
+        (only vertices on straight runs are removed): the polygon rasterises
+        back to the part, holes filled.
+
+    Returns
+    -------
+    SlicePolygons
+    """
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise SynthpackInputError(f"a label slice must be 2D, got shape {labels.shape}")
+    parts = connected_parts(labels, background=0, connectivity=1).astype(np.int32, copy=False)
+    n_parts = int(parts.max())
+    areas = np.bincount(parts.ravel(), minlength=n_parts + 1)
+    boxes = ndimage.find_objects(parts)
+    polygons, instance_ids, kept, hole_pixels = [], [], [], 0
+    for part_id, box in enumerate(boxes, start=1):
+        if areas[part_id] < min_area:
+            continue
+        mask = np.pad(parts[box] == part_id, 1)
+        contour, has_holes = _outer_contour(mask.astype(np.float32))
+        if has_holes:
+            hole_pixels += int(np.count_nonzero(ndimage.binary_fill_holes(mask, structure=_EIGHT) & ~mask))
+        vertices = _drop_collinear(approximate_polygon(contour, tolerance)[:-1] if tolerance else contour[:-1])
+        if len(vertices) < 3:  # simplified away: keep the exact outline
+            vertices = _drop_collinear(contour[:-1])
+        polygons.append(_inset(vertices, _INSET) + (box[0].start - 1, box[1].start - 1))
+        instance_ids.append(int(labels[box][mask[1:-1, 1:-1]][0]))
+        kept.append(part_id)
+    kept_ids = np.array(kept, dtype=np.int64)
+    dropped = np.setdiff1d(np.arange(1, n_parts + 1), kept_ids)
+    lookup = np.zeros(n_parts + 1, dtype=np.int32)
+    lookup[kept_ids] = np.arange(1, len(kept_ids) + 1)
+    lookup[dropped] = np.arange(len(kept_ids) + 1, n_parts + 1)
+    return SlicePolygons(polygons, np.array(instance_ids, dtype=np.int64), lookup[parts], len(dropped),
+                         int(areas[kept_ids].sum()), hole_pixels)
+
+
+def yolo_label_text(polygons: Sequence[np.ndarray], shape: tuple[int, int], class_id: int = 0) -> str:
+    """Ultralytics segment label lines ``class x1 y1 x2 y2 ...`` for (row, col) pixel polygons.
+
+    Coordinates are ``x = (col + 0.5) / W``, ``y = (row + 0.5) / H`` with 6 decimals.
+    """
+    height, width = shape
+    lines = []
+    for vertices in polygons:
+        xy = np.empty((len(vertices), 2))
+        xy[:, 0] = (vertices[:, 1] + 0.5) / width
+        xy[:, 1] = (vertices[:, 0] + 0.5) / height
+        lines.append(f"{class_id} " + " ".join(f"{v:.6f}" for v in np.clip(xy, 0, 1).ravel()))
+    return "".join(line + "\n" for line in lines)
+
+
+def rasterize_yolo_labels(text: str, shape: tuple[int, int]) -> list[np.ndarray]:
+    """Masks of the polygons of YOLO segment label text (the inverse of `yolo_label_text`).
+
+    Parameters
+    ----------
+    text : str
+        Contents of a label file: ``class x1 y1 x2 y2 ...`` per line.
+    shape : (H, W)
+        Image shape in pixels.
+
+    Returns
+    -------
+    list of ndarray of bool, shape (H, W)
+        One per line: the pixels whose centres lie inside the polygon.
+    """
+    height, width = shape
+    masks = []
+    for line in text.splitlines():
+        if not line.strip():
+            continue
+        values = np.array(line.split()[1:], dtype=np.float64).reshape(-1, 2)
+        mask = np.zeros(shape, dtype=bool)
+        rows, cols = draw_polygon(values[:, 1] * height - 0.5, values[:, 0] * width - 0.5, shape)
+        mask[rows, cols] = True
+        masks.append(mask)
+    return masks
+
+
+# --------------------------------------------------------------------------- #
+# Sources
+# --------------------------------------------------------------------------- #
+
+
+@dataclass
+class _Source:
+    name: str
+    kind: str  # "real" or "synthetic"
+    path: str
+    volume: str  # which volume the images come from
+    tomogram: Any
+    labels: Any
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.labels.shape)  # type: ignore[return-value]
+
+
+def _pack_dirs(path: Path) -> list[Path]:
+    if is_complete_pack(path):
+        return [path]
+    if not path.is_dir():
+        raise SynthpackInputError(f"pack folder {path} does not exist: give pack folders made by `synthpack generate`")
+    candidates = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
+    packs = [p for p in candidates if is_complete_pack(p)]
+    broken = [p.name for p in candidates if p.name.startswith("pack_") and not is_complete_pack(p)]
+    if broken:
+        raise SynthpackInputError(
+            f"{path} holds incomplete pack(s) {', '.join(broken)}: run `synthpack generate` again to finish them"
+        )
+    if not packs:
+        raise SynthpackInputError(
+            f"{path} is neither a pack nor a folder of packs: give folders made by `synthpack generate`"
+        )
+    return packs
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "scan"
+
+
+def _real_source(item: Scan | tuple, index: int) -> _Source:
+    if isinstance(item, Scan):
+        return _Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels)
+    if not (isinstance(item, (tuple, list)) and len(item) == 2):
+        raise SynthpackInputError(f"a real scan is a Scan or a (tomogram, labels) pair of paths, got {item!r}")
+    tomogram, labels = (Path(p) for p in item)
+    # the export works in pixels: an explicit voxel size skips the missing-metadata warning
+    scan = read_scan(tomogram, labels, voxel_size=1.0, unit="px")
+    name = tomogram.name[: -len(".zarr")] if tomogram.name.endswith(".zarr") else tomogram.stem
+    return _Source(f"real_{_safe(name)}", "real", f"{tomogram} + {labels}", "tomogram", scan.tomogram, scan.labels)
+
+
+def _unique_names(sources: list[_Source]) -> None:
+    seen: dict[str, int] = {}
+    for source in sources:
+        count = seen.get(source.name, 0) + 1
+        seen[source.name] = count
+        if count > 1:
+            source.name = f"{source.name}-{count}"
+
+
+def _take(volume: Any, index: int, axis: int) -> np.ndarray:
+    return np.asarray(volume[(slice(None),) * axis + (index,)])
+
+
+# --------------------------------------------------------------------------- #
+# Export
+# --------------------------------------------------------------------------- #
+
+
+def _split_counts() -> dict[str, int]:
+    return dict.fromkeys(SPLITS, 0)
+
+
+@dataclass
+class ExportSummary:
+    """What `export_yolo` wrote.
+
+    Attributes
+    ----------
+    out : Path
+        The dataset folder (``data.yaml`` inside).
+    window : (float, float)
+        Intensity window mapped to 0..255.
+    window_from : str
+        Where the window came from.
+    images, instances, empty_images, dropped_fragments, instance_pixels, hole_pixels : dict
+        Per split (``train``, ``val``, ``test``): PNG images, label lines,
+        images without any label line, parts too small for a label line,
+        pixels of the labelled parts, and hole pixels filled by polygons.
+    sources : list of dict
+        Per source: ``name``, ``kind`` (real / synthetic), ``path``,
+        ``volume`` (tomogram / clean), ``shape`` and slices per split.
+    settings : dict
+        The export's arguments.
+    """
+
+    out: Path
+    window: tuple[float, float]
+    window_from: str
+    images: dict[str, int] = field(default_factory=_split_counts)
+    instances: dict[str, int] = field(default_factory=_split_counts)
+    empty_images: dict[str, int] = field(default_factory=_split_counts)
+    dropped_fragments: dict[str, int] = field(default_factory=_split_counts)
+    instance_pixels: dict[str, int] = field(default_factory=_split_counts)
+    hole_pixels: dict[str, int] = field(default_factory=_split_counts)
+    sources: list[dict] = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+
+    _COUNTS = ("images", "instances", "empty_images", "dropped_fragments", "instance_pixels", "hole_pixels")
+
+    def to_dict(self) -> dict:
+        """JSON-able form (as in ``export.json``)."""
+        counts = {name: getattr(self, name) for name in self._COUNTS}
+        return {"format": "synthpack-yolo-seg", "synthpack": __version__, "out": str(self.out),
+                "window": list(self.window), "window_from": self.window_from, **counts,
+                "sources": self.sources, "settings": self.settings}
+
+    def table(self) -> str:
+        """Markdown table of the counts per split."""
+        lines = ["| split | " + " | ".join(name.replace("_", " ") for name in self._COUNTS) + " |",
+                 "|---|" + "---|" * len(self._COUNTS)]
+        for split in SPLITS:
+            lines.append(f"| {split} | " + " | ".join(str(getattr(self, n)[split]) for n in self._COUNTS) + " |")
+        return "\n".join(lines)
+
+
+def _check_out(out: Path) -> None:
+    if not out.exists():
+        return
+    if out.is_dir() and (not any(out.iterdir()) or ((out / "export.json").is_file() and (out / "data.yaml").is_file())):
+        return
+    raise SynthpackInputError(
+        f"{out} exists and is not a synthpack YOLO export: choose a new --out folder (an earlier export is replaced)"
+    )
+
+
+def _data_yaml(out: Path, summary: ExportSummary) -> str:
+    lo, hi = summary.window
+    return (
+        f"# synthpack {__version__} YOLO instance-segmentation export; details in export.json\n"
+        f"# intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from}):\n"
+        "#   pixel = round(255 * clip((value - lo) / (hi - lo), 0, 1))\n"
+        "# moved the folder? edit `path`, or delete it (Ultralytics then uses this file's folder)\n"
+        f"path: {json.dumps(str(out.resolve()))}\n"
+        "train: images/train\nval: images/val\ntest: images/test\n"
+        "names:\n" + "".join(f"  {k}: {v}\n" for k, v in CLASS_NAMES.items())
+    )
+
+
+def _write_truth(path: Path, parts: np.ndarray) -> None:
+    if parts.max(initial=0) <= np.iinfo(np.uint16).max:
+        Image.fromarray(parts.astype(np.uint16)).save(path.with_suffix(".png"))
+    else:
+        tifffile.imwrite(path.with_suffix(".tif"), parts.astype(np.uint32))
+
+
+def export_yolo(
+    out: str | os.PathLike,
+    packs: Sequence[str | os.PathLike] = (),
+    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]] = (),
+    *,
+    axis: int = 0,
+    split: str = "paper",
+    val_fraction: float = 0.1,
+    postprocess: bool = True,
+    window: tuple[float, float] | None = None,
+    min_area: int = 10,
+    tolerance: float = 0.0,
+    truth_splits: Sequence[str] = ("test",),
+    progress: bool = True,
+) -> ExportSummary:
+    """Write packs and real scans as a YOLO segmentation dataset (layout and format: module docstring).
+
+    Parameters
+    ----------
+    out : path-like
+        Output folder; must be new, empty or an earlier export (replaced).
+    packs : sequence of path-like
+        Pack folders, or folders holding pack folders (``pack_0000``, ...).
+    real : sequence of Scan or (tomogram, labels) path pairs
+        Labelled real scans (read with `synthpack.io.read_scan`).
+    axis : {0, 1, 2}
+        Slicing axis of every volume.
+    split : {"paper", "real-test"}
+        ``"paper"``: every volume gives train, val and test slices;
+        ``"real-test"``: synthetic packs give training slices only.
+    val_fraction : float
+        Fraction of each split volume's slices for validation, next to the test block.
+    postprocess : bool
+        Synthetic images from the post-processed ``tomogram`` (True) or the
+        ``clean`` volume (False).
+    window : (lo, hi), optional
+        Intensity window; default: 0.5/99.5 percentiles of the real tomograms,
+        else of the first pack's clean volume.
+    min_area : int
+        Parts of fewer pixels get no label line.
+    tolerance : float
+        Polygon simplification tolerance, pixels; 0 = exact outlines (see the module docstring).
+    truth_splits : sequence of str
+        Splits for which ``truth/<split>/`` instance images are written.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    ExportSummary
+    """
+    out = Path(out)
+    if axis not in (0, 1, 2):
+        raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis}")
+    if split not in SPLIT_MODES:
+        raise SynthpackInputError(f"split must be one of {', '.join(SPLIT_MODES)}, got {split!r}")
+    unknown = sorted(set(truth_splits) - set(SPLITS))
+    if unknown:
+        raise SynthpackInputError(f"unknown truth split(s) {', '.join(unknown)}: use {', '.join(SPLITS)}")
+    if min_area < 1 or tolerance < 0:
+        raise SynthpackInputError(f"min_area must be >= 1 and tolerance >= 0, got {min_area} and {tolerance}")
+    if not packs and not real:
+        raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
+    _check_out(out)
+
+    synthetic = []
+    for path in packs:
+        for pack_dir in _pack_dirs(Path(path)):
+            pack = open_pack(pack_dir)
+            volume = "tomogram" if postprocess else "clean"
+            synthetic.append((pack, _Source(f"syn_{_safe(pack_dir.name)}", "synthetic", str(pack_dir), volume,
+                                            getattr(pack, volume), pack.labels)))
+    reals = [_real_source(item, k) for k, item in enumerate(real)]
+    sources = [s for _, s in synthetic] + reals
+    _unique_names(sources)
+
+    if window is not None:
+        lo, hi = (float(v) for v in window)
+        if not hi > lo:
+            raise SynthpackInputError(f"the window needs lo < hi, got ({lo}, {hi})")
+        window, window_from = (lo, hi), "given"
+    elif reals:
+        window = intensity_window([s.tomogram for s in reals])
+        window_from = "0.5/99.5 percentiles of the real tomograms"
+    else:
+        window = intensity_window([synthetic[0][0].clean])
+        window_from = f"0.5/99.5 percentiles of the clean volume of {synthetic[0][1].path}"
+
+    plans = []
+    for source in sources:
+        n = source.shape[axis]
+        if split == "real-test" and source.kind == "synthetic":
+            plans.append({"train": np.arange(n, dtype=np.int64), "val": np.zeros(0, np.int64),
+                          "test": np.zeros(0, np.int64)})
+        else:
+            plans.append(slice_splits(n, val_fraction))
+    empty = [s for s in SPLITS if not any(len(plan[s]) for plan in plans)]
+    if empty:
+        raise SynthpackInputError(
+            f"no slices for the {' and '.join(empty)} split(s): with split='real-test' give real scans, "
+            "and use a val_fraction > 0"
+        )
+
+    summary = ExportSummary(out, window, window_from)
+    summary.settings = {"axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
+                        "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits),
+                        "class_names": CLASS_NAMES}
+    total = sum(source.shape[axis] for source in sources)
+    with atomic_directory(out) as staging:
+        for sub in ("images", "labels"):
+            for s in SPLITS:
+                (staging / sub / s).mkdir(parents=True)
+        for s in truth_splits:
+            (staging / "truth" / s).mkdir(parents=True)
+        with tqdm(total=total, desc="export", unit="slice", disable=not progress) as bar:
+            for source, plan in zip(sources, plans):
+                _export_source(staging, source, plan, axis, summary, min_area, tolerance,
+                               set(truth_splits), bar)
+        (staging / "data.yaml").write_text(_data_yaml(out, summary))
+        (staging / "export.json").write_text(json.dumps(summary.to_dict(), indent=1))
+    logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
+    return summary
+
+
+def _export_source(staging: Path, source: _Source, plan: dict[str, np.ndarray], axis: int, summary: ExportSummary,
+                   min_area: int, tolerance: float, truth_splits: set[str], bar) -> None:
+    split_of = {int(i): s for s, indices in plan.items() for i in indices}
+    for index in range(source.shape[axis]):
+        s = split_of[index]
+        stem = f"{source.name}_a{axis}_s{index:04d}"
+        image = to_uint8(_take(source.tomogram, index, axis), summary.window)
+        Image.fromarray(image).save(staging / "images" / s / f"{stem}.png")
+        result = slice_polygons(_take(source.labels, index, axis), min_area=min_area, tolerance=tolerance)
+        (staging / "labels" / s / f"{stem}.txt").write_text(yolo_label_text(result.polygons, image.shape))
+        if s in truth_splits:
+            _write_truth(staging / "truth" / s / stem, result.parts)
+        summary.images[s] += 1
+        summary.instances[s] += len(result.polygons)
+        summary.empty_images[s] += not result.polygons
+        summary.dropped_fragments[s] += result.dropped_fragments
+        summary.instance_pixels[s] += result.instance_pixels
+        summary.hole_pixels[s] += result.hole_pixels
+        bar.update()
+    summary.sources.append({
+        "name": source.name, "kind": source.kind, "path": source.path, "volume": source.volume,
+        "shape": list(source.shape), "slices": {s: len(indices) for s, indices in plan.items()},
+        "test_block": [int(plan["test"][0]), int(plan["test"][-1]) + 1] if len(plan["test"]) else None,
+    })
