@@ -11,6 +11,8 @@ Item format (both datasets), following torchvision's detection conventions::
     image, target = dataset[i]
     image                   tv_tensors.Image, float32, shape (1, H, W)
     target["masks"]         tv_tensors.Mask, bool, shape (N, H, W), one per instance in the slice
+                            (with dense_masks=False: target["instance_map"], Mask, int32,
+                            (H, W), instance j as j + 1; expand_masks(target) gives "masks")
     target["boxes"]         tv_tensors.BoundingBoxes, float32, (N, 4), XYXY, canvas_size (H, W)
     target["labels"]        int64, (N,), class ids: all 1 (particle)
     target["instance_ids"]  int64, (N,), the instances' values in the label volume
@@ -83,7 +85,14 @@ from .split import SPLITS, split_slices
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SyntheticParticlePackDataset", "ScanSliceDataset", "instance_target", "collate_fn"]
+__all__ = [
+    "SyntheticParticlePackDataset",
+    "ScanSliceDataset",
+    "instance_target",
+    "expand_masks",
+    "collate_fn",
+    "collate_stacked",
+]
 
 #: Seed of the built-in sample scans used as a source.
 SAMPLE_SEED = 0
@@ -114,7 +123,7 @@ def _image(slice_: np.ndarray, shared: bool) -> tv_tensors.Image:
     return tv_tensors.Image(tensor)
 
 
-def instance_target(labels: np.ndarray, *, shared: bool = False) -> dict[str, Any]:
+def instance_target(labels: np.ndarray, *, shared: bool = False, dense_masks: bool = True) -> dict[str, Any]:
     """Detection target of one labelled slice.
 
     Parameters
@@ -124,13 +133,19 @@ def instance_target(labels: np.ndarray, *, shared: bool = False) -> dict[str, An
     shared : bool
         Put masks and semantic map in shared memory (what a DataLoader worker
         sends without a copy).
+    dense_masks : bool
+        True: ``masks`` holds one (H, W) plane per instance. False: instead
+        ``instance_map`` (Mask, int32, (H, W)) holds instance ``j`` as value
+        ``j + 1``; it is N times smaller to send from a DataLoader worker, and
+        :func:`expand_masks` makes the planes where they are needed (e.g. on the GPU).
 
     Returns
     -------
     dict
-        ``masks`` (Mask, bool, (N, H, W)), ``boxes`` (BoundingBoxes, float32,
-        (N, 4), XYXY pixel edges), ``labels`` (int64 ones, (N,)), ``instance_ids``
-        (int64, (N,), increasing) and ``semantic`` (Mask, uint8, (H, W)).
+        ``masks`` (Mask, bool, (N, H, W)) or ``instance_map``, ``boxes``
+        (BoundingBoxes, float32, (N, 4), XYXY pixel edges), ``labels`` (int64
+        ones, (N,)), ``instance_ids`` (int64, (N,), increasing) and ``semantic``
+        (Mask, uint8, (H, W)).
     """
     labels = np.asarray(labels)
     counts = np.bincount(labels.ravel().astype(np.intp, copy=False))
@@ -140,21 +155,41 @@ def instance_target(labels: np.ndarray, *, shared: bool = False) -> dict[str, An
     lookup = np.zeros(counts.size, dtype=np.int32)
     lookup[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
     compact = lookup[labels]
-    masks = _zeros((ids.size, *labels.shape), torch.bool, shared)
     semantic = _zeros(labels.shape, torch.uint8, shared)
     np.greater(compact, 0, out=semantic.numpy().view(bool))
     boxes = np.zeros((ids.size, 4), dtype=np.float32)
-    planes = masks.numpy()
+    if dense_masks:
+        masks = _zeros((ids.size, *labels.shape), torch.bool, shared)
+        planes = masks.numpy()
+    else:
+        instance_map = _zeros(labels.shape, torch.int32, shared)
+        np.copyto(instance_map.numpy(), compact)
     for j, (rows, cols) in enumerate(ndimage.find_objects(compact)):
-        np.equal(compact[rows, cols], j + 1, out=planes[j, rows, cols])
+        if dense_masks:
+            np.equal(compact[rows, cols], j + 1, out=planes[j, rows, cols])
         boxes[j] = (cols.start, rows.start, cols.stop, rows.stop)
     return {
-        "masks": tv_tensors.Mask(masks),
+        ("masks" if dense_masks else "instance_map"): tv_tensors.Mask(masks if dense_masks else instance_map),
         "boxes": tv_tensors.BoundingBoxes(torch.from_numpy(boxes), format="XYXY", canvas_size=labels.shape),
         "labels": torch.ones(ids.size, dtype=torch.int64),
         "instance_ids": torch.from_numpy(ids.astype(np.int64)),
         "semantic": tv_tensors.Mask(semantic),
     }
+
+
+def expand_masks(target: dict[str, Any]) -> dict[str, Any]:
+    """Replace a compact ``instance_map`` (``dense_masks=False``) by the ``masks`` planes.
+
+    Works on any device: ``masks[j] = instance_map == j + 1``, bool, (N, H, W).
+    Returns a new dict; a target that already has ``masks`` is returned unchanged.
+    """
+    if "instance_map" not in target:
+        return target
+    expanded = {key: value for key, value in target.items() if key != "instance_map"}
+    instance_map = target["instance_map"].as_subclass(torch.Tensor)
+    values = torch.arange(1, len(target["labels"]) + 1, device=instance_map.device, dtype=instance_map.dtype)
+    expanded["masks"] = tv_tensors.Mask(instance_map[None] == values[:, None, None])
+    return expanded
 
 
 def collate_fn(batch: Sequence[Item]) -> tuple[list[tv_tensors.Image], list[dict[str, Any]]]:
@@ -164,6 +199,44 @@ def collate_fn(batch: Sequence[Item]) -> tuple[list[tv_tensors.Image], list[dict
     detection models expect.
     """
     return [image for image, _ in batch], [target for _, target in batch]
+
+
+def collate_stacked(batch: Sequence[Item]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """DataLoader collate for compact targets (``dense_masks=False``): a few tensors per batch.
+
+    Every slice of the batch must have the same (H, W). Per-instance values are
+    concatenated with a ``batch_index`` (the layout ultralytics uses for its own
+    batches), so a batch crosses from a worker to the main process as a handful
+    of tensors instead of several per item, which is what keeps 2 workers ahead
+    of the main process.
+
+    Returns
+    -------
+    images : Tensor, float32, (B, 1, H, W)
+    targets : dict
+        ``instance_map`` (B, H, W) int32 and ``semantic`` (B, H, W) uint8;
+        ``boxes`` (M, 4), ``labels``, ``instance_ids`` and ``batch_index`` (M,)
+        for the M instances of the batch; ``pack`` and ``slice`` (B,).
+    """
+    targets = [target for _, target in batch]
+    if any("instance_map" not in target for target in targets):
+        raise SynthpackInputError("collate_stacked needs dense_masks=False datasets; use collate_fn otherwise")
+    shapes = {tuple(image.shape) for image, _ in batch}
+    if len(shapes) != 1:
+        raise SynthpackInputError(
+            f"collate_stacked needs slices of one shape, got {sorted(shapes)}: use collate_fn for mixed sizes"
+        )
+    counts = torch.tensor([len(target["labels"]) for target in targets])
+    return torch.stack([image.as_subclass(torch.Tensor) for image, _ in batch]), {
+        "instance_map": torch.stack([t["instance_map"].as_subclass(torch.Tensor) for t in targets]),
+        "semantic": torch.stack([t["semantic"].as_subclass(torch.Tensor) for t in targets]),
+        "boxes": torch.cat([t["boxes"].as_subclass(torch.Tensor) for t in targets]),
+        "labels": torch.cat([t["labels"] for t in targets]),
+        "instance_ids": torch.cat([t["instance_ids"] for t in targets]),
+        "batch_index": torch.repeat_interleave(torch.arange(len(batch)), counts),
+        "pack": torch.tensor([t["pack"] for t in targets]),
+        "slice": torch.tensor([t["slice"] for t in targets]),
+    }
 
 
 def _split_transforms(transform: Any) -> tuple[list, list]:
@@ -212,13 +285,14 @@ class _SliceDataset(Dataset, ABC):
     calling process) and `_ready` (make sure `_index` ran).
     """
 
-    def __init__(self, split: str, axis: int, seed: int, transform: Any) -> None:
+    def __init__(self, split: str, axis: int, seed: int, transform: Any, dense_masks: bool = True) -> None:
         if split not in SPLITS:
             raise SynthpackInputError(f"split must be 'train', 'test' or 'all', got {split!r}")
         self.split = split
         self.axis = _check_axis(axis)
         self.seed = _check_seed(seed, "seed")
         self.transform = transform
+        self.dense_masks = bool(dense_masks)
         self._artefacts, self._callables = _split_transforms(transform)
         # in shared memory, so set_epoch reaches DataLoader workers that already run
         self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()
@@ -280,8 +354,10 @@ class _SliceDataset(Dataset, ABC):
             rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, k, self.axis, s]))
             for artefact in self._artefacts:
                 image = artefact(image, rng)
-        shared = get_worker_info() is not None
-        target = instance_target(np.asarray(label_volume[where]), shared=shared)
+        # dense masks go to the main process fastest from shared memory; compact targets
+        # are batched by `collate_stacked`, which makes a few large tensors per batch
+        shared = self.dense_masks and get_worker_info() is not None
+        target = instance_target(np.asarray(label_volume[where]), shared=shared, dense_masks=self.dense_masks)
         target["pack"], target["slice"] = k, s
         sample: Item = (_image(image, shared), target)
         for transform in self._callables:
@@ -455,6 +531,10 @@ class SyntheticParticlePackDataset(_SliceDataset):
         Build (or check) the packs now instead of on first use.
     progress : bool
         Show progress bars while building.
+    dense_masks : bool
+        True: ``target["masks"]`` (N, H, W). False: the compact
+        ``target["instance_map"]`` (H, W) instead, N times cheaper to send from
+        DataLoader workers; :func:`expand_masks` turns it into ``masks``.
 
     Notes
     -----
@@ -490,13 +570,14 @@ class SyntheticParticlePackDataset(_SliceDataset):
         *,
         build: bool = False,
         progress: bool = False,
+        dense_masks: bool = True,
     ) -> None:
         if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
             raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
         config = _as_config(config)
         if seed is not None:
             config = config.replace(seed=_check_seed(seed, "seed"))
-        super().__init__(split, axis, config.seed, transform)
+        super().__init__(split, axis, config.seed, transform, dense_masks)
         self.root = Path(root).expanduser()
         self.source = _Source.parse(source)
         self.n_packs = n_packs
@@ -657,6 +738,8 @@ class ScanSliceDataset(_SliceDataset):
         Base seed of artefact transforms.
     transform : callable, artefact transform or list of them, optional
         As in `SyntheticParticlePackDataset`.
+    dense_masks : bool
+        As in `SyntheticParticlePackDataset`.
 
     Notes
     -----
@@ -671,8 +754,10 @@ class ScanSliceDataset(_SliceDataset):
         axis: int = 0,
         seed: int = 0,
         transform: Any = None,
+        *,
+        dense_masks: bool = True,
     ) -> None:
-        super().__init__(split, axis, seed, transform)
+        super().__init__(split, axis, seed, transform, dense_masks)
         if isinstance(scan, str) and labels is None and scan in SAMPLE_NAMES:
             from .samples import sample_scan
 

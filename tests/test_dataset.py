@@ -12,7 +12,14 @@ from torchvision.transforms import v2
 
 from synthpack.artefacts import GaussianNoise
 from synthpack.config import PackConfig
-from synthpack.dataset import ScanSliceDataset, SyntheticParticlePackDataset, collate_fn, instance_target
+from synthpack.dataset import (
+    ScanSliceDataset,
+    SyntheticParticlePackDataset,
+    collate_fn,
+    collate_stacked,
+    expand_masks,
+    instance_target,
+)
 from synthpack.errors import SynthpackInputError
 from synthpack.io import write_tiff
 from synthpack.pack import open_pack
@@ -287,3 +294,37 @@ def test_repr_names_root_source_split_and_slices(root):
 def test_bad_input_says_what_to_do(tmp_path, kwargs, message):
     with pytest.raises(SynthpackInputError, match=message):
         SyntheticParticlePackDataset(tmp_path, **kwargs)
+
+
+def test_compact_targets_expand_to_the_dense_masks_after_a_flip(root):
+    flip = v2.RandomHorizontalFlip(p=1)
+    dense = dataset(root, split="test", transform=flip)
+    compact = dataset(root, split="test", transform=flip, dense_masks=False)
+    loader = DataLoader(compact, batch_size=4, collate_fn=collate_fn, num_workers=2)
+    checked = 0
+    for images, targets in loader:
+        for image, target in zip(images, targets):
+            assert "masks" not in target and target["instance_map"].dtype == torch.int32
+            expected_image, expected = dense[checked]
+            torch.testing.assert_close(image, expected_image, rtol=0, atol=0)
+            expanded = expand_masks(target)
+            assert torch.equal(expanded["masks"], expected["masks"])
+            assert torch.equal(expanded["boxes"], expected["boxes"])
+            checked += 1
+    assert checked == len(dense) > 0
+    assert expand_masks(expected) is expected
+
+
+def test_collate_stacked_batches_compact_targets(root):
+    compact = dataset(root, split="test", dense_masks=False)
+    images, targets = next(iter(DataLoader(compact, batch_size=3, collate_fn=collate_stacked, num_workers=2)))
+    assert images.shape[0] == 3 and images.shape[1] == 1
+    for b in range(3):
+        image, target = compact[b]
+        assert torch.equal(images[b], image.as_subclass(torch.Tensor))
+        assert torch.equal(targets["instance_map"][b], target["instance_map"].as_subclass(torch.Tensor))
+        mine = targets["batch_index"] == b
+        assert torch.equal(targets["boxes"][mine], target["boxes"].as_subclass(torch.Tensor))
+        assert torch.equal(targets["instance_ids"][mine], target["instance_ids"])
+    with pytest.raises(SynthpackInputError, match="dense_masks=False"):
+        collate_stacked([dataset(root, split="test")[0]])
