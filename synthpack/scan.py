@@ -80,8 +80,11 @@ def validate_voxel_size(voxel_size: float | tuple[float, ...]) -> tuple[float, f
 
     A single number means an isotropic voxel.
     """
-    values = np.atleast_1d(np.asarray(voxel_size, dtype=float)) if not isinstance(voxel_size, str) else None
-    if values is None or values.ndim != 1 or values.size not in (1, 3):
+    try:
+        values = np.atleast_1d(np.asarray(voxel_size, dtype=float))
+    except (TypeError, ValueError):
+        values = np.empty((0, 0))
+    if values.ndim != 1 or values.size not in (1, 3):
         raise SynthpackInputError(
             f"voxel size {voxel_size!r} is not understood: give one positive number "
             "(isotropic) or three, in (z, y, x) order"
