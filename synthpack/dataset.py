@@ -202,21 +202,21 @@ def collate_fn(batch: Sequence[Item]) -> tuple[list[tv_tensors.Image], list[dict
 
 
 def collate_stacked(batch: Sequence[Item]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """DataLoader collate for compact targets (``dense_masks=False``): a few tensors per batch.
+    """DataLoader collate for compact targets (``dense_masks=False``): five tensors per batch.
 
     Every slice of the batch must have the same (H, W). Per-instance values are
-    concatenated with a ``batch_index`` (the layout ultralytics uses for its own
+    concatenated with their batch index (the layout ultralytics uses for its own
     batches), so a batch crosses from a worker to the main process as a handful
-    of tensors instead of several per item, which is what keeps 2 workers ahead
-    of the main process.
+    of tensors instead of several per item: each tensor costs new shared memory.
 
     Returns
     -------
     images : Tensor, float32, (B, 1, H, W)
     targets : dict
-        ``instance_map`` (B, H, W) int32 and ``semantic`` (B, H, W) uint8;
-        ``boxes`` (M, 4), ``labels``, ``instance_ids`` and ``batch_index`` (M,)
-        for the M instances of the batch; ``pack`` and ``slice`` (B,).
+        ``instance_map`` (B, H, W) int32 (the semantic mask is ``instance_map > 0``);
+        ``boxes`` (M, 4) float32 XYXY for the M instances of the batch;
+        ``instances`` (M, 3) int64 columns ``batch_index, label, instance_id``;
+        ``index`` (B, 2) int64 columns ``pack, slice``.
     """
     targets = [target for _, target in batch]
     if any("instance_map" not in target for target in targets):
@@ -227,15 +227,16 @@ def collate_stacked(batch: Sequence[Item]) -> tuple[torch.Tensor, dict[str, torc
             f"collate_stacked needs slices of one shape, got {sorted(shapes)}: use collate_fn for mixed sizes"
         )
     counts = torch.tensor([len(target["labels"]) for target in targets])
+    instances = torch.stack([
+        torch.repeat_interleave(torch.arange(len(batch)), counts),
+        torch.cat([t["labels"] for t in targets]),
+        torch.cat([t["instance_ids"] for t in targets]),
+    ], dim=1)
     return torch.stack([image.as_subclass(torch.Tensor) for image, _ in batch]), {
         "instance_map": torch.stack([t["instance_map"].as_subclass(torch.Tensor) for t in targets]),
-        "semantic": torch.stack([t["semantic"].as_subclass(torch.Tensor) for t in targets]),
         "boxes": torch.cat([t["boxes"].as_subclass(torch.Tensor) for t in targets]),
-        "labels": torch.cat([t["labels"] for t in targets]),
-        "instance_ids": torch.cat([t["instance_ids"] for t in targets]),
-        "batch_index": torch.repeat_interleave(torch.arange(len(batch)), counts),
-        "pack": torch.tensor([t["pack"] for t in targets]),
-        "slice": torch.tensor([t["slice"] for t in targets]),
+        "instances": instances,
+        "index": torch.tensor([[t["pack"], t["slice"]] for t in targets], dtype=torch.int64),
     }
 
 

@@ -323,8 +323,10 @@ def test_collate_stacked_batches_compact_targets(root):
         image, target = compact[b]
         assert torch.equal(images[b], image.as_subclass(torch.Tensor))
         assert torch.equal(targets["instance_map"][b], target["instance_map"].as_subclass(torch.Tensor))
-        mine = targets["batch_index"] == b
+        mine = targets["instances"][:, 0] == b
         assert torch.equal(targets["boxes"][mine], target["boxes"].as_subclass(torch.Tensor))
-        assert torch.equal(targets["instance_ids"][mine], target["instance_ids"])
+        assert torch.equal(targets["instances"][mine, 2], target["instance_ids"])
+        assert torch.equal(targets["instances"][mine, 1], target["labels"])
+        assert targets["index"][b].tolist() == [target["pack"], target["slice"]]
     with pytest.raises(SynthpackInputError, match="dense_masks=False"):
         collate_stacked([dataset(root, split="test")[0]])
