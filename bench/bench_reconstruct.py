@@ -49,7 +49,8 @@ import scipy
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from synthpack.generate import _WALL_FRACTION
+from synthpack.config import ReconstructConfig
+from synthpack.generate import pack_phases
 from synthpack.library import ParticleLibrary
 from synthpack.physics import Placements, pour
 from synthpack.reconstruct import Grid, Phases, pose_maps, reconstruct
@@ -163,9 +164,7 @@ def per_grain_dice(labels: np.ndarray, references: list[tuple[tuple, np.ndarray]
 
 
 def _phases(library: ParticleLibrary, wall: bool = True) -> Phases:
-    p = library.phases
-    return Phases(p["pore_mean"], p["pore_std"],
-                  p["pore_mean"] + _WALL_FRACTION * (p["grain_mean"] - p["pore_mean"]) if wall else None)
+    return pack_phases(library, ReconstructConfig(wall=wall))
 
 
 def ours(library: ParticleLibrary, placements: Placements, grid: Grid, order: int,

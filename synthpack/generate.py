@@ -15,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import __version__
-from .config import PackConfig
+from .config import PackConfig, ReconstructConfig
 from .errors import SynthpackInputError
 from .library import ParticleLibrary
 from .pack import is_complete_pack, write_pack
@@ -25,7 +25,7 @@ from .reconstruct import Grid, Phases, pose_maps, reconstruct
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SyntheticPack", "build_pack", "generate_packs", "pack_seed", "pack_name"]
+__all__ = ["SyntheticPack", "build_pack", "generate_packs", "pack_phases", "pack_seed", "pack_name"]
 
 #: Wall intensity as a fraction of the way from pore to grain intensity (a plastic tube).
 _WALL_FRACTION = 0.4
@@ -77,6 +77,18 @@ def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
     )
 
 
+def pack_phases(library: ParticleLibrary, config: ReconstructConfig) -> Phases:
+    """Pore and tube-wall intensities of a pack, from the library's source-scan statistics.
+
+    The wall defaults to 40% of the way from pore to grain intensity (a plastic tube)
+    unless ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
+    """
+    phases = library.phases
+    wall = config.wall_intensity if config.wall_intensity is not None else (
+        phases["pore_mean"] + _WALL_FRACTION * (phases["grain_mean"] - phases["pore_mean"]))
+    return Phases(phases["pore_mean"], phases["pore_std"], wall if config.wall else None)
+
+
 def _postprocessing(config: PackConfig, phases: dict[str, float], clean: np.ndarray, labels: np.ndarray):
     from .artefacts import Compose, default_postprocessing, estimate_noise, from_config, noise_to_add
 
@@ -125,19 +137,15 @@ def build_pack(
                          library.voxel_size, margin=rec.margin)
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid)
-    phases = library.phases
-    wall = rec.wall_intensity if rec.wall_intensity is not None else (
-        phases["pore_mean"] + _WALL_FRACTION * (phases["grain_mean"] - phases["pore_mean"]))
     clean, labels, contested = reconstruct(
-        [(p.tomogram, p.mask) for p in library], maps, grid,
-        Phases(phases["pore_mean"], phases["pore_std"], wall if rec.wall else None),
+        [(p.tomogram, p.mask) for p in library], maps, grid, pack_phases(library, rec),
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
         order=rec.order, seed=seed, chunks=tuple(rec.chunks),
     )
     timings["reconstruct"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    postprocessing = _postprocessing(config, phases, clean, labels)
+    postprocessing = _postprocessing(config, library.phases, clean, labels)
     tomogram, applied = postprocessing.apply(clean, np.random.SeedSequence([seed, 1]))
     timings["postprocess"] = time.perf_counter() - start
 

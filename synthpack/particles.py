@@ -20,11 +20,16 @@ from .scan import Scan
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Particle", "ParticleCrop", "extract_particles", "estimate_phases"]
+__all__ = ["Particle", "ParticleCrop", "equivalent_diameter", "extract_particles", "estimate_phases"]
 
 #: Particles smaller than this many voxels are dropped by default: below it a
 #: marching-cubes surface is little more than a voxel blob.
 DEFAULT_MIN_VOXELS = 50
+
+
+def equivalent_diameter(volume: float | np.ndarray) -> float | np.ndarray:
+    """Diameter of the sphere of `volume` (cubic physical units), in physical units."""
+    return (6.0 * np.asarray(volume, dtype=float) / np.pi) ** (1.0 / 3.0)
 
 
 @dataclass
@@ -64,8 +69,7 @@ class ParticleCrop:
     @property
     def equivalent_diameter(self) -> float:
         """Diameter of the sphere with the mask's volume, in physical units."""
-        volume = self.voxel_count * float(np.prod(self.voxel_size))
-        return float((6.0 * volume / np.pi) ** (1.0 / 3.0))
+        return float(equivalent_diameter(self.voxel_count * float(np.prod(self.voxel_size))))
 
 
 @dataclass

@@ -9,6 +9,7 @@ import numpy as np
 
 from ._atomic import atomic_file
 from .library import ParticleLibrary
+from .particles import equivalent_diameter
 from .scan import Scan
 
 __all__ = ["label_overlay", "save_library_preview"]
@@ -108,8 +109,7 @@ def save_library_preview(
 def equivalent_diameters(labels: np.ndarray, voxel_size: tuple[float, float, float]) -> np.ndarray:
     """Equivalent-sphere diameter of every label present, physical units, shape (N,)."""
     counts = np.bincount(np.asarray(labels).ravel())[1:]
-    volumes = counts[counts > 0] * float(np.prod(voxel_size))
-    return (6.0 * volumes / np.pi) ** (1.0 / 3.0)
+    return equivalent_diameter(counts[counts > 0] * float(np.prod(voxel_size)))
 
 
 def save_pack_preview(
