@@ -148,22 +148,22 @@ def instance_target(labels: np.ndarray, *, shared: bool = False, dense_masks: bo
         (Mask, uint8, (H, W)).
     """
     labels = np.asarray(labels)
-    counts = np.bincount(labels.ravel().astype(np.intp, copy=False))
+    counts = np.bincount(labels.ravel())
     counts[0] = 0
     ids = np.flatnonzero(counts)
     # compact labels 1..N, so masks and boxes cost O(H*W) whatever the largest label is
     lookup = np.zeros(counts.size, dtype=np.int32)
     lookup[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
-    compact = lookup[labels]
-    semantic = _zeros(labels.shape, torch.uint8, shared)
-    np.greater(compact, 0, out=semantic.numpy().view(bool))
-    boxes = np.zeros((ids.size, 4), dtype=np.float32)
     if dense_masks:
+        compact = lookup[labels]
         masks = _zeros((ids.size, *labels.shape), torch.bool, shared)
         planes = masks.numpy()
     else:
         instance_map = _zeros(labels.shape, torch.int32, shared)
-        np.copyto(instance_map.numpy(), compact)
+        compact = np.take(lookup, labels, out=instance_map.numpy(), mode="clip")  # in range: no check
+    semantic = _zeros(labels.shape, torch.uint8, shared)
+    np.greater(compact, 0, out=semantic.numpy().view(bool))
+    boxes = np.zeros((ids.size, 4), dtype=np.float32)
     for j, (rows, cols) in enumerate(ndimage.find_objects(compact)):
         if dense_masks:
             np.equal(compact[rows, cols], j + 1, out=planes[j, rows, cols])
@@ -201,6 +201,17 @@ def collate_fn(batch: Sequence[Item]) -> tuple[list[tv_tensors.Image], list[dict
     return [image for image, _ in batch], [target for _, target in batch]
 
 
+def _stack(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
+    """``torch.stack`` of same-shape tensors, in a DataLoader worker straight into new shared memory.
+
+    A tensor the worker returns in shared memory crosses to the main process
+    without another copy (what torch's ``default_collate`` does too).
+    """
+    first = tensors[0]
+    out = _zeros((len(tensors), *first.shape), first.dtype, get_worker_info() is not None)
+    return torch.stack([tensor.as_subclass(torch.Tensor) for tensor in tensors], out=out)
+
+
 def collate_stacked(batch: Sequence[Item]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """DataLoader collate for compact targets (``dense_masks=False``): five tensors per batch.
 
@@ -232,8 +243,8 @@ def collate_stacked(batch: Sequence[Item]) -> tuple[torch.Tensor, dict[str, torc
         torch.cat([t["labels"] for t in targets]),
         torch.cat([t["instance_ids"] for t in targets]),
     ], dim=1)
-    return torch.stack([image.as_subclass(torch.Tensor) for image, _ in batch]), {
-        "instance_map": torch.stack([t["instance_map"].as_subclass(torch.Tensor) for t in targets]),
+    return _stack([image for image, _ in batch]), {
+        "instance_map": _stack([t["instance_map"] for t in targets]),
         "boxes": torch.cat([t["boxes"].as_subclass(torch.Tensor) for t in targets]),
         "instances": instances,
         "index": torch.tensor([[t["pack"], t["slice"]] for t in targets], dtype=torch.int64),
