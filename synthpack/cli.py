@@ -57,13 +57,23 @@ def _add_library_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--include-border", action="store_true", help="keep particles cut by the scan border")
     group.add_argument("--target-faces", type=int, default=500, help="faces per mesh after decimation (default 500)")
     group.add_argument("--workers", type=int, default=None, help="meshing processes (default: all cores)")
+    group.add_argument("--exclude-test-block", type=int, choices=(0, 1, 2), metavar="AXIS", default=None,
+                       help="keep the paper's test slices out of the library: drop particles reaching the "
+                            "central 20%% of the slices along AXIS (0, 1 or 2) and measure intensities "
+                            "on the other slices")
 
 
-def _library_options(args: argparse.Namespace) -> dict:
-    return dict(
+def _library_options(args: argparse.Namespace, scan) -> dict:
+    options = dict(
         min_voxels=args.min_voxels, include_border=args.include_border, density=args.density,
         target_faces=args.target_faces, workers=args.workers,
     )
+    if args.exclude_test_block is not None:
+        from .split import central_block
+
+        axis = args.exclude_test_block
+        options.update(exclude_slices=central_block(scan.shape[axis]), axis=axis)
+    return options
 
 
 def _cmd_library_build(args: argparse.Namespace) -> None:
@@ -71,7 +81,7 @@ def _cmd_library_build(args: argparse.Namespace) -> None:
     logger.info("read %r", scan)
     from .library import ParticleLibrary
 
-    library = ParticleLibrary.from_scan(scan, **_library_options(args))
+    library = ParticleLibrary.from_scan(scan, **_library_options(args, scan))
     library.save(args.out)
     print(library.summary())
     if args.preview:

@@ -48,6 +48,22 @@ def _mesh_arrays(args: tuple[np.ndarray, tuple[float, float, float], int | None]
     return mesh.vertices, mesh.faces
 
 
+def _without_slices(scan: Scan, exclude: tuple[int, int], axis: int) -> Scan:
+    """A copy of `scan` without the slices ``exclude[0] <= i < exclude[1]`` along `axis`."""
+    if axis not in (0, 1, 2):
+        raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis!r}")
+    start, stop = (int(v) for v in exclude)
+    n = scan.shape[axis]
+    if not 0 <= start < stop <= n or stop - start == n:
+        raise SynthpackInputError(
+            f"exclude_slices {exclude} must be a non-empty range start < stop inside the {n} slices along "
+            f"axis {axis} that leaves some slices, e.g. synthpack.split.central_block({n})"
+        )
+    block = np.arange(start, stop)
+    return Scan(np.delete(scan.tomogram, block, axis), np.delete(scan.labels, block, axis),
+                voxel_size=scan.voxel_size, unit=scan.unit, source=scan.source)
+
+
 class ParticleLibrary(Sequence[Particle]):
     """The particles of one scan with their crops and meshes (paper sections 3.1-3.2).
 
@@ -110,6 +126,8 @@ class ParticleLibrary(Sequence[Particle]):
         target_faces: int | None = DEFAULT_TARGET_FACES,
         workers: int | None = None,
         progress: bool = True,
+        exclude_slices: tuple[int, int] | None = None,
+        axis: int = 0,
     ) -> ParticleLibrary:
         """Extract and mesh every particle of `scan`.
 
@@ -129,6 +147,13 @@ class ParticleLibrary(Sequence[Particle]):
             Processes used for meshing; default: all cores. 1 meshes in-process.
         progress : bool
             Show a progress bar.
+        exclude_slices : (start, stop), optional
+            Slices ``start <= i < stop`` along `axis` that must not reach the
+            library, e.g. the test block of the paper's split
+            (`synthpack.split.central_block`): particles with any voxel in them are
+            dropped, and the intensity statistics come from the other slices only.
+        axis : {0, 1, 2}
+            Axis of `exclude_slices`.
 
         Returns
         -------
@@ -139,11 +164,18 @@ class ParticleLibrary(Sequence[Particle]):
         workers = (os.cpu_count() or 1) if workers is None else int(workers)
         if workers < 1:
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")
-        phases = dict(estimate_phases(scan), noise_std=estimate_noise(scan.tomogram, scan.labels)["std"])
+        measured = scan if exclude_slices is None else _without_slices(scan, exclude_slices, axis)
+        phases = dict(estimate_phases(measured), noise_std=estimate_noise(measured.tomogram, measured.labels)["std"])
         crops = extract_particles(
             scan, min_voxels=min_voxels, include_border=include_border,
             background=phases["pore_mean"],
         )
+        if exclude_slices is not None:
+            start, stop = exclude_slices
+            kept = [c for c in crops if c.bbox[axis + 3] <= start or c.bbox[axis] >= stop]
+            logger.info("%d of %d particles reach slices %d-%d along axis %d: dropped",
+                        len(crops) - len(kept), len(crops), start, stop - 1, axis)
+            crops = kept
         jobs = [(c.mask, c.voxel_size, target_faces) for c in crops]
         bar = dict(total=len(jobs), desc="meshing", unit="particle", disable=not progress)
         if workers == 1:
@@ -158,6 +190,8 @@ class ParticleLibrary(Sequence[Particle]):
         ]
         settings = dict(min_voxels=min_voxels, include_border=include_border,
                         target_faces=target_faces)
+        if exclude_slices is not None:
+            settings.update(exclude_slices=[int(v) for v in exclude_slices], exclude_axis=axis)
         return cls(
             particles, voxel_size=scan.voxel_size, unit=scan.unit, density=density,
             phases=phases, source_shape=scan.shape, source=scan.source, settings=settings,

@@ -5,6 +5,7 @@ import pytest
 
 from synthpack.errors import SynthpackInputError
 from synthpack.library import ParticleLibrary
+from synthpack.split import central_block
 
 
 def test_library_of_sample_has_meshed_particles(large_library, large_scan):
@@ -98,3 +99,29 @@ def test_bad_arguments(large_scan):
         ParticleLibrary.from_scan(large_scan, density=0)
     with pytest.raises(SynthpackInputError, match="workers"):
         ParticleLibrary.from_scan(large_scan, workers=0)
+
+
+@pytest.mark.parametrize("axis", [0, 2])
+def test_exclude_slices_keeps_the_test_block_out_of_the_library(large_scan, axis):
+    start, stop = central_block(large_scan.shape[axis])
+    library = ParticleLibrary.from_scan(large_scan, workers=1, progress=False, exclude_slices=(start, stop),
+                                        axis=axis)
+    full = ParticleLibrary.from_scan(large_scan, workers=1, progress=False, target_faces=None)
+    assert 0 < len(library) < len(full)
+    for particle in library:
+        assert particle.bbox[axis + 3] <= start or particle.bbox[axis] >= stop
+    # every particle of the full library that stays clear of the block is kept
+    clear = {p.label for p in full if p.bbox[axis + 3] <= start or p.bbox[axis] >= stop}
+    assert {p.label for p in library} == clear
+    # the intensity statistics come from the training slices only
+    kept = np.ones(large_scan.shape[axis], bool)
+    kept[start:stop] = False
+    pores = np.compress(kept, large_scan.labels, axis=axis) == 0
+    tomogram = np.compress(kept, large_scan.tomogram, axis=axis)
+    assert library.phases["pore_mean"] == pytest.approx(np.median(tomogram[pores]), abs=0.02)
+    assert library.settings["exclude_slices"] == [start, stop]
+
+
+def test_exclude_slices_must_leave_some_slices(large_scan):
+    with pytest.raises(SynthpackInputError, match="central_block"):
+        ParticleLibrary.from_scan(large_scan, workers=1, progress=False, exclude_slices=(0, 128))
