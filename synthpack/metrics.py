@@ -79,6 +79,7 @@ __all__ = [
     "slice_dice_stats",
     "instance_dice",
     "read_label_image",
+    "write_label_image",
     "evaluate_folders",
 ]
 
@@ -402,6 +403,34 @@ def instance_dice(pred: np.ndarray, truth: np.ndarray, *, average: str = "macro"
 # --------------------------------------------------------------------------- #
 # Folders of label images
 # --------------------------------------------------------------------------- #
+
+
+def write_label_image(stem: str | os.PathLike, labels: np.ndarray) -> Path:
+    """Write a 2D label image that `read_label_image` reads back exactly.
+
+    Parameters
+    ----------
+    stem : path-like
+        Path without extension: ``.png`` (16-bit grey) is added when every id
+        fits in 16 bits, else ``.tif`` (uint32).
+    labels : ndarray of int, shape (H, W)
+        0 = background, one positive id per instance.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    from PIL import Image
+
+    stem = Path(stem)
+    if labels.max(initial=0) <= np.iinfo(np.uint16).max:
+        path = stem.with_suffix(".png")
+        Image.fromarray(labels.astype(np.uint16)).save(path)
+    else:
+        path = stem.with_suffix(".tif")
+        tifffile.imwrite(path, labels.astype(np.uint32))
+    return path
 
 
 def read_label_image(path: str | os.PathLike) -> np.ndarray:

@@ -89,7 +89,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tifffile
 from PIL import Image
 from scipy import ndimage
 from skimage.draw import polygon as draw_polygon
@@ -101,6 +100,7 @@ from .. import __version__
 from .._atomic import atomic_directory
 from ..errors import SynthpackInputError
 from ..io import read_scan
+from ..metrics import write_label_image
 from ..pack import is_complete_pack, open_pack
 from ..scan import Scan
 from ..split import TEST_FRACTION, central_block
@@ -514,13 +514,6 @@ def _data_yaml(out: Path, summary: ExportSummary) -> str:
     )
 
 
-def _write_truth(path: Path, parts: np.ndarray) -> None:
-    if parts.max(initial=0) <= np.iinfo(np.uint16).max:
-        Image.fromarray(parts.astype(np.uint16)).save(path.with_suffix(".png"))
-    else:
-        tifffile.imwrite(path.with_suffix(".tif"), parts.astype(np.uint32))
-
-
 def export_yolo(
     out: str | os.PathLike,
     packs: Sequence[str | os.PathLike] = (),
@@ -656,7 +649,7 @@ def _export_source(staging: Path, source: _Source, plan: dict[str, np.ndarray], 
         result = slice_polygons(_take(source.labels, index, axis), min_area=min_area, tolerance=tolerance)
         (staging / "labels" / s / f"{stem}.txt").write_text(yolo_label_text(result.polygons, image.shape))
         if s in truth_splits:
-            _write_truth(staging / "truth" / s / stem, result.parts)
+            write_label_image(staging / "truth" / s / stem, result.parts)
         summary.images[s] += 1
         summary.instances[s] += len(result.polygons)
         summary.empty_images[s] += not result.polygons
