@@ -1,0 +1,146 @@
+"""Train an Ultralytics YOLO segmentation model from scratch on a `synthpack export-yolo` dataset.
+
+The model is built from its ``.yaml`` (``yolov8m-seg.yaml`` as in the paper,
+``yolov8n-seg.yaml`` or ``yolov8s-seg.yaml`` on small machines), never from
+pretrained weights, and Ultralytics runs offline (see ``offline.py``).
+
+Run::
+
+    python training/train.py --data yolo_ds/data.yaml --out runs/real_large \
+        --model yolov8n-seg.yaml --imgsz 256 --epochs 30 --batch 16 --device auto --seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """What a training run depends on (the keys of a config's ``train`` section).
+
+    Attributes
+    ----------
+    model : str
+        Ultralytics model yaml, e.g. ``"yolov8n-seg.yaml"``.
+    imgsz : int
+        Training image size, pixels (slices are letterboxed to it).
+    epochs, batch : int
+        Epochs and images per batch.
+    device : str
+        ``"auto"`` (the first GPU when there is one, else the CPU), ``"cpu"``, ``"0"``, ...
+    seed : int
+        Ultralytics' seed (it trains deterministically).
+    optimizer : str
+        ``"SGD"``, ``"AdamW"``, ... (``"auto"`` ignores `lr0` on short runs).
+    lr0 : float
+        Initial learning rate.
+    workers : int
+        DataLoader workers.
+    options : dict
+        Any other ``YOLO.train`` keyword, e.g. ``{"close_mosaic": 0, "fraction": 0.5}``.
+    """
+
+    model: str = "yolov8n-seg.yaml"
+    imgsz: int = 256
+    epochs: int = 30
+    batch: int = 16
+    device: str = "auto"
+    seed: int = 0
+    optimizer: str = "SGD"
+    lr0: float = 0.01
+    workers: int = 2
+    options: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> TrainSettings:
+        """Settings from a config section; unknown keys are refused with the list of known ones."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown train setting(s) {', '.join(unknown)}: use {', '.join(sorted(known))} "
+                             "(other YOLO.train keywords go under 'options')")
+        return cls(**values)
+
+
+def resolve_device(device: str) -> str:
+    """``"auto"`` -> ``"0"`` when CUDA is available, else ``"cpu"``; other values unchanged."""
+    if device != "auto":
+        return device
+    import torch
+
+    return "0" if torch.cuda.is_available() else "cpu"
+
+
+def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettings,
+          config_dir: str | os.PathLike | None = None) -> Path:
+    """Train a model on the dataset `data` and return its best weights.
+
+    Parameters
+    ----------
+    data : path-like
+        ``data.yaml`` of a `synthpack export-yolo` folder (or the folder).
+    out : path-like
+        Run folder: Ultralytics writes ``out/weights/{best,last}.pt`` and
+        ``out/results.csv``; ``out/train.json`` records the settings and time.
+    settings : TrainSettings
+    config_dir : path-like, optional
+        Ultralytics' config folder (default ``out/ultralytics``); see `offline_ultralytics`.
+
+    Returns
+    -------
+    Path
+        ``out/weights/best.pt``.
+    """
+    data, out = Path(data), Path(out).resolve()
+    if data.is_dir():
+        data = data / "data.yaml"
+    if not data.is_file():
+        raise FileNotFoundError(f"{data} not found: give the data.yaml of a `synthpack export-yolo` folder")
+    yolo = offline_ultralytics(config_dir or out / "ultralytics")
+    model = yolo(settings.model, task="segment")
+    device = resolve_device(settings.device)
+    start = time.perf_counter()
+    model.train(
+        data=str(data), imgsz=settings.imgsz, epochs=settings.epochs, batch=settings.batch, device=device,
+        seed=settings.seed, deterministic=True, optimizer=settings.optimizer, lr0=settings.lr0,
+        workers=settings.workers, project=str(out.parent), name=out.name, exist_ok=True, verbose=False,
+        **OFFLINE_TRAIN_ARGS, **settings.options,
+    )
+    seconds = time.perf_counter() - start
+    best = out / "weights" / "best.pt"
+    if not best.is_file():
+        raise RuntimeError(f"training finished without {best}: see the Ultralytics log above")
+    record = {"data": str(data), "device": device, "seconds": seconds, **dataclasses.asdict(settings)}
+    (out / "train.json").write_text(json.dumps(record, indent=1))
+    logger.info("trained %s on %s in %.0f s: %s", settings.model, data, seconds, best)
+    return best
+
+
+def main(argv: list[str] | None = None) -> None:
+    defaults = TrainSettings()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", required=True, help="data.yaml of a synthpack export-yolo folder")
+    parser.add_argument("--out", required=True, help="run folder (weights, results.csv, train.json)")
+    for name in ("model", "imgsz", "epochs", "batch", "device", "seed", "optimizer", "lr0", "workers"):
+        value = getattr(defaults, name)
+        parser.add_argument(f"--{name}", type=type(value), default=value, help=f"default {value}")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    values = {k: v for k, v in vars(args).items() if k not in ("data", "out")}
+    print(train(args.data, args.out, TrainSettings(**values)))
+
+
+if __name__ == "__main__":
+    main()
