@@ -32,6 +32,19 @@ def test_library_build_from_tiff_files_with_voxel_size(tmp_path, blob_scan):
     assert [p.label for p in library] == [1, 2, 3]
 
 
+def test_library_build_can_exclude_the_test_block(tmp_path, blob_scan):
+    # blob 1 spans z 5-14 and blob 2 z 9-21; the central 20% of 30 z-slices is 12-17
+    np.save(tmp_path / "t.npy", blob_scan.tomogram)
+    np.save(tmp_path / "l.npy", blob_scan.labels)
+    code = main(["-q", "library", "build", "--tomogram", str(tmp_path / "t.npy"), "--labels",
+                 str(tmp_path / "l.npy"), "--voxel-size", "1", "--min-voxels", "10",
+                 "--exclude-test-block", "0", "--out", str(tmp_path / "lib"), "--workers", "1"])
+    assert code == 0
+    library = ParticleLibrary.load(tmp_path / "lib")
+    assert [p.label for p in library] == [3]
+    assert library.settings["exclude_slices"] == [12, 18]
+
+
 def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
     labels = np.zeros((8, 8, 8), dtype=np.float32)
     labels[2:5, 2:5, 2:5] = 1.5
