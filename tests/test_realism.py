@@ -9,7 +9,7 @@ from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.generate import build_pack, generate_packs
 from synthpack.library import ParticleLibrary
-from synthpack.realism import Specimen, bulk_region, calibrate
+from synthpack.realism import RealismReport, Specimen, bulk_region, calibrate
 from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
 from synthpack.realism.discriminator import classifier_auc
 from synthpack.realism.edges import volume_edge_width
@@ -181,3 +181,5 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert "classifier AUC" in capsys.readouterr().out
     assert main(["-q", "compare", "--sample", "large", "--packs", str(tmp_path / "missing"),
                  "--out", str(tmp_path / "x")]) == 2
+    with pytest.raises(SynthpackInputError, match="not empty"):
+        RealismReport(None, [], []).write(packs[0])  # never replaces a folder that is not a report

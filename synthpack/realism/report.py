@@ -32,6 +32,7 @@ import numpy as np
 from scipy import stats
 
 from .._atomic import atomic_directory
+from ..errors import SynthpackInputError
 from ..export.yolo import intensity_window
 from ..pack import find_packs
 from ..scan import Scan
@@ -166,10 +167,21 @@ class RealismReport:
         return report_markdown(self.to_dict())
 
     def write(self, out: str | os.PathLike) -> dict[str, Path]:
-        """Write the report folder atomically (see the module docstring); returns the file paths."""
+        """Write the report folder atomically (see the module docstring); returns the file paths.
+
+        Raises
+        ------
+        SynthpackInputError
+            If `out` is a non-empty folder that is not an earlier report (it would be replaced).
+        """
         from .plots import save_appearance_plot, save_slices_plot, save_structure_plot
 
         out = Path(out)
+        if out.is_dir() and any(out.iterdir()) and not (out / "realism.json").is_file():
+            raise SynthpackInputError(
+                f"{out} is not empty and holds no earlier realism report: give a new or empty folder "
+                "(the report folder is replaced as a whole)"
+            )
         with atomic_directory(out) as staging:
             (staging / "realism.json").write_text(json.dumps(_plain(self.to_dict()), indent=1))
             (staging / "realism.md").write_text(self.markdown())
