@@ -107,6 +107,8 @@ def _load_config(args: argparse.Namespace):
     changes = {"pour": pour} if pour else {}
     if args.seed is not None:
         changes["seed"] = args.seed
+    if args.calibrate:
+        changes["postprocess"] = "calibrated"
     return config.replace(**changes) if changes else config
 
 
@@ -142,6 +144,23 @@ def _write_pack_preview(pack_path: Path, library, png: Path) -> Path:
         pack.tomogram[:], pack.clean[:], pack.labels[:], pack.voxel_size, pack.unit,
         library.equivalent_diameters, png,
     )
+
+
+def _cmd_compare(args: argparse.Namespace) -> None:
+    from .realism import compare
+
+    if args.source:
+        if args.tomogram or args.labels:
+            raise SynthpackInputError("give either --source T L or --tomogram/--labels, not both")
+        args.tomogram, args.labels = args.source
+    report = compare(_read_source_scan(args), args.packs, patch=args.patch, seed=args.seed)
+    paths = report.write(args.out)
+    for pack in report.to_dict()["packs"]:
+        d = pack["distances"]
+        print(f"{pack['name']}: classifier AUC {d['classifier']['auc']:.3f}, KS diameter {d['ks_diameter']:.3f}, "
+              f"W grains/pores/edges {d['wasserstein_grains']:.3f}/{d['wasserstein_pores']:.3f}/"
+              f"{d['wasserstein_edges']:.3f}")
+    print(f"report: {paths['realism.md']}")
 
 
 def _cmd_pour(args: argparse.Namespace) -> None:
@@ -259,7 +278,22 @@ def _parser() -> argparse.ArgumentParser:
     generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff", help="volume format (default tiff)")
     generate.add_argument("--preview", action="store_true", help="write preview.png into the first pack")
     generate.add_argument("--print-config", action="store_true", help="print the full config and exit")
+    generate.add_argument("--calibrate", action="store_true",
+                          help="fit blur and noise to the source scan's edge width and noise level "
+                               "(config postprocess: calibrated)")
     generate.set_defaults(run=_cmd_generate)
+
+    compare = commands.add_parser("compare", help="realism report: how close synthetic packs are to the source scan")
+    _add_scan_arguments(compare)
+    compare.add_argument("--source", type=Path, nargs=2, metavar=("TOMOGRAM", "LABELS"),
+                         help="the source scan (same as --tomogram T --labels L)")
+    compare.add_argument("--packs", type=Path, nargs="+", action="extend", required=True, metavar="DIR",
+                         help="pack folders, or folders holding pack_NNNN folders (one column per pack)")
+    compare.add_argument("--out", type=Path, required=True,
+                         help="report folder: realism.md, realism.json and PNG pictures")
+    compare.add_argument("--patch", type=int, default=16, help="classifier patch side in voxels (default 16)")
+    compare.add_argument("--seed", type=int, default=0, help="seed of the classifier's folds (default 0)")
+    compare.set_defaults(run=_cmd_compare)
 
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")

@@ -8,7 +8,7 @@ optional and falls back to the default shown by ``synthpack generate
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256]}
-    postprocess: default          # or none, match_source, or a list of artefact transforms
+    postprocess: default          # or none, match_source, calibrated, or a list of artefact transforms
 
 Unknown keys, wrong types and out-of-range values raise
 :class:`~synthpack.errors.SynthpackInputError` naming the key.
@@ -115,8 +115,10 @@ class PackConfig:
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
     postprocess: str | list = _spec(
-        "default", lambda v: _valid_pipeline(v) if isinstance(v, list) else v in ("default", "none", "match_source"),
-        "'default', 'none', 'match_source' (Gaussian noise up to the source scan's noise level) "
+        "default",
+        lambda v: _valid_pipeline(v) if isinstance(v, list) else v in ("default", "none", "match_source", "calibrated"),
+        "'default', 'none', 'match_source' (Gaussian noise up to the source scan's noise level), "
+        "'calibrated' (blur and noise fitted to the source's edge width and noise level) "
         "or a list of artefact transforms",
     )
 

@@ -10,6 +10,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -22,6 +23,9 @@ from .pack import is_complete_pack, write_pack
 from .physics import Placements, Tube, pour
 from .physics.engine import Material
 from .reconstruct import Grid, Phases, pose_maps, reconstruct
+
+if TYPE_CHECKING:
+    from .realism.calibrate import Calibration
 
 logger = logging.getLogger(__name__)
 
@@ -102,6 +106,17 @@ def _postprocessing(config: PackConfig, phases: dict[str, float], clean: np.ndar
     return from_config(list(choice))
 
 
+def _calibration(
+    clean: np.ndarray, labels: np.ndarray, grid: Grid, placements: Placements, targets: dict[str, float]
+) -> Calibration:
+    """Blur and noise fitted in the pack's bulk region to the source's edge width and noise level."""
+    from .realism.calibrate import calibrate
+    from .realism.region import bulk_region
+
+    region = bulk_region(labels.shape, grid.origin, grid.voxel_size, placements.checks.packing_region)
+    return calibrate(clean, labels, region, **targets)
+
+
 def build_pack(
     library: ParticleLibrary, config: PackConfig, seed: int, *, progress: bool = True
 ) -> SyntheticPack:
@@ -112,12 +127,20 @@ def build_pack(
     library : ParticleLibrary
         The grains.
     config : PackConfig
-        Pour, reconstruction and post-processing settings.
+        Pour, reconstruction and post-processing settings. With ``postprocess:
+        calibrated`` the blur and noise are fitted to the source scan
+        (`synthpack.realism.calibrate`) and the fit is recorded in the manifest
+        under ``calibration``.
     seed : int
         Seed of this pack (pour and artefacts).
     progress : bool
         Show progress bars.
     """
+    targets = None
+    if config.postprocess == "calibrated":
+        from .realism.calibrate import targets_from_phases
+
+        targets = targets_from_phases(library.phases)  # fails before the pour if the library lacks them
     timings: dict[str, float] = {}
     start = time.perf_counter()
     pour_config = config.pour
@@ -145,7 +168,12 @@ def build_pack(
     timings["reconstruct"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    postprocessing = _postprocessing(config, library.phases, clean, labels)
+    calibration = None
+    if targets is not None:
+        calibration = _calibration(clean, labels, grid, placements, targets)
+        postprocessing = calibration.pipeline()
+    else:
+        postprocessing = _postprocessing(config, library.phases, clean, labels)
     tomogram, applied = postprocessing.apply(clean, np.random.SeedSequence([seed, 1]))
     timings["postprocess"] = time.perf_counter() - start
 
@@ -161,6 +189,8 @@ def build_pack(
         pour_checks=dataclasses.asdict(placements.checks),
         postprocessing=applied, timings=timings,
     )
+    if calibration is not None:
+        manifest["calibration"] = calibration.to_dict()
     return SyntheticPack(tomogram, clean, labels, placements, grid, manifest)
 
 

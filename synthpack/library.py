@@ -25,6 +25,7 @@ from .particles import (
     estimate_phases,
     extract_particles,
 )
+from .realism.edges import volume_edge_width
 from .scan import Scan
 
 logger = logging.getLogger(__name__)
@@ -83,8 +84,9 @@ class ParticleLibrary(Sequence[Particle]):
     phases : dict
         Intensity statistics of the source scan: ``pore_mean`` (the value outside
         each particle's mask in its clean crop), ``pore_std`` and ``grain_mean``
-        (see :func:`~synthpack.particles.estimate_phases`), and ``noise_std``
-        (see :func:`~synthpack.artefacts.estimate_noise`).
+        (see :func:`~synthpack.particles.estimate_phases`), ``noise_std``
+        (see :func:`~synthpack.artefacts.estimate_noise`) and, where it could be measured,
+        ``edge_width`` (see :func:`~synthpack.realism.edges.volume_edge_width`).
     source_shape : tuple of 3 int
         Shape ``(Z, Y, X)`` of the source scan.
     source : str
@@ -166,6 +168,11 @@ class ParticleLibrary(Sequence[Particle]):
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")
         measured = scan if exclude_slices is None else _without_slices(scan, exclude_slices, axis)
         phases = dict(estimate_phases(measured), noise_std=estimate_noise(measured.tomogram, measured.labels)["std"])
+        try:
+            phases["edge_width"] = volume_edge_width(measured.tomogram, measured.labels)
+        except SynthpackInputError as error:
+            logger.warning("the source's edge width cannot be measured (%s): 'postprocess: calibrated' "
+                           "will not be available", error)
         crops = extract_particles(
             scan, min_voxels=min_voxels, include_border=include_border,
             background=phases["pore_mean"],

@@ -31,7 +31,7 @@ from ._atomic import atomic_directory
 from .errors import SynthpackInputError
 from .io import write_tiff, write_zarr
 
-__all__ = ["PACK_VOLUMES", "Pack", "write_pack", "is_complete_pack", "open_pack"]
+__all__ = ["PACK_VOLUMES", "Pack", "find_packs", "write_pack", "is_complete_pack", "open_pack"]
 
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
@@ -149,6 +149,43 @@ def is_complete_pack(directory: str | os.PathLike) -> bool:
     if manifest is None or not (directory / "placements.json").is_file():
         return False
     return all(path.exists() for path in _volume_paths(directory, manifest))
+
+
+def find_packs(path: str | os.PathLike) -> list[Path]:
+    """The complete packs at `path`: the pack itself, or the packs in a folder of packs.
+
+    Parameters
+    ----------
+    path : path-like
+        A pack directory, or a directory holding pack directories (``pack_0000``, ...).
+
+    Returns
+    -------
+    list of Path
+        Pack directories, sorted by name.
+
+    Raises
+    ------
+    SynthpackInputError
+        If `path` does not exist, holds an incomplete ``pack_*`` directory, or holds no pack.
+    """
+    path = Path(path)
+    if is_complete_pack(path):
+        return [path]
+    if not path.is_dir():
+        raise SynthpackInputError(f"pack folder {path} does not exist: give pack folders made by `synthpack generate`")
+    candidates = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
+    packs = [p for p in candidates if is_complete_pack(p)]
+    broken = [p.name for p in candidates if p.name.startswith("pack_") and not is_complete_pack(p)]
+    if broken:
+        raise SynthpackInputError(
+            f"{path} holds incomplete pack(s) {', '.join(broken)}: run `synthpack generate` again to finish them"
+        )
+    if not packs:
+        raise SynthpackInputError(
+            f"{path} is neither a pack nor a folder of packs: give folders made by `synthpack generate`"
+        )
+    return packs
 
 
 def open_pack(directory: str | os.PathLike) -> Pack:

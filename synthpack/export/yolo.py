@@ -101,7 +101,7 @@ from .._atomic import atomic_directory
 from ..errors import SynthpackInputError
 from ..io import read_scan
 from ..metrics import write_label_image
-from ..pack import is_complete_pack, open_pack
+from ..pack import find_packs, open_pack
 from ..scan import Scan
 from ..split import TEST_FRACTION, central_block
 
@@ -381,25 +381,6 @@ class _Source:
         return tuple(self.labels.shape)  # type: ignore[return-value]
 
 
-def _pack_dirs(path: Path) -> list[Path]:
-    if is_complete_pack(path):
-        return [path]
-    if not path.is_dir():
-        raise SynthpackInputError(f"pack folder {path} does not exist: give pack folders made by `synthpack generate`")
-    candidates = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
-    packs = [p for p in candidates if is_complete_pack(p)]
-    broken = [p.name for p in candidates if p.name.startswith("pack_") and not is_complete_pack(p)]
-    if broken:
-        raise SynthpackInputError(
-            f"{path} holds incomplete pack(s) {', '.join(broken)}: run `synthpack generate` again to finish them"
-        )
-    if not packs:
-        raise SynthpackInputError(
-            f"{path} is neither a pack nor a folder of packs: give folders made by `synthpack generate`"
-        )
-    return packs
-
-
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "scan"
 
@@ -581,7 +562,7 @@ def export_yolo(
 
     synthetic = []
     for path in packs:
-        for pack_dir in _pack_dirs(Path(path)):
+        for pack_dir in find_packs(path):
             pack = open_pack(pack_dir)
             volume = "tomogram" if postprocess else "clean"
             synthetic.append((pack, _Source(f"syn_{_safe(pack_dir.name)}", "synthetic", str(pack_dir), volume,

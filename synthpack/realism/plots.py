@@ -1,0 +1,135 @@
+"""Pictures of the realism report (PNG): structure, appearance, and slices side by side."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import atomic_file
+from .report import Measurements
+
+__all__ = ["save_appearance_plot", "save_slices_plot", "save_structure_plot"]
+
+_DPI = 72
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: str | os.PathLike) -> Path:
+    with atomic_file(path) as staging:
+        fig.savefig(staging, dpi=_DPI, format="png")
+    _pyplot().close(fig)
+    return Path(path)
+
+
+def _cdf(ax, values: np.ndarray, label: str) -> None:
+    if len(values):
+        ax.plot(np.sort(values), np.linspace(0, 1, len(values)), label=label)
+
+
+def save_structure_plot(source: Measurements, packs: Sequence[Measurements], path: str | os.PathLike) -> Path:
+    """Cumulative distributions of grain size, shape, contacts and long-axis orientation.
+
+    Parameters
+    ----------
+    source : Measurements
+    packs : sequence of Measurements
+    path : path-like
+        Output PNG.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7), layout="constrained")
+    unit = source.specimen.unit
+    panels = [
+        ("diameter", f"equivalent diameter [{unit}]"), ("sphericity", "sphericity"),
+        ("elongation", "elongation b/a"), ("flatness", "flatness c/b"),
+        ("coordination", "coordination number"), ("axis_cosine", "|cos(long axis, z)|"),
+    ]
+    for ax, (name, label) in zip(axes.ravel(), panels):
+        for measured in (source, *packs):
+            _cdf(ax, np.asarray(getattr(measured.grains, name), dtype=float),
+                 f"{measured.specimen.name} ({len(measured.grains)})")
+        ax.set_xlabel(label)
+        ax.set_ylabel("fraction of grains")
+    axes[1, 2].plot([0, 1], [0, 1], "k:", lw=1, label="isotropic")
+    axes[0, 0].legend(fontsize=8)
+    return _save(fig, path)
+
+
+def save_appearance_plot(source: Measurements, packs: Sequence[Measurements], path: str | os.PathLike) -> Path:
+    """Phase histograms, normalised edge profiles and noise power spectra.
+
+    Parameters
+    ----------
+    source : Measurements
+    packs : sequence of Measurements
+    path : path-like
+        Output PNG.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7), layout="constrained")
+    everyone = (source, *packs)
+    for ax, phase in zip(axes[0], ("grains", "pores", "edges")):
+        pooled = np.concatenate([m.appearance.samples[phase] for m in everyone])
+        bins = np.linspace(*np.percentile(pooled, [0.5, 99.5]), 60)
+        for measured in everyone:
+            ax.hist(measured.appearance.samples[phase], bins=bins, density=True, histtype="step",
+                    label=measured.specimen.name)
+        ax.set_xlabel(f"intensity of {phase}")
+        ax.set_ylabel("density")
+    axes[0, 0].legend(fontsize=8)
+    ax = axes[1, 0]
+    for measured in everyone:
+        profile = measured.appearance.profile
+        ax.plot(profile.distance, profile.normalised, marker=".",
+                label=f"{measured.specimen.name} (10-90 {measured.appearance.edge_width:.2f})")
+    ax.set_xlabel("signed distance from the grain boundary [voxels]")
+    ax.set_ylabel("normalised mean intensity")
+    ax.legend(fontsize=8)
+    for ax, phase in zip(axes[1, 1:], ("grains", "pores")):
+        for measured in everyone:
+            spectrum = measured.appearance.spectra[phase]
+            if spectrum is not None:
+                ax.semilogy(spectrum.frequency[1:], spectrum.power[1:], marker=".", label=measured.specimen.name)
+        ax.set_xlabel(f"frequency [cycles/voxel], {phase}")
+        ax.set_ylabel("noise power per ring")
+    return _save(fig, path)
+
+
+def save_slices_plot(
+    source: Measurements, packs: Sequence[Measurements], window: tuple[float, float], path: str | os.PathLike
+) -> Path:
+    """The middle z slice of each volume's bulk region, in one intensity window.
+
+    Parameters
+    ----------
+    source : Measurements
+    packs : sequence of Measurements
+    window : (float, float)
+        Intensities shown black and white.
+    path : path-like
+        Output PNG.
+    """
+    plt = _pyplot()
+    everyone = (source, *packs)
+    fig, axes = plt.subplots(1, len(everyone), figsize=(3.6 * len(everyone), 3.9), layout="constrained",
+                             squeeze=False)
+    for ax, measured in zip(axes[0], everyone):
+        where = np.argwhere(measured.specimen.region)
+        low, high = where.min(axis=0), where.max(axis=0) + 1
+        z = (low[0] + high[0]) // 2
+        image = measured.specimen.tomogram[z, low[1]:high[1], low[2]:high[2]]
+        ax.imshow(image, cmap="gray", vmin=window[0], vmax=window[1], origin="lower")
+        ax.set_title(f"{measured.specimen.name}, z = {z}", fontsize=10)
+        ax.set_axis_off()
+    return _save(fig, path)

@@ -1,0 +1,249 @@
+"""The realism report: every figure of a source scan and of synthetic packs, side by side.
+
+`compare` measures the source scan (whole field of view) and each synthetic pack
+(its bulk region, `synthpack.realism.region`) with the structure
+(`synthpack.realism.structure`), appearance (`synthpack.realism.appearance`) and
+classifier (`synthpack.realism.discriminator`) measurements, then writes a report
+folder::
+
+    realism.md        tables: source, then one column per pack, and how to read them
+    realism.json      the same figures (and the distributions' summaries)
+    structure.png     grain size, shape, contacts and orientation distributions
+    appearance.png    phase histograms, edge profiles, noise power spectra
+    slices.png        one slice of each volume, in the same intensity window
+
+Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
+same distribution, 1 = disjoint); W = Wasserstein (earth mover's) distance of the
+intensity histograms divided by the source's grain-pore contrast (0.05 = the
+histograms are 5 % of the contrast apart on average).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from .._atomic import atomic_directory
+from ..errors import SynthpackInputError
+from ..export.yolo import intensity_window
+from ..pack import find_packs
+from ..scan import Scan
+from .appearance import Appearance, measure_appearance
+from .discriminator import DEFAULT_PATCH, classifier_auc, specimen_patches
+from .region import Specimen
+from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance, solid_fraction
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Measurements", "RealismReport", "compare", "measure"]
+
+
+@dataclass
+class Measurements:
+    """Everything measured on one specimen.
+
+    Attributes
+    ----------
+    specimen : Specimen
+    solid_fraction : float
+        Of the bulk region, from the labels.
+    grains : GrainTable
+    appearance : Appearance
+    patches : ndarray of float32, shape (N, S, S)
+        Windowed patches for the classifier test.
+    """
+
+    specimen: Specimen
+    solid_fraction: float
+    grains: GrainTable
+    appearance: Appearance
+    patches: np.ndarray
+
+    def figures(self) -> dict:
+        """Scalar figures of this specimen (JSON-able; None where not measurable)."""
+        g, a = self.grains, self.appearance
+        spectra = {phase: (s.centroid if s is not None else None) for phase, s in a.spectra.items()}
+        return {
+            "solid_fraction": self.solid_fraction,
+            "pour_packing_fraction": self.specimen.packing_fraction,
+            "region_voxels": int(np.count_nonzero(self.specimen.region)),
+            "grains_measured": len(g),
+            "diameter_median": _median(g.diameter),
+            "sphericity_median": _median(g.sphericity),
+            "elongation_median": _median(g.elongation),
+            "flatness_median": _median(g.flatness),
+            "coordination_mean": float(g.coordination.mean()) if len(g) else None,
+            "axis_cosine_mean": float(g.axis_cosine.mean()) if len(g) else None,
+            "fabric_eigenvalues": fabric_eigenvalues(g.long_axis).tolist() if len(g) else None,
+            "pore_level": a.profile.pore_level,
+            "grain_level": a.profile.grain_level,
+            "noise_grain": a.noise["grain_std"],
+            "noise_pore": a.noise["pore_std"],
+            "nps_centroid_grain": spectra["grains"],
+            "nps_centroid_pore": spectra["pores"],
+            "edge_width": a.edge_width,
+        }
+
+
+def _median(values: np.ndarray) -> float | None:
+    return float(np.median(values)) if len(values) else None
+
+
+def measure(specimen: Specimen, window: tuple[float, float], *, patch: int = DEFAULT_PATCH) -> Measurements:
+    """Measure a specimen's structure, appearance and classifier patches.
+
+    Parameters
+    ----------
+    specimen : Specimen
+    window : (float, float)
+        Intensity window of the classifier patches (the source's).
+    patch : int
+        Classifier patch side, voxels.
+    """
+    logger.info("measuring %s", specimen.name)
+    return Measurements(specimen, solid_fraction(specimen.labels, specimen.region), grain_table(specimen),
+                        measure_appearance(specimen), specimen_patches(specimen, window, size=patch))
+
+
+def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
+    return ks_distance(a, b) if len(a) and len(b) else None
+
+
+def distances(source: Measurements, pack: Measurements, *, seed: int = 0) -> dict:
+    """Distances of `pack` from `source` (see the module docstring), and the classifier AUC."""
+    sg, pg = source.grains, pack.grains
+    contrast = source.appearance.contrast
+    result = {
+        f"ks_{name}": _ks(getattr(sg, name), getattr(pg, name))
+        for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine")
+    }
+    for phase, values in source.appearance.samples.items():
+        result[f"wasserstein_{phase}"] = float(
+            stats.wasserstein_distance(values, pack.appearance.samples[phase]) / contrast)
+    result["classifier"] = classifier_auc(source.patches, pack.patches, seed=seed)
+    return result
+
+
+@dataclass
+class RealismReport:
+    """The figures of a source and of packs, and the packs' distances from the source.
+
+    Attributes
+    ----------
+    source : Measurements
+    packs : list of Measurements
+    distances : list of dict
+        One per pack, from `distances`.
+    settings : dict
+        How it was measured (window, patch size, seed, pack paths, manifests' post-processing).
+    """
+
+    source: Measurements
+    packs: list[Measurements]
+    distances: list[dict]
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-able dict: settings, source figures, and per pack its figures and distances."""
+        return {
+            "settings": self.settings,
+            "source": {"name": self.source.specimen.name, "figures": self.source.figures()},
+            "packs": [{"name": m.specimen.name, "figures": m.figures(), "distances": d}
+                      for m, d in zip(self.packs, self.distances)],
+        }
+
+    def markdown(self) -> str:
+        """The report as Markdown (tables and the pictures)."""
+        from .markdown import report_markdown
+
+        return report_markdown(self.to_dict())
+
+    def write(self, out: str | os.PathLike) -> dict[str, Path]:
+        """Write the report folder atomically (see the module docstring); returns the file paths.
+
+        Raises
+        ------
+        SynthpackInputError
+            If `out` is a non-empty folder that is not an earlier report (it would be replaced).
+        """
+        from .plots import save_appearance_plot, save_slices_plot, save_structure_plot
+
+        out = Path(out)
+        if out.is_dir() and any(out.iterdir()) and not (out / "realism.json").is_file():
+            raise SynthpackInputError(
+                f"{out} is not empty and holds no earlier realism report: give a new or empty folder "
+                "(the report folder is replaced as a whole)"
+            )
+        with atomic_directory(out) as staging:
+            (staging / "realism.json").write_text(json.dumps(_plain(self.to_dict()), indent=1))
+            (staging / "realism.md").write_text(self.markdown())
+            save_structure_plot(self.source, self.packs, staging / "structure.png")
+            save_appearance_plot(self.source, self.packs, staging / "appearance.png")
+            save_slices_plot(self.source, self.packs, tuple(self.settings["window"]), staging / "slices.png")
+        names = ("realism.md", "realism.json", "structure.png", "appearance.png", "slices.png")
+        return {name: out / name for name in names}
+
+
+def _plain(value):
+    """NaN -> None, recursively, so the JSON is standard."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def compare(
+    source: Scan,
+    packs: Sequence[str | os.PathLike],
+    *,
+    patch: int = DEFAULT_PATCH,
+    seed: int = 0,
+) -> RealismReport:
+    """Measure a source scan and synthetic packs, and how far each pack is from the source.
+
+    Parameters
+    ----------
+    source : Scan
+        The real (source) scan, measured over its whole field of view.
+    packs : sequence of path-like
+        Pack folders, or folders holding pack folders; every pack gets its own column.
+    patch : int
+        Side (voxels) of the classifier's in-slice patches.
+    seed : int
+        Seed of the classifier's cross-validation folds.
+
+    Returns
+    -------
+    RealismReport
+        Call ``.write(folder)`` to save it.
+    """
+    directories = [p for path in packs for p in find_packs(path)]
+    window = intensity_window([source.tomogram])
+    reference = measure(Specimen.from_scan(source), window, patch=patch)
+    measured, manifests = [], []
+    for directory in directories:
+        specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
+        measured.append(measure(specimen, window, patch=patch))
+        manifest = json.loads((Path(directory) / "manifest.json").read_text())
+        manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
+                          "applied": manifest.get("postprocessing"), "calibration": manifest.get("calibration")})
+    settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "packs": manifests}
+    return RealismReport(reference, measured, [distances(reference, m, seed=seed) for m in measured], settings)
+
+
+def _column_name(directory: Path, directories: list[Path]) -> str:
+    """The pack's folder name, or ``parent/name`` where two packs share a name."""
+    directory = Path(directory)
+    clash = sum(Path(d).name == directory.name for d in directories) > 1
+    return f"{directory.parent.name}/{directory.name}" if clash else directory.name

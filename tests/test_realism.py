@@ -1,0 +1,185 @@
+import json
+
+import numpy as np
+import pytest
+from scipy import special
+
+from synthpack.cli import main
+from synthpack.config import PackConfig
+from synthpack.errors import SynthpackInputError
+from synthpack.generate import build_pack, generate_packs
+from synthpack.library import ParticleLibrary
+from synthpack.realism import RealismReport, Specimen, bulk_region, calibrate
+from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
+from synthpack.realism.discriminator import classifier_auc
+from synthpack.realism.edges import volume_edge_width
+from synthpack.realism.patches import patch_corners, take_patches
+from synthpack.realism.structure import coordination_numbers, grain_table, ks_distance, solid_fraction
+
+# A pack narrow and deep enough to have a bulk region (radius ~17, height ~130 voxels).
+PACK = PackConfig().replace(seed=1, pour={"n_particles": 60, "batch_size": 30, "tube_radius": 400.0})
+
+
+def _specimen(tomogram, labels, region=None) -> Specimen:
+    region = np.ones(labels.shape, dtype=bool) if region is None else region
+    return Specimen("test", np.asarray(tomogram, dtype=np.float32), labels.astype(np.int32), region, (1.0, 1.0, 1.0), "px")
+
+
+def test_solid_fraction_of_a_known_pack_and_the_bulk_cylinder():
+    labels = np.zeros((10, 20, 20), dtype=np.int32)
+    labels[:, :, :5] = 1  # a quarter of every slice is grain
+    assert solid_fraction(labels, np.ones(labels.shape, dtype=bool)) == 0.25
+    region = np.zeros(labels.shape, dtype=bool)
+    region[:, :, :10] = True
+    assert solid_fraction(labels, region) == 0.5
+    # a cylinder of radius 8 from z = 2 to 7 on a grid centred on the axis, 1-unit voxels
+    shape = (10, 21, 21)
+    cylinder = bulk_region(shape, (0.0, -10.0, -10.0), (1.0, 1.0, 1.0), {"radius": 8.0, "z_min": 2.0, "z_max": 7.0})
+    assert cylinder.sum() == pytest.approx(6 * np.pi * 64, rel=0.05)
+    assert not cylinder[:2].any() and not cylinder[8:].any()
+    with pytest.raises(SynthpackInputError, match="no bulk"):
+        bulk_region(shape, (0.0, -10.0, -10.0), (1.0, 1.0, 1.0), {"radius": 1.0, "z_min": 2.0, "z_max": 3.0})
+
+
+def test_ks_distance_of_identical_and_shifted_samples():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=20000)
+    assert ks_distance(a, a) == 0.0
+    assert ks_distance(a, a + 100) == 1.0
+    # N(0, 1) against N(0.5, 1): sup |F - G| = 2 Phi(0.25) - 1 = 0.197
+    assert ks_distance(a, rng.normal(0.5, 1.0, 20000)) == pytest.approx(0.197, abs=0.02)
+
+
+def test_grain_shape_size_orientation_and_contacts_of_known_grains():
+    labels = np.zeros((40, 40, 90), dtype=np.int32)
+    z, y, x = np.mgrid[:40, :40, :90]
+    labels[(z - 20) ** 2 + (y - 20) ** 2 + (x - 15) ** 2 <= 81] = 1  # ball, radius 9
+    labels[((z - 20) / 5) ** 2 + ((y - 20) / 5) ** 2 + ((x - 50) / 15) ** 2 <= 1] = 2  # cigar along x, 3:1
+    labels[15:25, 15:25, 70:78] = 3
+    labels[15:25, 15:25, 78:86] = 4  # touches 3 face to face
+    table = grain_table(_specimen(np.zeros(labels.shape), labels))
+    assert table.labels.tolist() == [1, 2, 3, 4]
+    assert table.diameter[0] == pytest.approx(18.0, rel=0.03)
+    assert table.sphericity[0] > 0.95 and table.sphericity[1] < table.sphericity[0]
+    assert table.elongation[0] == pytest.approx(1.0, abs=0.03)
+    assert table.elongation[1] == pytest.approx(1 / 3, rel=0.05)  # b/a of the cigar
+    assert table.flatness[1] == pytest.approx(1.0, abs=0.03)
+    np.testing.assert_allclose(np.abs(table.long_axis[1]), [0, 0, 1], atol=1e-6)  # long axis along x
+    assert table.coordination.tolist() == [0, 0, 1, 1]
+    assert coordination_numbers(labels)[3] == 1
+
+
+def test_noise_level_and_spectrum_of_added_gaussian_noise():
+    labels = np.zeros((48, 40, 40), dtype=np.int32)
+    labels[:24] = 1
+    rng = np.random.default_rng(1)
+    tomogram = np.where(labels > 0, 1.0, 0.2) + rng.normal(0.0, 0.05, labels.shape)
+    noise = noise_levels(_specimen(tomogram, labels))
+    assert noise["grain_std"] == pytest.approx(0.05, rel=0.05)
+    assert noise["pore_std"] == pytest.approx(0.05, rel=0.05)
+    spectrum = noise_power_spectrum(tomogram, labels > 0)
+    # the rings add up to the variance left after removing each 8x8 patch's mean
+    assert spectrum.power.sum() == pytest.approx(0.05**2 * 63 / 64, rel=0.05)
+    assert spectrum.power[0] == pytest.approx(0.0, abs=1e-12)
+    assert spectrum.centroid > 0.35  # white noise: power at high frequencies
+
+
+@pytest.mark.parametrize("sigma", [1.0, 2.0])
+def test_edge_width_of_a_gaussian_blurred_step(sigma):
+    z = np.arange(64, dtype=float)[:, None, None] * np.ones((1, 16, 16))
+    labels = (z < 32).astype(np.int32)  # boundary at z = 31.5
+    tomogram = 0.5 * (1 + special.erf((31.5 - z) / (sigma * np.sqrt(2))))
+    assert volume_edge_width(tomogram.astype(np.float32), labels) == pytest.approx(2.5631 * sigma, rel=0.08)
+
+
+def test_patches_lie_inside_the_mask():
+    mask = np.zeros((3, 30, 30), dtype=bool)
+    mask[:, 5:25, 5:25] = True
+    corners = patch_corners(mask, 8, 4)
+    assert len(corners) == 3 * 9  # corners 8, 12, 16 in y and x (a 4-voxel lattice inside 5..24)
+    patches = take_patches(np.where(mask, 1.0, 0.0), corners, 8)
+    assert patches.shape == (27, 8, 8) and patches.min() == 1.0
+    assert len(patch_corners(mask, 8, 4, max_patches=5)) == 5
+
+
+def test_classifier_auc_near_half_for_one_distribution_and_near_one_for_two():
+    rng = np.random.default_rng(2)
+
+    def patches(n, noise):
+        base = np.where(rng.uniform(size=(n, 1, 1)) < 0.5, 0.3, 0.7) * np.ones((n, 16, 16))
+        return np.clip(base + rng.normal(0.0, noise, (n, 16, 16)), 0, 1)
+
+    same = classifier_auc(patches(300, 0.05), patches(300, 0.05), seed=0)
+    assert abs(same["auc"] - 0.5) < 0.1
+    different = classifier_auc(patches(300, 0.05), patches(300, 0.1), seed=0)
+    assert different["auc"] > 0.95 and different["n_per_class"] == 300
+    with pytest.raises(SynthpackInputError, match="patches per class"):
+        classifier_auc(patches(4, 0.05), patches(300, 0.05))
+
+
+@pytest.fixture(scope="module")
+def packs(large_library, tmp_path_factory):
+    """A default and a calibrated pack of the same pour (the latter through `generate --calibrate`)."""
+    root = tmp_path_factory.mktemp("realism")
+    (default,) = generate_packs(large_library, root / "default", 1, PACK, progress=False)
+    library_dir = large_library.save(root / "library")
+    config = root / "pack.yaml"
+    config.write_text("pour: {n_particles: 60, batch_size: 30, tube_radius: 400.0}\n")
+    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(root / "calibrated"),
+                 "--config", str(config), "--seed", "1", "--calibrate"]) == 0
+    return default, root / "calibrated" / "pack_0000"
+
+
+def test_calibration_brings_noise_and_edges_to_the_source(packs, large_scan, large_library):
+    default, calibrated = packs
+    manifest = json.loads((calibrated / "manifest.json").read_text())
+    fit = manifest["calibration"]
+    assert manifest["config"]["postprocess"] == "calibrated"
+    assert fit["target_edge_width"] == pytest.approx(volume_edge_width(large_scan.tomogram, large_scan.labels))
+    assert fit["target_edge_width"] == large_library.phases["edge_width"]
+    assert 0 < fit["blur_sigma"] < 2 and fit["noise_std"] > 0
+    assert [step["name"] for step in manifest["postprocessing"]] == ["gaussian_blur", "gaussian_noise"]
+    source = measure_appearance(Specimen.from_scan(large_scan))
+    before = measure_appearance(Specimen.from_pack(default))
+    after = measure_appearance(Specimen.from_pack(calibrated))
+    for key in ("grain_std", "pore_std"):
+        assert abs(after.noise[key] - source.noise[key]) < 0.2 * abs(before.noise[key] - source.noise[key])
+        assert after.noise[key] == pytest.approx(source.noise[key], rel=0.1)
+    assert abs(after.edge_width - source.edge_width) < abs(before.edge_width - source.edge_width)
+    assert after.edge_width == pytest.approx(source.edge_width, abs=0.1)
+    # the fit is deterministic: the same clean volume gives the same parameters
+    clean = Specimen.from_pack(calibrated, clean=True)
+    again = calibrate(clean.tomogram, clean.labels, clean.region, target_edge_width=fit["target_edge_width"],
+                      target_noise=fit["target_noise"])
+    assert again.blur_sigma == pytest.approx(fit["blur_sigma"]) and again.noise_std == pytest.approx(fit["noise_std"])
+
+
+def test_calibrated_needs_a_library_with_the_source_edge_width(large_library):
+    phases = {k: v for k, v in large_library.phases.items() if k != "edge_width"}
+    old = ParticleLibrary(large_library.particles, voxel_size=large_library.voxel_size, unit=large_library.unit,
+                          density=large_library.density, phases=phases, source_shape=large_library.source_shape)
+    with pytest.raises(SynthpackInputError, match="rebuild it"):
+        build_pack(old, PACK.replace(postprocess="calibrated"), seed=0, progress=False)
+
+
+def test_compare_command_writes_the_report(packs, tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["-q", "compare", "--sample", "large", "--packs", str(packs[0]), str(packs[1]),
+                 "--out", str(out), "--patch", "12"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
+    report = json.loads((out / "realism.json").read_text())
+    assert [p["name"] for p in report["packs"]] == ["default/pack_0000", "calibrated/pack_0000"]
+    figures = report["packs"][0]["figures"]
+    # the labels' solid fraction of the bulk agrees with the pour's Monte-Carlo estimate from the meshes
+    assert figures["solid_fraction"] == pytest.approx(figures["pour_packing_fraction"], abs=0.03)
+    assert report["source"]["figures"]["solid_fraction"] == pytest.approx(0.61, abs=0.02)
+    for pack in report["packs"]:
+        assert 0.5 <= pack["distances"]["classifier"]["auc"] <= 1.0
+        assert 0 <= pack["distances"]["ks_diameter"] <= 1
+    assert "classifier AUC" in (out / "realism.md").read_text()
+    assert "classifier AUC" in capsys.readouterr().out
+    assert main(["-q", "compare", "--sample", "large", "--packs", str(tmp_path / "missing"),
+                 "--out", str(tmp_path / "x")]) == 2
+    with pytest.raises(SynthpackInputError, match="not empty"):
+        RealismReport(None, [], []).write(packs[0])  # never replaces a folder that is not a report
