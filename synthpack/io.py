@@ -357,6 +357,7 @@ def create_zarr_volume(
     voxel_size: tuple[float, float, float],
     unit: str,
     chunks: tuple[int, int, int] | None = None,
+    shards: tuple[int, int, int] | None = None,
 ) -> zarr.Array:
     """Create an empty Zarr volume at `store` (a new directory) to be filled chunk by chunk.
 
@@ -377,9 +378,14 @@ def create_zarr_volume(
     unit : str
         Length unit.
     chunks : tuple of 3 int, optional
-        Chunk shape; Zarr chooses one if omitted.
+        Chunk shape (the unit of compression and of reading); Zarr chooses one
+        if omitted.
+    shards : tuple of 3 int, optional
+        Shard shape, a multiple of `chunks`: each shard is one file holding its
+        chunks (fewer files; write whole shards at once). None: one file per chunk.
     """
     return zarr.create_array(store=str(store), shape=tuple(int(n) for n in shape), dtype=dtype,
+                             shards=None if shards is None else tuple(int(n) for n in shards),
                              **_zarr_layout(voxel_size, unit, chunks))
 
 

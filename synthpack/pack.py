@@ -99,17 +99,23 @@ class StagedPack:
 
     def zarr_array(self, name: str, shape: tuple[int, int, int], dtype: np.dtype | type,
                    chunks: tuple[int, int, int]) -> zarr.Array:
-        """A new, empty array `name` of the pack's Zarr store, to fill chunk by chunk.
+        """A new, empty array `name` of the pack's Zarr store, to fill in blocks of `chunks`.
 
-        Arrays other than the pack volumes (e.g. a ``scratch`` volume for
-        intermediate results) are removed by :meth:`finish`.
+        Each block of `chunks` is one shard file, stored as compressed chunks of
+        one slice ``(1, Y, X)`` of the block: a block is written at once, and a
+        slice along z is read without decoding its neighbours (the dataset's
+        and the export's default slicing). Arrays other than the pack volumes
+        (e.g. a ``scratch`` volume for intermediate results) are removed by
+        :meth:`finish`.
         """
         if self.format != "zarr":
             raise SynthpackInputError(f"a {self.format} pack has no Zarr store: write its volumes with write_volumes")
         store = self.path / "pack.zarr"
         if not store.exists():
             zarr.open_group(str(store), mode="w")
-        return create_zarr_volume(store / name, shape, dtype, self.voxel_size, self.unit, chunks)
+        shards = tuple(int(c) for c in chunks)
+        return create_zarr_volume(store / name, shape, dtype, self.voxel_size, self.unit,
+                                  chunks=(1, *shards[1:]), shards=shards)
 
     def write_volumes(self, volumes: dict[str, np.ndarray]) -> None:
         """Write the in-memory volumes ``{"tomogram", "clean", "labels"}`` in the pack's format."""

@@ -67,7 +67,7 @@ def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
 
     if scheduler is not None:
         try:
-            client = Client(scheduler, timeout="30s")
+            client = Client(scheduler)  # waits up to dask's distributed.comm.timeouts.connect
         except OSError as error:
             raise SynthpackInputError(
                 f"cannot reach the Dask scheduler at {scheduler} ({error}): check the address, and that "
