@@ -51,6 +51,12 @@ def test_chunked_blur_with_drawn_sigma_and_motion_blur_equal_the_whole_volume(vo
     np.testing.assert_array_equal(out, MotionBlur(length=5, angle=record[0]["angle"])(volume, 0))
 
 
+def test_a_blur_after_noise_sees_the_finished_noisy_volume(volume):
+    noisy, _ = _blockwise(GaussianNoise(std=0.3), volume)
+    out, _ = _blockwise(Compose([GaussianNoise(std=0.3), GaussianBlur(sigma=1.2)]), volume)
+    np.testing.assert_array_equal(out, ndimage.gaussian_filter(noisy, 1.2, output=np.float32))
+
+
 def test_rings_and_cupping_are_centred_on_the_whole_slice(volume):
     for transform in (RingArtefacts(amplitude=0.5, n_rings=4), BeamHardening(strength=0.3)):
         out, _ = _blockwise(transform, volume)

@@ -18,11 +18,11 @@ What each transform needs beyond its block is declared by its ``locality``:
     Blocks are slabs of whole slices (Y, X), scanned slice by slice with one set
     of detector gains for the whole volume.
 
-Transforms run in passes: each pass starts with one neighbourhood or slice
-transform and carries on with the voxel transforms that follow it, so the
-default pipeline (blur, rings, noise) is a single pass over the volume. A
-pipeline with several neighbourhood or slice transforms writes its intermediate
-volumes to a `scratch` array.
+Transforms run in passes over the volume: each neighbourhood or slice transform
+starts a pass (its halo must hold the finished output of the steps before it)
+and the voxel transforms after it join that pass, so the default pipeline
+(blur, rings, noise) is a single pass. A pipeline of several passes writes its
+intermediate volumes to a `scratch` array.
 
 Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
 from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
@@ -83,11 +83,14 @@ def _draw(pipeline: Transform | Compose, seed: int) -> list[_Step]:
 
 
 def _passes(drawn: list[_Step]) -> list[list[_Step]]:
-    """Split the steps into passes, each led by its only non-voxel step (if any)."""
+    """Split the steps into passes: every non-voxel step starts one, voxel steps join the current one.
+
+    A non-voxel step reads a halo or whole slices of its input, which must then be
+    the complete output of the steps before it: hence a new pass.
+    """
     passes: list[list[_Step]] = []
     for step in drawn:
-        if not passes or (step.transform.locality != "voxel" and any(
-                s.transform.locality != "voxel" for s in passes[-1])):
+        if not passes or step.transform.locality != "voxel":
             passes.append([step])
         else:
             passes[-1].append(step)
@@ -171,7 +174,7 @@ def apply_blockwise(
         Blocks done at once; default: the number of CPU cores.
     scratch : callable, optional
         Returns a new array like `target`, for the intermediate volume of
-        pipelines with more than one neighbourhood or slice transform.
+        pipelines of more than one pass (see the module docstring).
 
     Returns
     -------
