@@ -1,7 +1,9 @@
 """The ``synthpack`` command line.
 
 Every subcommand turns a :class:`~synthpack.errors.SynthpackInputError` into one
-line on stderr and exit code 2, without a traceback.
+line on stderr and exit code 2, without a traceback. ``generate`` exits with code
+1 when some packs failed (:class:`~synthpack.errors.PackBuildError`), after
+building all the others.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .errors import SynthpackInputError
+from .errors import PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
 
@@ -129,7 +131,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         scan = _read_source_scan(args)
         source = scan.source
         library = ParticleLibrary.from_scan(scan, **vars(config.library))
-    paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source)
+    paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source,
+                           workers=args.workers, scheduler=args.scheduler)
     if args.preview:
         _write_pack_preview(paths[0], library, paths[0] / "preview.png")
     print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
@@ -275,7 +278,17 @@ def _parser() -> argparse.ArgumentParser:
     generate.add_argument("--engine", choices=("pybullet", "blender"), help="rigid-body engine (config pour.engine)")
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
-    generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff", help="volume format (default tiff)")
+    generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff",
+                          help="volume format (default tiff); zarr packs are written chunk by chunk, "
+                               "for volumes larger than memory")
+    where = generate.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="W",
+                       help="build the packs on a local Dask cluster of W worker processes (0: in this "
+                            "process, one after the other); default: one worker per core, or this process "
+                            "for a single pack")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="build the packs on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 "
+                            "(see the README for SLURM/PBS)")
     generate.add_argument("--preview", action="store_true", help="write preview.png into the first pack")
     generate.add_argument("--print-config", action="store_true", help="print the full config and exit")
     generate.add_argument("--calibrate", action="store_true",
@@ -366,6 +379,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SynthpackInputError as error:
         print(f"synthpack: error: {error}", file=sys.stderr)
         return 2
+    except PackBuildError as error:
+        print(f"synthpack: error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("synthpack: interrupted", file=sys.stderr)
         return 130

@@ -103,7 +103,8 @@ class ReconstructConfig:
     wall_intensity: float | None = _spec(None, None, "wall intensity; default between pores and grains")
     margin: int = _spec(4, _non_negative, "voxels of margin around the tube")
     chunks: list = _spec([64, 256, 256], lambda v: len(v) == 3 and all(isinstance(c, int) and c > 0 for c in v),
-                         "chunk shape (z, y, x) of the chunked rendering")
+                         "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
+                         "(and the shards of Zarr packs)")
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ Split: the slices of each volume along `axis` are split with
 
 Transform order in ``__getitem__``:
 
-1. read the image and label slices (only those slices, from memory-mapped files);
+1. read the image and label slices (only those slices: from memory-mapped TIFF files,
+   or only the chunks of a Zarr pack that the slice crosses);
 2. apply the artefact transforms (`synthpack.artefacts`) to the float32 slice as a
    NumPy array, with a generator seeded by ``(seed, epoch, pack, axis, slice)``:
    fresh noise every epoch (see ``set_epoch``), the same noise for the same epoch
@@ -547,6 +548,10 @@ class SyntheticParticlePackDataset(_SliceDataset):
         True: ``target["masks"]`` (N, H, W). False: the compact
         ``target["instance_map"]`` (H, W) instead, N times cheaper to send from
         DataLoader workers; :func:`expand_masks` turns it into ``masks``.
+    format : {"tiff", "zarr"}
+        Format of the cached packs. Zarr packs are built chunk by chunk, for
+        volumes larger than memory, and an item reads only the Zarr chunks its
+        slice crosses; the voxels are the same in both formats.
 
     Notes
     -----
@@ -583,9 +588,12 @@ class SyntheticParticlePackDataset(_SliceDataset):
         build: bool = False,
         progress: bool = False,
         dense_masks: bool = True,
+        format: str = "tiff",
     ) -> None:
         if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
             raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
+        if format not in ("tiff", "zarr"):
+            raise SynthpackInputError(f"format must be 'tiff' or 'zarr', got {format!r}")
         config = _as_config(config)
         if seed is not None:
             config = config.replace(seed=_check_seed(seed, "seed"))
@@ -598,7 +606,8 @@ class SyntheticParticlePackDataset(_SliceDataset):
         self.progress = progress
         identity = self.source.identity()
         self._library_key = {"source": identity, "library": config.to_dict()["library"], "synthpack": __version__}
-        self._pack_key = {"source": identity, "config": config.to_dict(), "format": "tiff", "synthpack": __version__}
+        self.format = format
+        self._pack_key = {"source": identity, "config": config.to_dict(), "format": format, "synthpack": __version__}
         self.cache_dir = self.root / f"packs-{_digest(self._pack_key)}"
         self._pack_paths: list[Path] | None = None
         if build:
@@ -611,7 +620,7 @@ class SyntheticParticlePackDataset(_SliceDataset):
         return list(self._pack_paths)  # type: ignore[arg-type]
 
     def build(self) -> SyntheticParticlePackDataset:
-        """Build the missing or unusable packs now, in this process; return the dataset."""
+        """Build the missing or unusable packs now (as Dask tasks, see `generate_packs`); return the dataset."""
         self._ready()
         return self
 
@@ -630,7 +639,7 @@ class SyntheticParticlePackDataset(_SliceDataset):
             for path, shape in zip(paths, shapes):
                 if shape is None and path.exists():
                     shutil.rmtree(path)
-            generate_packs(self._library(), self.cache_dir, self.n_packs, self.config,
+            generate_packs(self._library(), self.cache_dir, self.n_packs, self.config, format=self.format,
                            source=self.source.describe(), progress=self.progress)
             _write_key(self.cache_dir, self._pack_key)
             shapes = [_usable_pack_shape(path, config) for path in paths]
@@ -678,7 +687,7 @@ class SyntheticParticlePackDataset(_SliceDataset):
             lines.insert(0, "Number of datapoints: not known yet (packs are built or checked on first use)")
         else:
             lines.append(f"Slices per pack along axis {self.axis}: {self._n_slices}")
-        return [*lines, f"Cache: {self.cache_dir}", f"Postprocess: {self.postprocess}"]
+        return [*lines, f"Cache: {self.cache_dir}", f"Format: {self.format}", f"Postprocess: {self.postprocess}"]
 
 
 def _write_key(directory: Path, key: dict) -> None:

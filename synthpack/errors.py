@@ -1,4 +1,4 @@
-"""Exception types raised by synthpack for bad input."""
+"""Exception types raised by synthpack: bad input, and packs that failed to build."""
 
 
 class SynthpackInputError(ValueError):
@@ -9,3 +9,30 @@ class SynthpackInputError(ValueError):
     similar problems in what the user handed in. The command-line interface turns it
     into a one-line message on stderr and exit code 2, without a traceback.
     """
+
+
+class PackBuildError(RuntimeError):
+    """Some packs of a run failed; every other pack was built and written.
+
+    Packs are written atomically, so a failed pack leaves nothing behind and
+    running the same command again builds only the missing packs.
+
+    Attributes
+    ----------
+    failures : dict of str to str
+        Name of each failed pack (``pack_0003``) -> its error, ``"ExceptionType: message"``.
+    out : Path
+        The run's output directory.
+    n_packs : int
+        Packs in the run.
+    """
+
+    def __init__(self, failures: dict[str, str], out, n_packs: int) -> None:
+        self.failures = dict(sorted(failures.items()))
+        self.out = out
+        self.n_packs = n_packs
+        listed = "; ".join(f"{name}: {error}" for name, error in self.failures.items())
+        super().__init__(
+            f"{len(self.failures)} of {n_packs} packs failed ({listed}); the others are in {out}. "
+            "Fix the cause and run the same command again: only the missing packs are built"
+        )

@@ -45,7 +45,7 @@ from .scan import Scan, validate_voxel_size
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SUPPORTED_FORMATS", "read_scan", "read_volume", "write_tiff", "write_zarr"]
+__all__ = ["SUPPORTED_FORMATS", "create_zarr_volume", "read_scan", "read_volume", "write_tiff", "write_zarr"]
 
 PathLike = str | os.PathLike
 VoxelSize = tuple[float, float, float]
@@ -326,16 +326,9 @@ def write_zarr(
             f"cannot write the Zarr store {path}: something that is not a Zarr store "
             "is already there; choose another path or remove it"
         )
-    attributes = {"voxel_size": list(size), "unit": unit, "axes": ["z", "y", "x"]}
 
     def create(store: Path) -> None:
-        zarr.create_array(
-            store=str(store),
-            data=data,
-            chunks="auto" if chunks is None else tuple(int(c) for c in chunks),
-            dimension_names=("z", "y", "x"),
-            attributes=attributes,
-        )
+        zarr.create_array(store=str(store), data=data, **_zarr_layout(size, unit, chunks))
 
     if name is None:
         with atomic_directory(path) as tmp:
@@ -355,6 +348,54 @@ def write_zarr(
     logger.info("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
                 data.shape, data.dtype, size, unit)
     return path
+
+
+def create_zarr_volume(
+    store: PathLike,
+    shape: tuple[int, int, int],
+    dtype: np.dtype | type,
+    voxel_size: tuple[float, float, float],
+    unit: str,
+    chunks: tuple[int, int, int] | None = None,
+    shards: tuple[int, int, int] | None = None,
+) -> zarr.Array:
+    """Create an empty Zarr volume at `store` (a new directory) to be filled chunk by chunk.
+
+    It carries the attributes `write_zarr` writes (``voxel_size`` z first,
+    ``unit``, ``axes``) and the dimension names ``z, y, x``, so `read_volume`
+    reads it like any written volume. Voxels never written read as 0.
+
+    Parameters
+    ----------
+    store : str or Path
+        Directory of the new array (inside a group directory, a member of it).
+    shape : tuple of 3 int
+        ``(Z, Y, X)``.
+    dtype : numpy dtype
+        Element type.
+    voxel_size : tuple of 3 float
+        ``(dz, dy, dx)`` in `unit` (already validated).
+    unit : str
+        Length unit.
+    chunks : tuple of 3 int, optional
+        Chunk shape (the unit of compression and of reading); Zarr chooses one
+        if omitted.
+    shards : tuple of 3 int, optional
+        Shard shape, a multiple of `chunks`: each shard is one file holding its
+        chunks (fewer files; write whole shards at once). None: one file per chunk.
+    """
+    return zarr.create_array(store=str(store), shape=tuple(int(n) for n in shape), dtype=dtype,
+                             shards=None if shards is None else tuple(int(n) for n in shards),
+                             **_zarr_layout(voxel_size, unit, chunks))
+
+
+def _zarr_layout(voxel_size: VoxelSize, unit: str, chunks: tuple[int, int, int] | None) -> dict:
+    """Chunks, dimension names and attributes of every volume synthpack writes to Zarr."""
+    return dict(
+        chunks="auto" if chunks is None else tuple(int(c) for c in chunks),
+        dimension_names=("z", "y", "x"),
+        attributes={"voxel_size": list(voxel_size), "unit": unit, "axes": ["z", "y", "x"]},
+    )
 
 
 # --------------------------------------------------------------------------- #

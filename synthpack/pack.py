@@ -12,13 +12,18 @@ With ``format="zarr"`` the three volumes are arrays of one store ``pack.zarr``
 under the same names (``tomogram``, ``clean``, ``labels``).
 
 The directory is built under a temporary name and renamed when complete, so an
-interrupted run leaves no directory that looks complete.
+interrupted run leaves no directory that looks complete. `write_pack` writes
+volumes held in memory; `stage_pack` lets a Zarr pack's volumes be filled chunk
+by chunk (volumes larger than memory) before the pack is published.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,9 +34,10 @@ import zarr
 
 from ._atomic import atomic_directory
 from .errors import SynthpackInputError
-from .io import write_tiff, write_zarr
+from .io import create_zarr_volume, write_tiff, write_zarr
 
-__all__ = ["PACK_VOLUMES", "Pack", "find_packs", "write_pack", "is_complete_pack", "open_pack"]
+__all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "write_pack", "is_complete_pack",
+           "open_pack"]
 
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
@@ -74,6 +80,100 @@ class Pack:
         return tuple(self.labels.shape)  # type: ignore[return-value]
 
 
+class StagedPack:
+    """A pack being written in a temporary directory; see :func:`stage_pack`.
+
+    Attributes
+    ----------
+    path : Path
+        The temporary directory (renamed to the pack directory once complete).
+    format : {"tiff", "zarr"}
+        Volume format.
+    """
+
+    def __init__(self, path: Path, format: str, voxel_size: tuple[float, float, float], unit: str) -> None:
+        self.path = path
+        self.format = format
+        self.voxel_size = tuple(float(v) for v in voxel_size)
+        self.unit = unit
+        self.finished = False
+
+    def zarr_array(self, name: str, shape: tuple[int, int, int], dtype: np.dtype | type,
+                   chunks: tuple[int, int, int]) -> zarr.Array:
+        """A new, empty array `name` of the pack's Zarr store, to fill in blocks of `chunks`.
+
+        Each block of `chunks` is one shard file, stored as compressed chunks of
+        one slice ``(1, Y, X)`` of the block: a block is written at once, and a
+        slice along z is read without decoding its neighbours (the dataset's
+        and the export's default slicing). Arrays other than the pack volumes
+        (e.g. a ``scratch`` volume for intermediate results) are removed by
+        :meth:`finish`.
+        """
+        if self.format != "zarr":
+            raise SynthpackInputError(f"a {self.format} pack has no Zarr store: write its volumes with write_volumes")
+        store = self.path / "pack.zarr"
+        if not store.exists():
+            zarr.open_group(str(store), mode="w")
+        shards = tuple(int(c) for c in chunks)
+        return create_zarr_volume(store / name, shape, dtype, self.voxel_size, self.unit,
+                                  chunks=(1, *shards[1:]), shards=shards)
+
+    def write_volumes(self, volumes: dict[str, np.ndarray]) -> None:
+        """Write the in-memory volumes ``{"tomogram", "clean", "labels"}`` in the pack's format."""
+        missing = [name for name in PACK_VOLUMES if name not in volumes]
+        if missing:
+            raise SynthpackInputError(f"a pack needs the volumes {', '.join(missing)}")
+        for name in PACK_VOLUMES:
+            if self.format == "tiff":
+                write_tiff(self.path / f"{name}.tif", volumes[name], self.voxel_size, self.unit,
+                           labels=name == "labels")
+            else:
+                write_zarr(self.path / "pack.zarr", volumes[name], self.voxel_size, self.unit, name=name)
+
+    def finish(self, placements, manifest: dict) -> None:
+        """Write ``placements.json`` and, last, ``manifest.json`` (``complete: true``).
+
+        Parameters
+        ----------
+        placements : synthpack.physics.Placements
+            The pour.
+        manifest : dict
+            JSON-able; ``format``, ``voxel_size``, ``unit`` and ``complete`` are added.
+        """
+        store = self.path / "pack.zarr"
+        if store.is_dir():
+            for extra in sorted(p for p in store.iterdir() if p.is_dir() and p.name not in PACK_VOLUMES):
+                shutil.rmtree(extra)
+        placements.save(self.path / "placements.json")
+        full = dict(manifest, format=self.format, voxel_size=list(self.voxel_size), unit=self.unit, complete=True)
+        (self.path / "manifest.json").write_text(json.dumps(full, indent=1, default=_json_default))
+        self.finished = True
+
+
+@contextlib.contextmanager
+def stage_pack(
+    directory: str | os.PathLike, *, voxel_size: tuple[float, float, float], unit: str, format: str = "tiff"
+) -> Iterator[StagedPack]:
+    """Write a pack directory atomically: fill the yielded :class:`StagedPack`, then call its ``finish``.
+
+    The pack appears at `directory` (replacing an existing one) only when the
+    block ends after ``finish``; on an exception nothing is left behind.
+
+    Examples
+    --------
+    >>> with stage_pack("packs/pack_0000", voxel_size=(1, 1, 1), unit="um", format="zarr") as staged:
+    ...     labels = staged.zarr_array("labels", shape, np.int32, chunks)   # fill chunk by chunk
+    ...     staged.finish(placements, manifest)
+    """
+    if format not in _FORMATS:
+        raise SynthpackInputError(f"pack format must be one of {', '.join(_FORMATS)}, got {format!r}")
+    with atomic_directory(directory) as staging:
+        staged = StagedPack(staging, format, voxel_size, unit)
+        yield staged
+        if not staged.finished:
+            raise RuntimeError(f"the pack {directory} was staged but never finished: call finish()")
+
+
 def write_pack(
     directory: str | os.PathLike,
     volumes: dict[str, np.ndarray],
@@ -84,7 +184,7 @@ def write_pack(
     unit: str,
     format: str = "tiff",
 ) -> Path:
-    """Write one pack directory atomically.
+    """Write one pack directory atomically from in-memory volumes.
 
     Parameters
     ----------
@@ -101,20 +201,9 @@ def write_pack(
     format : {"tiff", "zarr"}
         Volume format.
     """
-    if format not in _FORMATS:
-        raise SynthpackInputError(f"pack format must be one of {', '.join(_FORMATS)}, got {format!r}")
-    missing = [name for name in PACK_VOLUMES if name not in volumes]
-    if missing:
-        raise SynthpackInputError(f"a pack needs the volumes {', '.join(missing)}")
-    with atomic_directory(directory) as staging:
-        for name in PACK_VOLUMES:
-            if format == "tiff":
-                write_tiff(staging / f"{name}.tif", volumes[name], voxel_size, unit, labels=name == "labels")
-            else:
-                write_zarr(staging / "pack.zarr", volumes[name], voxel_size, unit, name=name)
-        placements.save(staging / "placements.json")
-        full = dict(manifest, format=format, voxel_size=list(voxel_size), unit=unit, complete=True)
-        (staging / "manifest.json").write_text(json.dumps(full, indent=1, default=_json_default))
+    with stage_pack(directory, voxel_size=voxel_size, unit=unit, format=format) as staged:
+        staged.write_volumes(volumes)
+        staged.finish(placements, manifest)
     return Path(directory)
 
 

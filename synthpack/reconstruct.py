@@ -18,17 +18,14 @@ global voxel position, so the result does not depend on the chunking.
 from __future__ import annotations
 
 import functools
-import itertools
 import logging
-import os
-from collections import deque
-from collections.abc import Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
+from ._chunks import bounded_map, chunk_boxes, thread_count
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
@@ -175,6 +172,11 @@ def pose_maps(
     Returns
     -------
     PoseMaps
+
+    Raises
+    ------
+    SynthpackInputError
+        If a placed library particle has an empty mask (a corrupt library).
     """
     library_index = np.asarray(library_index, dtype=np.int64)
     n = len(library_index)
@@ -198,6 +200,12 @@ def pose_maps(
     forward = np.linalg.inv(matrix) if n else np.zeros((0, 3, 3))
     reach = np.abs(forward).sum(axis=2)
     surfaces = {int(i): _surface_voxels(masks[int(i)]) for i in np.unique(library_index)}
+    empty = sorted(i for i, surface in surfaces.items() if not len(surface))
+    if empty:
+        raise SynthpackInputError(
+            f"library particle(s) {', '.join(map(str, empty))} have an empty mask: the library is "
+            "corrupt; build it again from the scan (synthpack library build)"
+        )
     box_lo = np.empty((n, 3), dtype=np.int64)
     box_hi = np.empty((n, 3), dtype=np.int64)
     for k in range(n):
@@ -213,16 +221,6 @@ def _surface_voxels(mask: np.ndarray) -> np.ndarray:
     """Indices (K, 3), float, of the mask voxels on its surface (their hull bounds the mask)."""
     surface = mask & ~ndimage.binary_erosion(mask)
     return np.argwhere(surface).astype(float)
-
-
-def chunk_boxes(shape: tuple[int, int, int], chunks: tuple[int, int, int]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Half-open ``(lo, hi)`` index boxes tiling `shape` with blocks of `chunks`."""
-    starts = [range(0, n, c) for n, c in zip(shape, chunks)]
-    for z in starts[0]:
-        for y in starts[1]:
-            for x in starts[2]:
-                lo = np.array([z, y, x])
-                yield lo, np.minimum(lo + np.asarray(chunks), shape)
 
 
 @functools.lru_cache(maxsize=8)
@@ -402,9 +400,7 @@ def reconstruct(
         raise SynthpackInputError(f"interpolation order must be 0, 1 or 3, got {order}")
     if any(c < 1 for c in chunks):
         raise SynthpackInputError(f"chunk shape must be positive, got {chunks}")
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if workers < 1:
-        raise SynthpackInputError(f"workers must be at least 1, got {workers}")
+    workers = thread_count(workers)
     if out is None:
         out = (np.empty(grid.shape, dtype=np.float32), np.empty(grid.shape, dtype=np.int32))
     tomogram, labels = out
@@ -412,19 +408,15 @@ def reconstruct(
 
     prepared = prepare_crops(crops)
 
-    def render(box: tuple[np.ndarray, np.ndarray]):
+    def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
-        return box, render_chunk(prepared, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
+        return render_chunk(prepared, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
 
-    boxes = iter(list(chunk_boxes(grid.shape, chunks)))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending = deque(pool.submit(render, box) for box in itertools.islice(boxes, 2 * workers))
-        while pending:
-            (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) = pending.popleft().result()
-            for box in itertools.islice(boxes, 1):
-                pending.append(pool.submit(render, box))
-            window = tuple(slice(a, b) for a, b in zip(lo, hi))
-            tomogram[window] = chunk_tomogram
-            labels[window] = chunk_labels
-            contested += chunk_contested
+    for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
+        render, chunk_boxes(grid.shape, chunks), workers
+    ):
+        window = tuple(slice(a, b) for a, b in zip(lo, hi))
+        tomogram[window] = chunk_tomogram
+        labels[window] = chunk_labels
+        contested += chunk_contested
     return tomogram, labels, contested

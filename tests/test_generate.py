@@ -5,6 +5,7 @@ import pytest
 
 import synthpack.pack as pack_module
 from synthpack.config import PackConfig
+from synthpack.errors import PackBuildError
 from synthpack.generate import build_pack, generate_packs, pack_seed
 from synthpack.pack import is_complete_pack, open_pack
 
@@ -82,7 +83,7 @@ def test_interrupted_write_leaves_no_complete_looking_pack(large_library, tmp_pa
         return real_write_tiff(path, volume, *args, **kwargs)
 
     monkeypatch.setattr(pack_module, "write_tiff", failing_write_tiff)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(PackBuildError, match="pack_0000: OSError: disk full"):
         generate_packs(large_library, tmp_path, 1, config, progress=False)
     assert list(tmp_path.iterdir()) == []
     assert not is_complete_pack(tmp_path / "pack_0000")

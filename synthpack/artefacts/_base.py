@@ -62,6 +62,11 @@ class Transform(ABC):
 
     name: ClassVar[str]
     params: ClassVar[tuple[Param, ...]] = ()
+    #: What one output voxel depends on, for block-by-block application
+    #: (`synthpack.artefacts.blockwise`): ``"voxel"``: its own input voxel and its
+    #: position; ``"neighbourhood"``: the input within `halo` voxels; ``"slice"``:
+    #: whole slices (Y, X).
+    locality: ClassVar[str] = "voxel"
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -87,6 +92,45 @@ class Transform(ABC):
     @abstractmethod
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
         """The functional core: `image` (float32) with the drawn `params` applied, a new array."""
+
+    def halo(self, **params: Any) -> tuple[int, int, int]:
+        """Voxels of input ``(z, y, x)`` on each side that one output voxel depends on.
+
+        Zero except for ``"neighbourhood"`` transforms; `params` are the drawn values.
+        """
+        return (0, 0, 0)
+
+    def _transform_block(
+        self,
+        block: np.ndarray,
+        rng: np.random.Generator,
+        call: np.random.SeedSequence,
+        origin: tuple[int, int, int],
+        shape: tuple[int, int, int],
+        **params: Any,
+    ) -> np.ndarray:
+        """The core on one block of a larger volume (see `synthpack.artefacts.blockwise`).
+
+        Parameters
+        ----------
+        block : ndarray of float32, shape (z, y, x)
+            The input box whose first voxel is `origin` in a volume of `shape`
+            (with the halo for ``"neighbourhood"`` transforms, whole slices for
+            ``"slice"`` ones).
+        rng : numpy.random.Generator
+            This block's own generator (noise).
+        call : numpy.random.SeedSequence
+            The same for every block of the call: seeds what is drawn once per
+            volume (e.g. ring radii), so that every block draws the same.
+        origin, shape : tuple of 3 int
+            Where the block sits, and the whole volume's shape.
+        **params
+            The drawn parameter values.
+
+        The default applies `_transform` to the block: right for transforms whose
+        only draws are per-voxel noise and for neighbourhood filters.
+        """
+        return self._transform(block, rng, **params)
 
     def apply(self, image: Any, rng: RngLike) -> tuple[np.ndarray, list[dict[str, Any]]]:
         """Apply the transform and return ``(output, record)``.

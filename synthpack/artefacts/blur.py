@@ -17,6 +17,9 @@ from ._param import Param, Range
 
 __all__ = ["GaussianBlur", "MotionBlur", "line_kernel"]
 
+#: The Gaussian kernel is cut at this many standard deviations (SciPy's default).
+_TRUNCATE = 4.0
+
 
 def line_kernel(length: float, angle: float) -> np.ndarray:
     """A normalised 2D kernel of a straight segment: the point-spread of linear motion.
@@ -78,14 +81,20 @@ class GaussianBlur(Transform):
 
     name = "gaussian_blur"
     params = (Param("sigma", minimum=0.0),)
+    locality = "neighbourhood"
 
     def __init__(self, sigma: Range = 0.7, *, p: float = 1.0) -> None:
         super().__init__(sigma=sigma, p=p)
 
+    def halo(self, *, sigma: float) -> tuple[int, int, int]:
+        """The kernel radius of `scipy.ndimage.gaussian_filter`, ``int(4 sigma + 0.5)``, on every axis."""
+        radius = int(_TRUNCATE * sigma + 0.5)
+        return (radius, radius, radius)
+
     def _transform(self, image: np.ndarray, rng: np.random.Generator, *, sigma: float) -> np.ndarray:
         if sigma == 0:
             return image.copy()
-        return ndimage.gaussian_filter(image, sigma, output=np.float32, mode="reflect")
+        return ndimage.gaussian_filter(image, sigma, output=np.float32, mode="reflect", truncate=_TRUNCATE)
 
 
 class MotionBlur(Transform):
@@ -109,9 +118,15 @@ class MotionBlur(Transform):
 
     name = "motion_blur"
     params = (Param("length", minimum=0.0), Param("angle"))
+    locality = "neighbourhood"
 
     def __init__(self, length: Range = 3.0, angle: Range = (0.0, 180.0), *, p: float = 1.0) -> None:
         super().__init__(length=length, angle=angle, p=p)
+
+    def halo(self, *, length: float, angle: float) -> tuple[int, int, int]:
+        """Half the line kernel's side in the slice plane, nothing along z."""
+        half = line_kernel(length, angle).shape[0] // 2
+        return (0, half, half)
 
     def _transform(
         self, image: np.ndarray, rng: np.random.Generator, *, length: float, angle: float

@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from skimage.transform import iradon, radon
@@ -128,6 +129,7 @@ class CTSimulation(Transform):
         Param("gain_std", minimum=0.0),
         Param("filter_name", kind="choice", choices=_FILTERS, rangeable=False),
     )
+    locality = "slice"
 
     def __init__(
         self,
@@ -148,9 +150,26 @@ class CTSimulation(Transform):
             p=p,
         )
 
-    def _transform(
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
+        return self._scan(image, image.shape, rng, rng, **params)
+
+    def _transform_block(
+        self,
+        block: np.ndarray,
+        rng: np.random.Generator,
+        call: np.random.SeedSequence,
+        origin: tuple[int, int, int],
+        shape: tuple[int, int, int],
+        **params: Any,
+    ) -> np.ndarray:
+        """Scan the block's whole slices with the gains drawn from `call` (the same in every block)."""
+        return self._scan(block, shape, np.random.default_rng(call), rng, **params)
+
+    def _scan(
         self,
         image: np.ndarray,
+        shape: tuple[int, ...],
+        gain_rng: np.random.Generator,
         rng: np.random.Generator,
         *,
         attenuation: float,
@@ -159,15 +178,20 @@ class CTSimulation(Transform):
         gain_std: float,
         filter_name: str,
     ) -> np.ndarray:
+        """Scan and reconstruct every slice of `image`, part of a volume of `shape`.
+
+        The detector gains come from `gain_rng`, the counting noise from `rng`;
+        the angles (`n_angles` None) from the slice size of `shape`.
+        """
         ny, nx = image.shape[-2:]
         side = int(math.ceil(math.hypot(ny, nx))) + 2
         side += 1 - side % 2  # odd side: the rotation axis (pixel side // 2) lies within
         # half a voxel of the slice centre ((Y-1)/2, (X-1)/2): exactly on it for odd Y, X
         y0, x0 = (side - ny) // 2, (side - nx) // 2
         if n_angles is None:
-            n_angles = int(math.ceil(math.pi / 2 * max(ny, nx)))
+            n_angles = int(math.ceil(math.pi / 2 * max(shape[-2:])))
         theta = np.linspace(0.0, 180.0, n_angles, endpoint=False)
-        gains = 1.0 + gain_std * rng.standard_normal(side)
+        gains = 1.0 + gain_std * gain_rng.standard_normal(side)
         slices = image.reshape(-1, ny, nx)
         out = np.empty(slices.shape, dtype=np.float32)
         padded = np.zeros((side, side), dtype=np.float64)

@@ -9,6 +9,7 @@ they are in a real scan. A 2D input is treated as one slice.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -81,9 +82,9 @@ class RingArtefacts(Transform):
     ) -> None:
         super().__init__(amplitude=amplitude, n_rings=n_rings, width=width, radii=radii, p=p)
 
-    def _transform(
+    def _pattern(
         self,
-        image: np.ndarray,
+        shape: tuple[int, ...],
         rng: np.random.Generator,
         *,
         amplitude: float,
@@ -91,14 +92,30 @@ class RingArtefacts(Transform):
         width: float,
         radii: tuple[float, ...] | None,
     ) -> np.ndarray:
+        """The additive ring pattern of one slice of an image of `shape`: float32, (Y, X)."""
         if radii is None:
-            ring_radii = rng.uniform(0.0, min(image.shape[-2:]) / 2.0, size=n_rings)
+            ring_radii = rng.uniform(0.0, min(shape[-2:]) / 2.0, size=n_rings)
         else:
             ring_radii = np.asarray(radii, dtype=np.float64)
         signs = rng.choice([-1.0, 1.0], size=ring_radii.size)
         amplitudes = amplitude * signs * rng.uniform(0.5, 1.0, size=ring_radii.size)
-        pattern = _ring_pattern(image.shape, ring_radii, amplitudes, width)
-        return image + pattern
+        return _ring_pattern(shape, ring_radii, amplitudes, width)
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
+        return image + self._pattern(image.shape, rng, **params)
+
+    def _transform_block(
+        self,
+        block: np.ndarray,
+        rng: np.random.Generator,
+        call: np.random.SeedSequence,
+        origin: tuple[int, int, int],
+        shape: tuple[int, int, int],
+        **params: Any,
+    ) -> np.ndarray:
+        """The block plus its part of the pattern, drawn from `call` (the same rings in every block)."""
+        pattern = self._pattern(shape, np.random.default_rng(call), **params)
+        return block + pattern[_window(origin, block.shape)]
 
 
 class BeamHardening(Transform):
@@ -125,8 +142,31 @@ class BeamHardening(Transform):
     def __init__(self, strength: Range = 0.05, *, p: float = 1.0) -> None:
         super().__init__(strength=strength, p=p)
 
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float) -> np.ndarray:
-        r = radius_grid(image.shape)
-        radius = min(image.shape[-2:]) / 2.0
+    @staticmethod
+    def _factor(shape: tuple[int, ...], strength: float) -> np.ndarray:
+        """The cupping factor of one slice of an image of `shape`: float32, (Y, X)."""
+        r = radius_grid(shape)
+        radius = min(shape[-2:]) / 2.0
         factor = 1.0 - np.float32(strength) * np.clip(1.0 - (r / np.float32(radius)) ** 2, 0.0, 1.0)
-        return image * factor.astype(np.float32)
+        return factor.astype(np.float32)
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float) -> np.ndarray:
+        return image * self._factor(image.shape, strength)
+
+    def _transform_block(
+        self,
+        block: np.ndarray,
+        rng: np.random.Generator,
+        call: np.random.SeedSequence,
+        origin: tuple[int, int, int],
+        shape: tuple[int, int, int],
+        *,
+        strength: float,
+    ) -> np.ndarray:
+        """The block times its part of the whole slice's factor."""
+        return block * self._factor(shape, strength)[_window(origin, block.shape)]
+
+
+def _window(origin: Sequence[int], shape: Sequence[int]) -> tuple[slice, slice]:
+    """The (y, x) slices of a slice pattern covering a block of `shape` at `origin`."""
+    return tuple(slice(o, o + n) for o, n in zip(origin[-2:], shape[-2:]))  # type: ignore[return-value]

@@ -1,0 +1,213 @@
+"""Apply an artefact pipeline to a volume block by block, between arrays that may not fit in memory.
+
+`apply_blockwise` reads the input volume (a NumPy array, a memory map or a Zarr
+array) one block at a time, applies the pipeline and writes each block of the
+output, so memory stays bounded by a few blocks whatever the volume's size.
+What each transform needs beyond its block is declared by its ``locality``:
+
+``"voxel"`` (noise, rings, beam hardening)
+    A voxel's output depends on its own input and position only. Ring radii and
+    other per-volume draws come from a generator that every block seeds alike;
+    rings and cupping are centred on the WHOLE slice.
+``"neighbourhood"`` (Gaussian and motion blur)
+    The block is read with a halo of the kernel's radius (`Transform.halo`);
+    where the halo crosses the volume's border it is filled by mirroring, which
+    is the ``mode="reflect"`` the blur uses on a whole volume. The blurred block
+    therefore equals, bit for bit, the same block of the blur of the whole volume.
+``"slice"`` (CT simulation)
+    Blocks are slabs of whole slices (Y, X), scanned slice by slice with one set
+    of detector gains for the whole volume.
+
+Transforms run in passes over the volume: each neighbourhood or slice transform
+starts a pass (its halo must hold the finished output of the steps before it)
+and the voxel transforms after it join that pass, so the default pipeline
+(blur, rings, noise) is a single pass. A pipeline of several passes writes its
+intermediate volumes to a `scratch` array.
+
+Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
+from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
+from ``[seed, k, 2, z0, y0, x0]`` (the block's first voxel). The result is a
+function of the seed, the pipeline, the volume and the block shape only: not of
+the thread count or the order in which blocks are done. Noise realisations
+differ from `Transform.apply` on the whole volume (one generator drawn in
+order); their statistics are the same.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._chunks import bounded_map, chunk_boxes, thread_count
+from ..errors import SynthpackInputError
+from ._arrays import as_image
+from ._base import Compose, Transform, _plain
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["apply_blockwise", "steps"]
+
+_PARAMS, _CALL, _BLOCK = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class _Step:
+    """One transform of the pipeline with its drawn parameters."""
+
+    index: int
+    transform: Transform
+    params: dict[str, Any]
+
+
+def steps(pipeline: Transform | Compose) -> list[Transform]:
+    """The transforms of `pipeline` in order, nested `Compose` flattened."""
+    if isinstance(pipeline, Transform):
+        return [pipeline]
+    return [t for entry in pipeline for t in steps(entry)]
+
+
+def _draw(pipeline: Transform | Compose, seed: int) -> list[_Step]:
+    drawn = []
+    for k, transform in enumerate(steps(pipeline)):
+        rng = np.random.default_rng([seed, k, _PARAMS])
+        if transform.p < 1.0 and rng.random() >= transform.p:
+            logger.debug("%s skipped (p=%g)", transform.name, transform.p)
+            continue
+        drawn.append(_Step(k, transform, transform.sample(rng)))
+    return drawn
+
+
+def _passes(drawn: list[_Step]) -> list[list[_Step]]:
+    """Split the steps into passes: every non-voxel step starts one, voxel steps join the current one.
+
+    A non-voxel step reads a halo or whole slices of its input, which must then be
+    the complete output of the steps before it: hence a new pass.
+    """
+    passes: list[list[_Step]] = []
+    for step in drawn:
+        if not passes or step.transform.locality != "voxel":
+            passes.append([step])
+        else:
+            passes[-1].append(step)
+    return passes
+
+
+def _blocks(shape: tuple[int, int, int], chunks: tuple[int, int, int], by_slice: bool):
+    if not by_slice:
+        return chunk_boxes(shape, chunks)
+    slab = (max(1, math.prod(chunks) // (shape[1] * shape[2])), shape[1], shape[2])
+    return chunk_boxes(shape, slab)
+
+
+def _read_with_halo(source: Any, lo: np.ndarray, hi: np.ndarray, halo: np.ndarray) -> np.ndarray:
+    """``source[lo - halo : hi + halo]`` as float32, mirrored (numpy "symmetric") beyond the volume."""
+    shape = np.asarray(source.shape)
+    start = np.maximum(lo - halo, 0)
+    stop = np.minimum(hi + halo, shape)
+    block = as_image(source[tuple(slice(a, b) for a, b in zip(start, stop))])
+    pad = [(int(a), int(b)) for a, b in zip(start - (lo - halo), (hi + halo) - stop)]
+    return np.pad(block, pad, mode="symmetric") if any(a or b for a, b in pad) else block
+
+
+def _run_pass(
+    passed: list[_Step], source: Any, target: Any, seed: int, chunks: tuple[int, int, int], threads: int
+) -> None:
+    """One pass over the volume: its lead step (with halo or whole slices), then its voxel steps.
+
+    An empty pass copies `source` to `target`.
+    """
+    shape = tuple(int(n) for n in source.shape)
+    head = passed[0] if passed else None
+    halo = np.asarray(head.transform.halo(**head.params) if head else (0, 0, 0), dtype=np.int64)
+
+    def block(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        lo, hi = box
+        out = _read_with_halo(source, lo, hi, halo)
+        origin = tuple(int(v) for v in lo - halo)
+        for step in passed:
+            out = step.transform._transform_block(
+                out, np.random.default_rng([seed, step.index, _BLOCK, *map(int, lo)]),
+                np.random.SeedSequence([seed, step.index, _CALL]), origin, shape, **step.params)
+            if step is head and halo.any():
+                out = out[tuple(slice(int(h), int(h) + int(n)) for h, n in zip(halo, hi - lo))]
+                origin = tuple(int(v) for v in lo)
+        return out
+
+    by_slice = head is not None and head.transform.locality == "slice"
+    for (lo, hi), values in bounded_map(block, _blocks(shape, chunks, by_slice), threads):
+        target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
+
+
+def apply_blockwise(
+    pipeline: Transform | Compose,
+    source: Any,
+    target: Any,
+    seed: int,
+    chunks: Sequence[int],
+    *,
+    threads: int | None = None,
+    scratch: Callable[[], Any] | None = None,
+) -> list[dict[str, Any]]:
+    """Apply `pipeline` to the volume `source`, block by block, into `target`.
+
+    Parameters
+    ----------
+    pipeline : Transform or Compose
+        The artefacts, applied in order (see the module docstring for how); an
+        empty pipeline copies `source` into `target`.
+    source : array-like, shape (Z, Y, X)
+        Input intensities (NumPy array, memory map or Zarr array); read only.
+    target : array-like, shape (Z, Y, X)
+        Output, float32 (or any array accepting float32 blocks by slice
+        assignment); every voxel is written. Must not be `source`.
+    seed : int
+        Seed of every draw (non-negative).
+    chunks : sequence of 3 int
+        Block shape in voxels (``"slice"`` transforms use slabs of whole slices
+        holding about as many voxels). Part of what the result depends on.
+    threads : int, optional
+        Blocks done at once; default: the number of CPU cores.
+    scratch : callable, optional
+        Returns a new array like `target`, for the intermediate volume of
+        pipelines of more than one pass (see the module docstring).
+
+    Returns
+    -------
+    list of dict
+        The record of what was applied, as `Transform.apply` gives it.
+
+    Raises
+    ------
+    SynthpackInputError
+        If `source` is not 3D, shapes differ, `chunks` is not 3 positive
+        integers, or a needed `scratch` is missing.
+    """
+    if len(source.shape) != 3 or tuple(source.shape) != tuple(target.shape):
+        raise SynthpackInputError(
+            f"blockwise artefacts need a 3D source and a target of its shape, got {source.shape} and {target.shape}"
+        )
+    chunks = tuple(int(c) for c in chunks)
+    if len(chunks) != 3 or min(chunks) < 1:
+        raise SynthpackInputError(f"chunks must be three positive integers (z, y, x), got {chunks}")
+    threads = thread_count(threads)
+    drawn = _draw(pipeline, seed)
+    passes = _passes(drawn) or [[]]
+    if len(passes) > 1 and scratch is None:
+        raise SynthpackInputError(
+            f"this pipeline needs {len(passes)} passes over the volume: give a scratch array factory"
+        )
+    spare = scratch() if len(passes) > 1 else None
+    current = source
+    for i, passed in enumerate(passes):
+        # the last pass writes `target`; earlier ones alternate, so each reads what the one before wrote
+        out = target if (len(passes) - 1 - i) % 2 == 0 else spare
+        logger.debug("artefact pass %d/%d: %s", i + 1, len(passes),
+                     ", ".join(s.transform.name for s in passed) or "copy")
+        _run_pass(passed, current, out, seed, chunks, threads)
+        current = out
+    return [{"name": s.transform.name, **_plain(s.params)} for s in drawn]

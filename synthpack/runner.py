@@ -1,0 +1,173 @@
+"""Run the builds of many packs as Dask tasks: on a local cluster, an existing cluster, or in this process.
+
+One pack is one task (`dask.distributed`): the library is sent to every
+worker once, each task builds and writes one pack, and a task that raises is
+reported with its error while the others carry on. Where the tasks run:
+
+- ``scheduler="tcp://host:8786"``: an existing Dask cluster (e.g. started by
+  ``dask-jobqueue`` on SLURM or PBS, or by ``dask scheduler`` / ``dask worker``);
+  its workers need synthpack installed and the output directory mounted at the
+  same path.
+- ``workers=W`` (W >= 1): a `distributed.LocalCluster` of W single-threaded
+  worker processes, started here and closed at the end.
+- ``workers=0``: in this process, one pack after the other (no Dask).
+- neither (the default): a local cluster of one worker per CPU core (at most
+  one per pack to build), or this process when there is only one pack to build.
+
+A pack run by a Dask worker renders its chunks with one thread (the worker's
+parallelism is over packs); in this process it uses every core. Neither changes
+a single byte of the pack.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from tqdm.auto import tqdm
+
+from .errors import SynthpackInputError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["run_packs", "PackTask"]
+
+#: ``task(library, index, threads=...) -> Path``: builds and writes pack `index`.
+PackTask = Callable[..., Path]
+
+
+def _error_text(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
+
+
+def _check(workers: int | None, scheduler: str | None) -> None:
+    if scheduler is not None and workers is not None:
+        raise SynthpackInputError(
+            "give either workers (a local cluster) or scheduler (an existing cluster), not both"
+        )
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise SynthpackInputError(
+            f"workers must be 0 (this process) or a positive number of worker processes, got {workers!r}"
+        )
+    if scheduler is not None and not (isinstance(scheduler, str) and scheduler.strip()):
+        raise SynthpackInputError(
+            f"scheduler must be the address of a Dask scheduler such as tcp://10.0.0.5:8786, got {scheduler!r}"
+        )
+
+
+@contextlib.contextmanager
+def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """A `distributed.Client` of an existing cluster, or of a local cluster that lives as long as the block."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler)  # waits up to dask's distributed.comm.timeouts.connect
+        except OSError as error:
+            raise SynthpackInputError(
+                f"cannot reach the Dask scheduler at {scheduler} ({error}): check the address, and that "
+                "the scheduler is running and reachable from this machine"
+            ) from error
+        with client:
+            yield client
+        return
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        with Client(cluster) as client:
+            yield client
+
+
+def _run_here(task: PackTask, indices: Sequence[int], library: Any, bar: tqdm) -> dict[int, str]:
+    failures = {}
+    for index in indices:
+        try:
+            task(library, index, threads=None)
+        except Exception as error:  # one failing pack must not stop the others
+            failures[index] = _error_text(error)
+            logger.error("pack %d failed: %s\n%s", index, failures[index], traceback.format_exc())
+        bar.update()
+    return failures
+
+
+def _run_on_dask(task: PackTask, indices: Sequence[int], library: Any, client: Any, bar: tqdm) -> dict[int, str]:
+    from distributed import as_completed
+
+    shared = client.scatter(library, broadcast=True, hash=False)
+    futures = {client.submit(task, shared, index, threads=1, pure=False, key=f"synthpack-pack-{index}-{os.getpid()}"):
+               index for index in indices}
+    failures = {}
+    for future in as_completed(futures):
+        index = futures[future]
+        if future.status == "error":
+            error = future.exception()
+            failures[index] = _error_text(error)
+            logger.error("pack %d failed: %s\n%s", index, failures[index],
+                         "".join(traceback.format_tb(future.traceback())))
+        bar.update()
+        future.release()
+    return failures
+
+
+def run_packs(
+    task: PackTask,
+    indices: Sequence[int],
+    library: Any,
+    *,
+    n_packs: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> dict[int, str]:
+    """Run ``task(library, index, threads=...)`` for every index, each pack a Dask task.
+
+    Parameters
+    ----------
+    task : callable
+        Builds and writes one pack (e.g. `synthpack.generate.generate_pack` with
+        its other arguments bound); must be picklable for Dask.
+    indices : sequence of int
+        The packs to build.
+    library : object
+        Sent once to every worker and passed to every task.
+    n_packs : int, optional
+        Packs in the whole run, for the progress bar (the others are counted as
+        done); default ``len(indices)``.
+    workers : int, optional
+        0: in this process; W >= 1: a local cluster of W worker processes;
+        default: see the module docstring.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (not with `workers`).
+    progress : bool
+        Show a progress bar over packs.
+
+    Returns
+    -------
+    dict of int to str
+        Index of each failed pack -> ``"ExceptionType: message"`` (empty when all
+        succeeded). Each failure is also logged with its traceback.
+
+    Raises
+    ------
+    SynthpackInputError
+        For both `workers` and `scheduler`, a negative `workers`, or a
+        scheduler that cannot be reached.
+    """
+    _check(workers, scheduler)
+    n_packs = len(indices) if n_packs is None else n_packs
+    with tqdm(total=n_packs, initial=n_packs - len(indices), desc="packs", unit="pack",
+              disable=not progress or n_packs == 1) as bar:
+        if not indices:
+            return {}
+        if scheduler is None and workers is None:
+            workers = min(os.cpu_count() or 1, len(indices))
+            workers = 0 if workers == 1 else workers
+        if workers == 0:
+            return _run_here(task, indices, library, bar)
+        where = scheduler or f"a local cluster of {workers} worker process(es)"
+        logger.info("building %d pack(s) as Dask tasks on %s", len(indices), where)
+        with _client(workers, scheduler) as client:
+            return _run_on_dask(task, indices, library, client, bar)

@@ -1,0 +1,103 @@
+"""Many packs as Dask tasks: the same bytes serially and on a cluster, failures isolated, reruns."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import filecmp
+
+import numpy as np
+import pytest
+
+from synthpack.cli import main
+from synthpack.config import PackConfig
+from synthpack.errors import PackBuildError, SynthpackInputError
+from synthpack.generate import generate_packs, pack_name
+from synthpack.pack import PACK_VOLUMES, is_complete_pack
+from synthpack.physics import Placements
+from synthpack.runner import run_packs
+
+CONFIG = PackConfig().replace(seed=3, pour={"n_particles": 6, "batch_size": 6})
+N_PACKS = 3
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A local Dask cluster of two worker processes, reached by its address like any existing cluster."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as local:
+        yield local
+
+
+@pytest.fixture(scope="module")
+def serial_run(large_library, tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    generate_packs(large_library, out, N_PACKS, CONFIG, workers=0, progress=False)
+    return out
+
+
+def _same_pack(a, b) -> bool:
+    """Byte-identical volumes and identical placements (placements.json also holds the pour's timing)."""
+    volumes = all(filecmp.cmp(a / f"{name}.tif", b / f"{name}.tif", shallow=False) for name in PACK_VOLUMES)
+    pa, pb = Placements.load(a / "placements.json"), Placements.load(b / "placements.json")
+    return volumes and all(np.array_equal(getattr(pa, f), getattr(pb, f))
+                           for f in ("indices", "positions", "quaternions", "scales"))
+
+
+def test_serial_and_two_workers_give_identical_packs(large_library, serial_run, cluster, tmp_path):
+    paths = generate_packs(large_library, tmp_path, N_PACKS, CONFIG, scheduler=cluster.scheduler_address,
+                           progress=False)
+    assert [p.name for p in paths] == [pack_name(k) for k in range(N_PACKS)]
+    for path in paths:
+        assert _same_pack(serial_run / path.name, path), path.name
+
+
+def test_a_failing_pack_is_reported_the_others_complete_and_a_rerun_builds_it(
+        large_library, serial_run, cluster, tmp_path):
+    # a library whose particle used by pack 1 only has lost its mask (a corrupt crop)
+    used = [set(Placements.load(serial_run / pack_name(k) / "placements.json").indices.tolist())
+            for k in range(N_PACKS)]
+    broken = min(used[1] - used[0] - used[2])
+    corrupt = copy.copy(large_library)
+    corrupt.particles = list(large_library.particles)
+    corrupt.particles[broken] = dataclasses.replace(
+        corrupt.particles[broken], mask=np.zeros_like(corrupt.particles[broken].mask))
+
+    with pytest.raises(PackBuildError, match=f"1 of 3 packs failed.*pack_0001: SynthpackInputError: "
+                                             f"library particle.*{broken}.*empty mask") as failed:
+        generate_packs(corrupt, tmp_path, N_PACKS, CONFIG, scheduler=cluster.scheduler_address, progress=False)
+    assert list(failed.value.failures) == ["pack_0001"]
+    assert [is_complete_pack(tmp_path / pack_name(k)) for k in range(N_PACKS)] == [True, False, True]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pack_0000", "pack_0002"]  # nothing half-written
+
+    stamps = {k: (tmp_path / pack_name(k) / "labels.tif").stat().st_mtime_ns for k in (0, 2)}
+    generate_packs(large_library, tmp_path, N_PACKS, CONFIG, workers=0, progress=False)
+    assert {k: (tmp_path / pack_name(k) / "labels.tif").stat().st_mtime_ns for k in (0, 2)} == stamps
+    assert _same_pack(serial_run / "pack_0001", tmp_path / "pack_0001")
+
+
+def test_cli_reports_failed_packs_with_exit_code_1(large_library, serial_run, tmp_path, capsys):
+    used = set(Placements.load(serial_run / "pack_0000" / "placements.json").indices.tolist())
+    corrupt = copy.copy(large_library)
+    corrupt.particles = [dataclasses.replace(p, mask=np.zeros_like(p.mask)) if i in used else p
+                         for i, p in enumerate(large_library)]
+    corrupt.save(tmp_path / "library")
+    code = main(["-q", "generate", "--library", str(tmp_path / "library"), "--out", str(tmp_path / "out"),
+                 "--seed", "3", "--n-particles", "6", "--batch-size", "6", "--workers", "0"])
+    error = capsys.readouterr().err
+    assert code == 1
+    assert "1 of 1 packs failed (pack_0000: SynthpackInputError: library particle" in error
+    assert "run the same command again" in error and error.count("\n") == 1
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    (dict(workers=2, scheduler="tcp://127.0.0.1:1"), "not both"),
+    (dict(workers=-1), "workers must be 0"),
+    (dict(scheduler="tcp://127.0.0.1:1"), "cannot reach the Dask scheduler"),
+])
+def test_bad_cluster_settings_are_rejected(kwargs, message):
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}), pytest.raises(SynthpackInputError, match=message):
+        run_packs(print, [0], None, progress=False, **kwargs)
