@@ -48,6 +48,7 @@ import yaml
 from evaluate import evaluate
 from offline import offline_ultralytics
 from synthpack import __version__
+from synthpack._atomic import atomic_file
 from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export.yolo import export_yolo
@@ -335,7 +336,7 @@ def save_chart(config: ExperimentConfig, rows: list[dict], path: Path) -> None:
     ax.set_title(f"{config.name}: {config.train.model}, {config.train.epochs} epochs")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -345,10 +346,16 @@ def write_results(config: ExperimentConfig, rows: list[dict], out: Path, seconds
     writer = csv.DictWriter(buffer, fieldnames=RESULT_COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    (out / "results.csv").write_text(buffer.getvalue())
-    (out / "results.json").write_text(json.dumps({"config": config.name, "rows": rows, "seconds": seconds}, indent=1))
-    (out / "report.md").write_text(report_markdown(config, rows, out, seconds, device))
-    save_chart(config, rows, out / "dice.png")
+    texts = {
+        "results.csv": buffer.getvalue(),
+        "results.json": json.dumps({"config": config.name, "rows": rows, "seconds": seconds}, indent=1),
+        "report.md": report_markdown(config, rows, out, seconds, device),
+    }
+    for name, text in texts.items():
+        with atomic_file(out / name) as staging:
+            staging.write_text(text)
+    with atomic_file(out / "dice.png") as staging:
+        save_chart(config, rows, staging)
 
 
 def run(config: str | os.PathLike | ExperimentConfig, out: str | os.PathLike) -> list[dict]:
