@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from offline import offline_ultralytics
+from synthpack._atomic import atomic_file
 from synthpack.metrics import evaluate_folders, write_label_image
 from train import resolve_device
 
@@ -103,6 +104,12 @@ def score(predictions: str | os.PathLike, truth: str | os.PathLike) -> dict:
     }
 
 
+def write_scores(out: Path, scores: dict) -> None:
+    """Write ``out/scores.json`` atomically (the experiment takes it as "this evaluation is done")."""
+    with atomic_file(out / "scores.json") as staging:
+        staging.write_text(json.dumps(scores, indent=1))
+
+
 def evaluate(weights: str | os.PathLike, data: str | os.PathLike, out: str | os.PathLike, *, imgsz: int = 256,
              conf: float = 0.25, device: str = "auto", config_dir: str | os.PathLike | None = None) -> dict:
     """Predict the test slices of the export `data` with `weights` and score them.
@@ -126,7 +133,7 @@ def evaluate(weights: str | os.PathLike, data: str | os.PathLike, out: str | os.
     scores = score(out / "pred", truth)
     scores.update(mask_map50=mask_map50(model, data, imgsz=imgsz, device=device, out=out / "val"),
                   n_pred_instances=n_pred, weights=str(weights), data=str(data), conf=conf)
-    (out / "scores.json").write_text(json.dumps(scores, indent=1))
+    write_scores(out, scores)
     return scores
 
 
@@ -144,8 +151,7 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.predictions:
         scores = score(args.predictions, Path(args.data) / "truth" / "test")
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        (Path(args.out) / "scores.json").write_text(json.dumps(scores, indent=1))
+        write_scores(Path(args.out), scores)
     else:
         scores = evaluate(args.weights, args.data, args.out, imgsz=args.imgsz, conf=args.conf, device=args.device)
     print(json.dumps(scores, indent=1))

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
+from synthpack._atomic import atomic_file
 
 logger = logging.getLogger(__name__)
 
@@ -123,7 +124,8 @@ def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettin
     if not best.is_file():
         raise RuntimeError(f"training finished without {best}: see the Ultralytics log above")
     record = {"data": str(data), "device": device, "seconds": seconds, **dataclasses.asdict(settings)}
-    (out / "train.json").write_text(json.dumps(record, indent=1))
+    with atomic_file(out / "train.json") as staging:  # the experiment takes it as "this run is done"
+        staging.write_text(json.dumps(record, indent=1))
     logger.info("trained %s on %s in %.0f s: %s", settings.model, data, seconds, best)
     return best
 
