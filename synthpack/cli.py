@@ -17,11 +17,16 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
+from ._schema import default_of, help_of
+from .config import LibraryConfig, PourConfig
+from .physics.config import ENGINE_MODULES
 from .errors import PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
 
 __all__ = ["main"]
+
+_ENGINE_CHOICES = tuple(ENGINE_MODULES)
 
 
 def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,10 +59,10 @@ def _read_source_scan(args: argparse.Namespace):
 
 def _add_library_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("particle extraction and meshing")
-    group.add_argument("--density", type=float, default=2.65, help="grain density for masses (default 2.65, quartz)")
-    group.add_argument("--min-voxels", type=int, default=50, help="drop particles smaller than this (default 50)")
-    group.add_argument("--include-border", action="store_true", help="keep particles cut by the scan border")
-    group.add_argument("--target-faces", type=int, default=500, help="faces per mesh after decimation (default 500)")
+    for name, kind in (("density", float), ("min_voxels", int), ("target_faces", int)):
+        group.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(LibraryConfig, name),
+                           help=help_of(LibraryConfig, name))
+    group.add_argument("--include-border", action="store_true", help=help_of(LibraryConfig, "include_border"))
     group.add_argument("--workers", type=int, default=None, help="meshing processes (default: all cores)")
     group.add_argument("--exclude-test-block", type=int, choices=(0, 1, 2), metavar="AXIS", default=None,
                        help="keep the paper's test slices out of the library: drop particles reaching the "
@@ -275,7 +280,7 @@ def _parser() -> argparse.ArgumentParser:
     generate.add_argument("--n-packs", type=int, default=1, help="number of packs (default 1)")
     generate.add_argument("--n-particles", type=int, help="grains per pack (config pour.n_particles)")
     generate.add_argument("--batch-size", type=int, help="grains per batch (config pour.batch_size)")
-    generate.add_argument("--engine", choices=("pybullet", "blender"), help="rigid-body engine (config pour.engine)")
+    generate.add_argument("--engine", choices=_ENGINE_CHOICES, help="rigid-body engine (config pour.engine)")
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
     generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff",
@@ -311,12 +316,12 @@ def _parser() -> argparse.ArgumentParser:
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
     pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
-    pour.add_argument("--n-particles", type=int, default=150, help="grains to pour (default 150)")
-    pour.add_argument("--batch-size", type=int, default=50, help="grains per batch (default 50)")
-    pour.add_argument("--engine", choices=("pybullet", "blender"), default="pybullet", help="rigid-body engine")
+    for name, kind in (("n_particles", int), ("batch_size", int), ("engine", str)):
+        pour.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(PourConfig, name),
+                          help=help_of(PourConfig, name), **({"choices": _ENGINE_CHOICES} if name == "engine" else {}))
     pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    pour.add_argument("--tube-radius", type=float, help="inner tube radius, physical units (default: from the scan)")
-    pour.add_argument("--tube-height", type=float, help="tube height, physical units (default: from N)")
+    for name in ("tube_radius", "tube_height"):
+        pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
     pour.set_defaults(run=_cmd_pour)
 
     export = commands.add_parser("export-yolo", help="write packs and real scans as a YOLO segmentation dataset")

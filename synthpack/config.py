@@ -10,114 +10,63 @@ optional and falls back to the default shown by ``synthpack generate
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256]}
     postprocess: default          # or none, match_source, calibrated, or a list of artefact transforms
 
-Unknown keys, wrong types and out-of-range values raise
-:class:`~synthpack.errors.SynthpackInputError` naming the key.
+Each section is the settings dataclass of its stage, where its defaults and checks
+are written once: :class:`~synthpack.library.LibraryConfig`,
+:class:`~synthpack.physics.PourConfig` and
+:class:`~synthpack.reconstruct.ReconstructConfig`. Unknown keys, wrong types and
+out-of-range values raise :class:`~synthpack.errors.SynthpackInputError` naming
+the key.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from ._schema import build, non_negative, setting
 from .errors import SynthpackInputError
+from .library import LibraryConfig
+from .physics.config import PourConfig
+from .reconstruct import ReconstructConfig
 
 __all__ = [
     "PackConfig",
     "LibraryConfig",
     "PourConfig",
     "ReconstructConfig",
+    "POSTPROCESS_MODES",
     "load_config",
 ]
 
-
-def _valid_pipeline(transforms: list) -> bool:
-    """Build the artefact pipeline once, so a bad one fails when the config is read."""
-    from .artefacts import from_config
-
-    from_config(transforms)
-    return True
+#: The named post-processing recipes; a list of artefact transforms is the alternative.
+POSTPROCESS_MODES = ("default", "none", "match_source", "calibrated")
 
 
-def _positive(value) -> bool:
-    return value > 0
+def _valid_postprocess(value: str | list) -> bool:
+    """'default', 'none', 'match_source', 'calibrated' or a valid list of artefact transforms"""
+    if isinstance(value, list):
+        from .artefacts import from_config
 
-
-def _non_negative(value) -> bool:
-    return value >= 0
-
-
-def _range(low: float, high: float):
-    def check(value) -> bool:
-        return low <= value <= high
-
-    check.__doc__ = f"between {low} and {high}"
-    return check
-
-
-_positive.__doc__ = "positive"
-_non_negative.__doc__ = "zero or more"
-
-
-def _spec(default: Any, check=None, help: str = "") -> Any:
-    factory = {"default_factory": lambda: list(default)} if isinstance(default, list) else {"default": default}
-    return field(**factory, metadata={"check": check, "help": help})
-
-
-@dataclass(frozen=True)
-class LibraryConfig:
-    """Particle extraction and meshing (paper 3.1-3.2)."""
-
-    min_voxels: int = _spec(50, _positive, "drop particles smaller than this many voxels")
-    include_border: bool = _spec(False, None, "keep particles cut by the scan border")
-    density: float = _spec(2.65, _positive, "grain density for masses (paper eq. 1)")
-    target_faces: int = _spec(500, lambda v: v >= 8, "faces per mesh after decimation")
-
-
-@dataclass(frozen=True)
-class PourConfig:
-    """Batched rigid-body pouring (paper 3.3)."""
-
-    n_particles: int = _spec(150, _positive, "grains poured into the tube")
-    batch_size: int = _spec(50, _positive, "grains per batch; each batch settles and is locked")
-    engine: str = _spec("pybullet", lambda v: v in ("pybullet", "blender"), "pybullet or blender")
-    scale: float | list = _spec(1.0, None, "grain scale factor, or [min, max] drawn per grain")
-    tube_radius: float | None = _spec(None, _positive, "inner tube radius (physical units); default from the scan")
-    tube_height: float | None = _spec(None, _positive, "tube height (physical units); default from n_particles")
-    friction: float = _spec(0.6, _non_negative, "friction coefficient")
-    restitution: float = _spec(0.1, _range(0.0, 1.0), "restitution (bounciness)")
-
-
-@dataclass(frozen=True)
-class ReconstructConfig:
-    """Rebuilding the tomogram from the placements (paper 3.4)."""
-
-    order: int = _spec(1, lambda v: v in (0, 1, 3), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
-    wall: bool = _spec(True, None, "draw the tube wall")
-    wall_intensity: float | None = _spec(None, None, "wall intensity; default between pores and grains")
-    margin: int = _spec(4, _non_negative, "voxels of margin around the tube")
-    chunks: list = _spec([64, 256, 256], lambda v: len(v) == 3 and all(isinstance(c, int) and c > 0 for c in v),
-                         "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
-                         "(and the shards of Zarr packs)")
+        from_config(value)  # a bad pipeline raises with the transform's own message
+        return True
+    return value in POSTPROCESS_MODES
 
 
 @dataclass(frozen=True)
 class PackConfig:
     """Everything that defines a synthetic pack; the same config gives the same pack."""
 
-    seed: int = _spec(0, _non_negative, "run seed; pack k uses a seed derived from it and k")
+    seed: int = setting(0, non_negative, "run seed; pack k uses a seed derived from it and k")
     library: LibraryConfig = field(default_factory=LibraryConfig)
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
-    postprocess: str | list = _spec(
-        "default",
-        lambda v: _valid_pipeline(v) if isinstance(v, list) else v in ("default", "none", "match_source", "calibrated"),
+    postprocess: str | list = setting(
+        "default", _valid_postprocess,
         "'default', 'none', 'match_source' (Gaussian noise up to the source scan's noise level), "
         "'calibrated' (blur and noise fitted to the source's edge width and noise level) "
         "or a list of artefact transforms",
@@ -140,60 +89,7 @@ class PackConfig:
     @classmethod
     def from_dict(cls, data: dict | None) -> PackConfig:
         """Validate a (possibly partial) dict against the schema."""
-        return _build(cls, data or {}, "")
-
-
-def _alternatives(annotation: Any) -> tuple:
-    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
-        return typing.get_args(annotation)
-    return (annotation,)
-
-
-def _type_ok(value: Any, annotation: Any) -> bool:
-    for kind in _alternatives(annotation):
-        if kind is type(None) and value is None:
-            return True
-        if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-            return True
-        if kind is int and isinstance(value, int) and not isinstance(value, bool):
-            return True
-        if kind in (bool, str, list, dict) and isinstance(value, kind):
-            return True
-    return False
-
-
-def _build(cls: type, data: Any, prefix: str):
-    if not isinstance(data, dict):
-        raise SynthpackInputError(f"config section {prefix or 'top level'!r} must be a mapping, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise SynthpackInputError(
-            f"unknown config key {prefix + unknown[0]!r}; valid keys here: {', '.join(fields)}"
-        )
-    values = {}
-    for name, value in data.items():
-        key, annotation = prefix + name, hints[name]
-        if dataclasses.is_dataclass(annotation):
-            values[name] = _build(annotation, value, key + ".")
-            continue
-        if not _type_ok(value, annotation):
-            raise SynthpackInputError(
-                f"config key {key!r} has the wrong type: got {value!r}, expected {_type_name(annotation)}"
-            )
-        check = fields[name].metadata.get("check")
-        if check is not None and value is not None and not check(value):
-            raise SynthpackInputError(
-                f"config key {key!r} is out of range: got {value!r}, expected {check.__doc__ or fields[name].metadata['help']}"
-            )
-        values[name] = value
-    return cls(**values)
-
-
-def _type_name(annotation: Any) -> str:
-    names = [getattr(a, "__name__", str(a)) for a in _alternatives(annotation)]
-    return " or ".join("null" if n == "NoneType" else n for n in names)
+        return build(cls, data or {})
 
 
 def load_config(path: str | os.PathLike | None) -> PackConfig:

@@ -7,6 +7,7 @@ import json
 import logging
 import os
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -17,23 +18,30 @@ from tqdm.auto import tqdm
 from ._atomic import atomic_directory
 from .artefacts import estimate_noise
 from .errors import SynthpackInputError
-from .meshing import DEFAULT_TARGET_FACES, mesh_from_mask
-from .particles import (
-    DEFAULT_MIN_VOXELS,
-    Particle,
-    ParticleCrop,
-    estimate_phases,
-    extract_particles,
-)
+from ._schema import in_range, positive, setting
+from .meshing import mesh_from_mask
+from .particles import Particle, ParticleCrop, estimate_phases, extract_particles
 from .realism.edges import volume_edge_width
 from .scan import Scan
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ParticleLibrary", "DEFAULT_DENSITY"]
+__all__ = ["ParticleLibrary", "LibraryConfig"]
 
-#: Density of quartz in g/cm^3: the default grain density (paper eq. 1).
-DEFAULT_DENSITY = 2.65
+
+@dataclass(frozen=True)
+class LibraryConfig:
+    """Particle extraction and meshing settings (paper 3.1-3.2), with their defaults.
+
+    Below 50 voxels a marching-cubes surface is little more than a voxel blob;
+    500 faces hold a grain's hull and contacts while thousands of grains still
+    simulate quickly; 2.65 g/cm^3 is the density of quartz.
+    """
+
+    min_voxels: int = setting(50, positive, "drop particles smaller than this many voxels")
+    include_border: bool = setting(False, None, "keep particles cut by the scan border")
+    density: float = setting(2.65, positive, "grain density for masses (paper eq. 1)")
+    target_faces: int = setting(500, in_range(8, float("inf")), "faces per mesh after decimation")
 
 _FORMAT = "synthpack-particle-library"
 _FORMAT_VERSION = 1
@@ -122,10 +130,10 @@ class ParticleLibrary(Sequence[Particle]):
         cls,
         scan: Scan,
         *,
-        min_voxels: int = DEFAULT_MIN_VOXELS,
-        include_border: bool = False,
-        density: float = DEFAULT_DENSITY,
-        target_faces: int | None = DEFAULT_TARGET_FACES,
+        min_voxels: int = LibraryConfig.min_voxels,
+        include_border: bool = LibraryConfig.include_border,
+        density: float = LibraryConfig.density,
+        target_faces: int | None = LibraryConfig.target_faces,
         workers: int | None = None,
         progress: bool = True,
         exclude_slices: tuple[int, int] | None = None,
@@ -137,14 +145,9 @@ class ParticleLibrary(Sequence[Particle]):
         ----------
         scan : Scan
             Tomogram, labels and voxel size.
-        min_voxels : int
-            Drop particles with fewer voxels.
-        include_border : bool
-            Keep particles cut by the scan border (dropped by default).
-        density : float
-            Grain density for masses (default: quartz, 2.65).
-        target_faces : int or None
-            Face budget per mesh after decimation.
+        min_voxels, include_border, density, target_faces
+            Extraction and meshing settings; their meaning and defaults are those
+            of :class:`LibraryConfig` (``target_faces=None`` keeps the full meshes).
         workers : int, optional
             Processes used for meshing; default: all cores. 1 meshes in-process.
         progress : bool

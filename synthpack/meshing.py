@@ -13,11 +13,7 @@ from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["mesh_from_mask", "DEFAULT_TARGET_FACES"]
-
-#: Default face budget per particle: enough for the convex hull and contacts of a
-#: grain, small enough that thousands of grains simulate quickly.
-DEFAULT_TARGET_FACES = 500
+__all__ = ["mesh_from_mask"]
 
 _PAD = 2  # empty voxels around the mask, so the smoothed surface closes
 _SMOOTHING_SIGMA = 0.5  # voxels
@@ -27,7 +23,7 @@ def mesh_from_mask(
     mask: np.ndarray,
     voxel_size: tuple[float, float, float] = (1.0, 1.0, 1.0),
     *,
-    target_faces: int | None = DEFAULT_TARGET_FACES,
+    target_faces: int | None = None,
 ) -> trimesh.Trimesh:
     """Watertight surface of a binary particle mask.
 
@@ -50,7 +46,8 @@ def mesh_from_mask(
     voxel_size : tuple of 3 float
         ``(dz, dy, dx)`` in physical units.
     target_faces : int or None
-        Face budget after decimation; None keeps the marching-cubes mesh.
+        Face budget after decimation; None (default) keeps the marching-cubes
+        mesh. The library's budget is `synthpack.library.LibraryConfig.target_faces`.
 
     Returns
     -------

@@ -22,11 +22,6 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["Particle", "ParticleCrop", "equivalent_diameter", "extract_particles", "estimate_phases"]
 
-#: Particles smaller than this many voxels are dropped by default: below it a
-#: marching-cubes surface is little more than a voxel blob.
-DEFAULT_MIN_VOXELS = 50
-
-
 def equivalent_diameter(volume: float | np.ndarray) -> float | np.ndarray:
     """Diameter of the sphere of `volume` (cubic physical units), in physical units."""
     return (6.0 * np.asarray(volume, dtype=float) / np.pi) ** (1.0 / 3.0)
@@ -174,7 +169,7 @@ def _largest_component(mask: np.ndarray) -> tuple[np.ndarray, bool]:
 def extract_particles(
     scan: Scan,
     *,
-    min_voxels: int = DEFAULT_MIN_VOXELS,
+    min_voxels: int,
     include_border: bool = False,
     background: float | None = None,
 ) -> list[ParticleCrop]:
@@ -185,7 +180,8 @@ def extract_particles(
     scan : Scan
         Tomogram and labels.
     min_voxels : int
-        Particles with fewer voxels are dropped.
+        Particles with fewer voxels are dropped (the library's default is
+        `synthpack.library.LibraryConfig.min_voxels`).
     include_border : bool
         Keep particles whose bounding box touches the scan border (their shape is
         cut by the field of view; excluded by default).

@@ -26,12 +26,14 @@ import numpy as np
 from scipy import ndimage
 
 from ._chunks import bounded_map, chunk_boxes, thread_count
+from ._schema import finite, non_negative, one_of, setting
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "Grid",
+    "ReconstructConfig",
     "PoseMaps",
     "Phases",
     "pose_maps",
@@ -48,6 +50,24 @@ _TEXTURE_TILE = 64  # period of the pore texture, voxels
 
 # (x, y, z) <-> (z, y, x): the permutation matrix is its own inverse.
 _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+
+
+def _chunk_shape(value: list) -> bool:
+    """three positive whole numbers (z, y, x)"""
+    return len(value) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in value)
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults."""
+
+    order: int = setting(1, one_of((0, 1, 3)), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
+    wall: bool = setting(True, None, "draw the tube wall")
+    wall_intensity: float | None = setting(None, finite, "wall intensity; default between pores and grains")
+    margin: int = setting(4, non_negative, "voxels of margin around the tube")
+    chunks: list = setting([64, 256, 256], _chunk_shape,
+                           "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
+                           "(and the shards of Zarr packs)")
 
 
 @dataclass(frozen=True)

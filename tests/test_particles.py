@@ -54,7 +54,7 @@ def test_random_volume_matches_brute_force():
 
 
 def test_clean_crop_masks_out_neighbours_with_background(blob_scan):
-    crop = next(c for c in extract_particles(blob_scan) if c.label == 2)
+    crop = next(c for c in extract_particles(blob_scan, min_voxels=50) if c.label == 2)
     phases = estimate_phases(blob_scan)
     background = phases["pore_mean"]
     assert background == pytest.approx(0.2)
@@ -65,7 +65,7 @@ def test_clean_crop_masks_out_neighbours_with_background(blob_scan):
 
 
 def test_equivalent_diameter_in_physical_units(blob_scan):
-    crop = next(c for c in extract_particles(blob_scan) if c.label == 1)
+    crop = next(c for c in extract_particles(blob_scan, min_voxels=50) if c.label == 1)
     volume = 10 * 10 * 15 * 2.0  # voxels x (2 x 1 x 1) um^3
     assert crop.equivalent_diameter == pytest.approx((6 * volume / np.pi) ** (1 / 3))
 

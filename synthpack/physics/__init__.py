@@ -26,6 +26,8 @@ from tqdm.auto import tqdm
 
 from ..errors import SynthpackInputError
 from .checks import PourChecks, compute_checks
+from .config import ENGINE_MODULES as ENGINES
+from .config import PourConfig
 from .container import Tube
 from .engine import Body, EngineResult, Material, SettleCriteria
 from .placements import Placements
@@ -33,13 +35,7 @@ from .plan import make_plan, parse_scale
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["pour", "Placements", "Tube", "Material", "SettleCriteria", "PourChecks", "ENGINES"]
-
-#: Engine name -> module implementing ``simulate`` (imported on first use).
-ENGINES: dict[str, str] = {
-    "pybullet": "synthpack.physics.pybullet_engine",
-    "blender": "synthpack.physics.blender_engine",
-}
+__all__ = ["pour", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks", "ENGINES"]
 
 
 def pour(

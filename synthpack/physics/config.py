@@ -1,0 +1,29 @@
+"""The pour's settings (paper 3.3) with their defaults: the ``pour`` section of a pack config."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .._schema import in_range, non_negative, one_of, positive, setting
+
+__all__ = ["PourConfig", "ENGINE_MODULES"]
+
+#: Engine name -> module implementing ``simulate`` (imported on first use).
+ENGINE_MODULES: dict[str, str] = {
+    "pybullet": "synthpack.physics.pybullet_engine",
+    "blender": "synthpack.physics.blender_engine",
+}
+
+
+@dataclass(frozen=True)
+class PourConfig:
+    """Batched rigid-body pouring (paper 3.3)."""
+
+    n_particles: int = setting(150, positive, "grains poured into the tube")
+    batch_size: int = setting(50, positive, "grains per batch; each batch settles and is locked")
+    engine: str = setting("pybullet", one_of(ENGINE_MODULES), "rigid-body engine: " + " or ".join(ENGINE_MODULES))
+    scale: float | list = setting(1.0, None, "grain scale factor, or [min, max] drawn per grain")
+    tube_radius: float | None = setting(None, positive, "inner tube radius (physical units); default from the scan")
+    tube_height: float | None = setting(None, positive, "tube height (physical units); default from n_particles")
+    friction: float = setting(0.6, non_negative, "friction coefficient")
+    restitution: float = setting(0.1, in_range(0.0, 1.0), "restitution (bounciness)")
