@@ -12,9 +12,10 @@ With ``format="zarr"`` the three volumes are arrays of one store ``pack.zarr``
 under the same names (``tomogram``, ``clean``, ``labels``).
 
 The directory is built under a temporary name and renamed when complete, so an
-interrupted run leaves no directory that looks complete. `write_pack` writes
-volumes held in memory; `stage_pack` lets a Zarr pack's volumes be filled chunk
-by chunk (volumes larger than memory) before the pack is published.
+interrupted run leaves no directory that looks complete. `stage_pack` gives the
+temporary directory: volumes held in memory are written whole, and a Zarr pack's
+volumes can be filled chunk by chunk (volumes larger than memory), before the
+pack is published.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from ._atomic import atomic_directory
 from .errors import SynthpackInputError
 from .io import create_zarr_volume, write_tiff, write_zarr
 
-__all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "write_pack", "is_complete_pack",
+__all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "is_complete_pack",
            "open_pack"]
 
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
@@ -172,39 +173,6 @@ def stage_pack(
         yield staged
         if not staged.finished:
             raise RuntimeError(f"the pack {directory} was staged but never finished: call finish()")
-
-
-def write_pack(
-    directory: str | os.PathLike,
-    volumes: dict[str, np.ndarray],
-    placements,
-    manifest: dict,
-    *,
-    voxel_size: tuple[float, float, float],
-    unit: str,
-    format: str = "tiff",
-) -> Path:
-    """Write one pack directory atomically from in-memory volumes.
-
-    Parameters
-    ----------
-    directory : path-like
-        The pack directory (replaced if it exists).
-    volumes : dict
-        ``{"tomogram": float32, "clean": float32, "labels": int}`` arrays of one shape.
-    placements : synthpack.physics.Placements
-        Saved as ``placements.json``.
-    manifest : dict
-        JSON-able; ``format``, ``voxel_size``, ``unit`` and ``complete`` are added.
-    voxel_size, unit
-        Voxel size ``(dz, dy, dx)`` and its unit.
-    format : {"tiff", "zarr"}
-        Volume format.
-    """
-    with stage_pack(directory, voxel_size=voxel_size, unit=unit, format=format) as staged:
-        staged.write_volumes(volumes)
-        staged.finish(placements, manifest)
-    return Path(directory)
 
 
 def _json_default(value: Any) -> Any:
