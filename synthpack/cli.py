@@ -14,6 +14,7 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 from pathlib import Path
 
 from . import __version__
@@ -266,13 +267,26 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_demo_command(commands)
+    _add_generate_command(commands)
+    _add_compare_command(commands)
+    _add_pour_command(commands)
+    _add_export_command(commands)
+    _add_evaluate_command(commands)
+    _add_library_command(commands)
+    return parser
 
+
+def _add_demo_command(commands: Any) -> None:
     demo = commands.add_parser("demo", help="run the pipeline on a built-in sample scan")
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out)")
     demo.add_argument("--sample", choices=("large", "small"), default="large", help="built-in sample (default large)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the sample scan (default 0)")
     demo.set_defaults(run=_cmd_demo)
 
+
+
+def _add_generate_command(commands: Any) -> None:
     generate = commands.add_parser("generate", help="make synthetic packs from a labelled scan or a library")
     _add_scan_arguments(generate)
     generate.add_argument("--library", type=Path, help="use a saved particle library instead of a scan")
@@ -301,6 +315,9 @@ def _parser() -> argparse.ArgumentParser:
                                "(config postprocess: calibrated)")
     generate.set_defaults(run=_cmd_generate)
 
+
+
+def _add_compare_command(commands: Any) -> None:
     compare = commands.add_parser("compare", help="realism report: how close synthetic packs are to the source scan")
     _add_scan_arguments(compare)
     compare.add_argument("--source", type=Path, nargs=2, metavar=("TOMOGRAM", "LABELS"),
@@ -313,6 +330,9 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--seed", type=int, default=0, help="seed of the classifier's folds (default 0)")
     compare.set_defaults(run=_cmd_compare)
 
+
+
+def _add_pour_command(commands: Any) -> None:
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
     pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
@@ -324,6 +344,9 @@ def _parser() -> argparse.ArgumentParser:
         pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
     pour.set_defaults(run=_cmd_pour)
 
+
+
+def _add_export_command(commands: Any) -> None:
     export = commands.add_parser("export-yolo", help="write packs and real scans as a YOLO segmentation dataset")
     export.add_argument("--packs", type=Path, nargs="+", action="extend", metavar="DIR",
                         help="pack folders, or folders holding pack_NNNN folders")
@@ -349,6 +372,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="splits that also get truth/ instance images for `evaluate` (default test)")
     export.set_defaults(run=_cmd_export_yolo)
 
+
+
+def _add_evaluate_command(commands: Any) -> None:
     evaluate = commands.add_parser("evaluate", help="Dice scores of predicted label images against the truth")
     evaluate.add_argument("--pred", type=Path, required=True, help="folder of predicted label images")
     evaluate.add_argument("--truth", type=Path, required=True,
@@ -360,6 +386,9 @@ def _parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--iou", type=float, default=0.5, help="IoU threshold of a matched instance (default 0.5)")
     evaluate.set_defaults(run=_cmd_evaluate)
 
+
+
+def _add_library_command(commands: Any) -> None:
     library = commands.add_parser("library", help="build or inspect a particle library")
     library_commands = library.add_subparsers(dest="library_command", required=True, metavar="ACTION")
     build = library_commands.add_parser("build", help="extract and mesh every particle of a labelled scan")
@@ -371,7 +400,6 @@ def _parser() -> argparse.ArgumentParser:
     info = library_commands.add_parser("info", help="print a library's particle count and size distribution")
     info.add_argument("library", type=Path, help="library folder")
     info.set_defaults(run=_cmd_library_info)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
