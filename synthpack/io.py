@@ -39,7 +39,7 @@ import numpy as np
 import tifffile
 import zarr
 
-from ._atomic import atomic_directory, atomic_file
+from ._atomic import Output, atomic_directory, atomic_file
 from .errors import SynthpackInputError
 from .scan import Scan, validate_voxel_size
 
@@ -267,6 +267,10 @@ def write_tiff(
     return path
 
 
+#: A Zarr store (or an array in a group): an earlier store is replaced, anything else is refused.
+_ZARR_OUTPUT = Output("Zarr store", is_ours=lambda path: _is_zarr_store(path))
+
+
 def write_zarr(
     path: PathLike,
     volume: np.ndarray,
@@ -331,14 +335,14 @@ def write_zarr(
         zarr.create_array(store=str(store), data=data, **_zarr_layout(size, unit, chunks))
 
     if name is None:
-        with atomic_directory(path) as tmp:
+        with atomic_directory(path, _ZARR_OUTPUT) as tmp:
             create(tmp)
     elif not _is_zarr_store(path):
-        with atomic_directory(path) as tmp:
+        with atomic_directory(path, _ZARR_OUTPUT) as tmp:
             zarr.open_group(str(tmp), mode="w")
             create(tmp / name)
     elif _is_zarr_group(path):
-        with atomic_directory(path / name) as tmp:
+        with atomic_directory(path / name, _ZARR_OUTPUT) as tmp:
             create(tmp)
     else:
         raise SynthpackInputError(

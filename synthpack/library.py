@@ -15,7 +15,7 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from ._atomic import atomic_directory
+from ._atomic import Output, atomic_directory
 from .artefacts import estimate_noise
 from .errors import SynthpackInputError
 from ._schema import in_range, positive, setting
@@ -44,6 +44,8 @@ class LibraryConfig:
     target_faces: int = setting(500, in_range(8, float("inf")), "faces per mesh after decimation")
 
 _FORMAT = "synthpack-particle-library"
+#: A library folder; an earlier one (``library.json``) is replaced, anything else is refused.
+LIBRARY_OUTPUT = Output("particle library", marker="library.json")
 _FORMAT_VERSION = 1
 _TABLE_COLUMNS = (
     "index", "label", "z0", "y0", "x0", "z1", "y1", "x1", "voxel_count",
@@ -289,8 +291,12 @@ class ParticleLibrary(Sequence[Particle]):
         )
 
     # -- persistence ------------------------------------------------------------------
-    def save(self, directory: str | os.PathLike) -> Path:
-        """Write the library to `directory` (replaced atomically if it exists).
+    def save(self, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
+        """Write the library to `directory`, atomically.
+
+        An earlier library there is replaced. A folder holding anything else is
+        refused (:class:`~synthpack.errors.SynthpackInputError`) unless `overwrite`,
+        which writes the library's files into it and keeps its other files.
 
         Layout: ``library.json`` (metadata and per-particle table),
         ``particles.csv`` (the same table for spreadsheets), ``crops.npz``
@@ -304,7 +310,7 @@ class ParticleLibrary(Sequence[Particle]):
             source_shape=self.source_shape, source=self.source, settings=self.settings,
             particles=rows,
         )
-        with atomic_directory(directory) as staging:
+        with atomic_directory(directory, LIBRARY_OUTPUT, overwrite=overwrite) as staging:
             (staging / "library.json").write_text(json.dumps(meta, indent=1))
             with open(staging / "particles.csv", "w", newline="") as handle:
                 writer = csv.DictWriter(handle, fieldnames=_TABLE_COLUMNS)

@@ -33,7 +33,7 @@ import numpy as np
 import tifffile
 import zarr
 
-from ._atomic import atomic_directory
+from ._atomic import Output, atomic_directory
 from .errors import SynthpackInputError
 from .io import create_zarr_volume, write_tiff, write_zarr
 
@@ -43,6 +43,8 @@ __all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "is
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
 _FORMATS = ("tiff", "zarr")
+#: A pack folder: an earlier pack (``manifest.json``) is replaced, anything else is refused.
+PACK_OUTPUT = Output("pack", marker="manifest.json")
 
 
 @dataclass
@@ -168,7 +170,7 @@ def stage_pack(
     """
     if format not in _FORMATS:
         raise SynthpackInputError(f"pack format must be one of {', '.join(_FORMATS)}, got {format!r}")
-    with atomic_directory(directory) as staging:
+    with atomic_directory(directory, PACK_OUTPUT) as staging:
         staged = StagedPack(staging, format, voxel_size, unit)
         yield staged
         if not staged.finished:

@@ -250,7 +250,7 @@ def test_export_command_with_real_files_and_real_test_split(pack_dir, tmp_path, 
 def test_export_input_errors(pack_dir, tmp_path):
     (tmp_path / "precious").mkdir()
     (tmp_path / "precious" / "notes.txt").write_text("keep me")
-    with pytest.raises(SynthpackInputError, match="not a synthpack YOLO export"):
+    with pytest.raises(SynthpackInputError, match="not a YOLO dataset written by synthpack"):
         export_yolo(tmp_path / "precious", packs=[pack_dir], progress=False)
     assert (tmp_path / "precious" / "notes.txt").read_text() == "keep me"
     with pytest.raises(SynthpackInputError, match="neither a pack nor a folder of packs"):

@@ -181,5 +181,5 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert "classifier AUC" in capsys.readouterr().out
     assert main(["-q", "compare", "--sample", "large", "--packs", str(tmp_path / "missing"),
                  "--out", str(tmp_path / "x")]) == 2
-    with pytest.raises(SynthpackInputError, match="not empty"):
+    with pytest.raises(SynthpackInputError, match="not a realism report written by synthpack"):
         RealismReport(None, [], []).write(packs[0])  # never replaces a folder that is not a report

@@ -97,7 +97,7 @@ from skimage.measure import label as connected_parts
 from tqdm.auto import tqdm
 
 from .. import __version__
-from .._atomic import atomic_directory
+from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
 from ..io import read_scan
 from ..metrics import write_label_image
@@ -472,14 +472,8 @@ class ExportSummary:
         return "\n".join(lines)
 
 
-def _check_out(out: Path) -> None:
-    if not out.exists():
-        return
-    if out.is_dir() and (not any(out.iterdir()) or ((out / "export.json").is_file() and (out / "data.yaml").is_file())):
-        return
-    raise SynthpackInputError(
-        f"{out} exists and is not a synthpack YOLO export: choose a new --out folder (an earlier export is replaced)"
-    )
+#: A YOLO dataset folder: an earlier export (``export.json``) is replaced, anything else is refused.
+YOLO_OUTPUT = Output("YOLO dataset", marker="export.json")
 
 
 def _data_yaml(out: Path, summary: ExportSummary) -> str:
@@ -509,13 +503,16 @@ def export_yolo(
     tolerance: float = 0.0,
     truth_splits: Sequence[str] = ("test",),
     progress: bool = True,
+    overwrite: bool = False,
 ) -> ExportSummary:
     """Write packs and real scans as a YOLO segmentation dataset (layout and format: module docstring).
 
     Parameters
     ----------
     out : path-like
-        Output folder; must be new, empty or an earlier export (replaced).
+        Output folder; must be new, empty or an earlier export (replaced), or
+        any folder with `overwrite` (the export's files are written into it and
+        its other files are kept).
     packs : sequence of path-like
         Pack folders, or folders holding pack folders (``pack_0000``, ...).
     real : sequence of Scan or (tomogram, labels) path pairs
@@ -541,6 +538,8 @@ def export_yolo(
         Splits for which ``truth/<split>/`` instance images are written.
     progress : bool
         Show a progress bar.
+    overwrite : bool
+        Write into a folder that holds something other than an earlier export.
 
     Returns
     -------
@@ -558,7 +557,7 @@ def export_yolo(
         raise SynthpackInputError(f"min_area must be >= 1 and tolerance >= 0, got {min_area} and {tolerance}")
     if not packs and not real:
         raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
-    _check_out(out)
+    check_output(out, YOLO_OUTPUT, overwrite=overwrite)
 
     synthetic = []
     for path in packs:
@@ -603,7 +602,7 @@ def export_yolo(
                         "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits),
                         "class_names": CLASS_NAMES}
     total = sum(source.shape[axis] for source in sources)
-    with atomic_directory(out) as staging:
+    with atomic_directory(out, YOLO_OUTPUT, overwrite=overwrite) as staging:
         for sub in ("images", "labels"):
             for s in SPLITS:
                 (staging / sub / s).mkdir(parents=True)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .._atomic import atomic_directory
+from .._atomic import Output, atomic_directory
 from ..errors import SynthpackInputError
 from ..export.yolo import intensity_window
 from ..pack import find_packs
@@ -43,7 +43,10 @@ from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance,
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Measurements", "RealismReport", "compare", "measure"]
+__all__ = ["Measurements", "RealismReport", "compare", "measure", "REPORT_OUTPUT"]
+
+#: A report folder: an earlier report (``realism.json``) is replaced, anything else is refused.
+REPORT_OUTPUT = Output("realism report", marker="realism.json")
 
 
 @dataclass
@@ -166,23 +169,21 @@ class RealismReport:
 
         return report_markdown(self.to_dict())
 
-    def write(self, out: str | os.PathLike) -> dict[str, Path]:
+    def write(self, out: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
         """Write the report folder atomically (see the module docstring); returns the file paths.
+
+        An earlier report in `out` is replaced; with `overwrite` a folder holding
+        anything else receives the report's files and keeps its other files.
 
         Raises
         ------
         SynthpackInputError
-            If `out` is a non-empty folder that is not an earlier report (it would be replaced).
+            If `out` is a file, or a non-empty folder that is not an earlier report (and not `overwrite`).
         """
         from .plots import save_appearance_plot, save_slices_plot, save_structure_plot
 
         out = Path(out)
-        if out.is_dir() and any(out.iterdir()) and not (out / "realism.json").is_file():
-            raise SynthpackInputError(
-                f"{out} is not empty and holds no earlier realism report: give a new or empty folder "
-                "(the report folder is replaced as a whole)"
-            )
-        with atomic_directory(out) as staging:
+        with atomic_directory(out, REPORT_OUTPUT, overwrite=overwrite) as staging:
             (staging / "realism.json").write_text(json.dumps(_plain(self.to_dict()), indent=1))
             (staging / "realism.md").write_text(self.markdown())
             save_structure_plot(self.source, self.packs, staging / "structure.png")
