@@ -5,6 +5,7 @@ Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
 turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
 Writers are atomic: the data go to a temporary sibling first and are renamed
 into place only once complete, so a failed write leaves nothing behind.
+Their helpers, public for other writers: `atomic_file`, `atomic_directory`.
 
 Supported inputs
 ----------------
@@ -45,7 +46,8 @@ from .scan import Scan, validate_voxel_size
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SUPPORTED_FORMATS", "create_zarr_volume", "read_scan", "read_volume", "write_tiff", "write_zarr"]
+__all__ = ["SUPPORTED_FORMATS", "atomic_directory", "atomic_file", "create_zarr_volume", "read_scan", "read_volume",
+           "write_tiff", "write_zarr"]
 
 PathLike = str | os.PathLike
 VoxelSize = tuple[float, float, float]

@@ -1,4 +1,4 @@
-"""The training folder: the smoke experiment end to end (offline), the leak check, the scoring."""
+"""The training package: the smoke experiment end to end (offline), the leak check, the scoring."""
 
 import csv
 import json
@@ -10,15 +10,16 @@ import numpy as np
 import pytest
 
 from synthpack.library import ParticleLibrary
-from synthpack.metrics import read_label_image
+from synthpack.metrics import read_label_image, write_label_image
 from synthpack.split import central_block
+from training.evaluate import score
 
-TRAINING = Path(__file__).resolve().parents[1] / "training"
+ROOT = Path(__file__).resolve().parents[1]
 
-# Runs a training script with every Internet connection and name lookup refused and recorded.
+# Runs `python -m <training module>` with every Internet connection and name lookup refused and recorded.
 NETWORK_GUARD = r"""
 import runpy, socket, sys
-training, script = sys.argv[1], sys.argv[2]
+module = sys.argv[1]
 attempts = []
 connect = socket.socket.connect
 
@@ -34,19 +35,19 @@ def guarded_getaddrinfo(host, *args, **kwargs):
 
 socket.socket.connect = guarded_connect
 socket.getaddrinfo = guarded_getaddrinfo
-sys.path.insert(0, training)
-sys.argv = [script, *sys.argv[3:]]
+sys.argv = [module, *sys.argv[2:]]
 try:
-    runpy.run_path(script, run_name="__main__")
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
 finally:
     print("NETWORK ATTEMPTS:", len(attempts), attempts, file=sys.stderr)
 """
 
 
-def run_offline(script: str, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+def run_offline(module: str, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``python -m module args`` from the checkout root, offline."""
     return subprocess.run(
-        [sys.executable, "-c", NETWORK_GUARD, str(TRAINING), str(TRAINING / script), *args],
-        capture_output=True, text=True, timeout=timeout,
+        [sys.executable, "-c", NETWORK_GUARD, module, *args],
+        capture_output=True, text=True, timeout=timeout, cwd=ROOT,
     )
 
 
@@ -54,7 +55,7 @@ def run_offline(script: str, *args: str, timeout: float = 900) -> subprocess.Com
 def smoke(tmp_path_factory) -> Path:
     """The `smoke` experiment, run once for this module with the network refused."""
     out = tmp_path_factory.mktemp("smoke")
-    result = run_offline("experiment.py", "--config", "smoke", "--out", str(out))
+    result = run_offline("training.experiment", "--config", "smoke", "--out", str(out))
     assert result.returncode == 0, result.stderr[-4000:]
     assert "NETWORK ATTEMPTS: 0 []" in result.stderr, result.stderr[-2000:]
     return out
@@ -110,7 +111,7 @@ def test_predictions_are_label_images_of_the_test_slices(smoke):
 @pytest.mark.slow
 def test_evaluate_scores_perfect_predictions_as_dice_one(smoke, tmp_path):
     data = smoke / "data" / "large"
-    result = run_offline("evaluate.py", "--data", str(data), "--out", str(tmp_path),
+    result = run_offline("training.evaluate", "--data", str(data), "--out", str(tmp_path),
                          "--predictions", str(data / "truth" / "test"), timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]
     scores = json.loads((tmp_path / "scores.json").read_text())
@@ -119,13 +120,6 @@ def test_evaluate_scores_perfect_predictions_as_dice_one(smoke, tmp_path):
 
 
 def test_evaluate_scores_a_damaged_prediction_below_one(tmp_path):
-    sys.path.insert(0, str(TRAINING))
-    try:
-        from evaluate import score
-    finally:
-        sys.path.remove(str(TRAINING))
-    from synthpack.metrics import write_label_image
-
     truth, pred = tmp_path / "truth", tmp_path / "pred"
     truth.mkdir(), pred.mkdir()
     labels = np.zeros((40, 40), np.int32)
@@ -140,6 +134,6 @@ def test_evaluate_scores_a_damaged_prediction_below_one(tmp_path):
 
 
 def test_unknown_experiment_config_is_a_clear_error(tmp_path):
-    result = run_offline("experiment.py", "--config", "no-such-config", "--out", str(tmp_path), timeout=120)
+    result = run_offline("training.experiment", "--config", "no-such-config", "--out", str(tmp_path), timeout=120)
     assert result.returncode == 2
     assert "smoke" in result.stderr and "cpu" in result.stderr and "paper" in result.stderr

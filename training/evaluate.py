@@ -14,9 +14,9 @@ most confident last, into 16-bit label images under ``OUT/pred/``, and scored
 against the export's ``truth/test/`` images. ``--predictions DIR`` scores label
 images made elsewhere instead of running a model.
 
-Run::
+Run from the checkout root::
 
-    python training/evaluate.py --weights runs/real_large/weights/best.pt --data yolo_ds --out eval_large
+    python -m training.evaluate --weights runs/real_large/weights/best.pt --data yolo_ds --out eval_large
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from offline import offline_ultralytics
-from synthpack._atomic import atomic_file
+from synthpack.io import atomic_file
 from synthpack.metrics import evaluate_folders, write_label_image
-from train import resolve_device
+
+from .offline import offline_ultralytics
+from .train import resolve_device
 
 logger = logging.getLogger(__name__)
 

@@ -12,20 +12,20 @@ For every real scan of the config (by default the built-in ``large`` and
    post-processed tomograms) and ``<scan>+syn-nopp`` (real + the packs' clean
    tomograms, the paper's "without post-processing" arm).
 
-Then every arm is trained from scratch once per seed (`train.train`) and scored
-on the test slices of EVERY real scan (`evaluate.evaluate`): foreground Dice,
-matched-instance Dice and Ultralytics' mask mAP50. The run folder gets
+Then every arm is trained from scratch once per seed (`training.train.train`)
+and scored on the test slices of EVERY real scan (`training.evaluate.evaluate`):
+foreground Dice, matched-instance Dice and Ultralytics' mask mAP50. The run folder gets
 ``results.csv`` (one row per arm, seed and test set), ``results.json``,
 ``report.md`` (Tables 1 and 2 laid out as in the paper, the paper's figures beside
 ours) and ``dice.png``.
 
 Each stage is skipped when its output is complete, so an interrupted run resumes.
 
-Run::
+Run from the checkout root::
 
-    python training/experiment.py --config smoke --out runs/smoke     # minutes, CPU
-    python training/experiment.py --config cpu --out runs/cpu         # under an hour on 2 cores
-    python training/experiment.py --config paper --out runs/paper     # GPU
+    python -m training.experiment --config smoke --out runs/smoke     # minutes, CPU
+    python -m training.experiment --config cpu --out runs/cpu         # under an hour on 2 cores
+    python -m training.experiment --config paper --out runs/paper     # GPU
 """
 
 from __future__ import annotations
@@ -45,22 +45,22 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from evaluate import evaluate
-from offline import offline_ultralytics
 from synthpack import __version__
-from synthpack._atomic import atomic_file
 from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export.yolo import export_yolo
 from synthpack.generate import generate_packs
-from synthpack.io import read_scan
+from synthpack.io import atomic_file, read_scan
 from synthpack.library import ParticleLibrary
 from synthpack.samples import SAMPLE_NAMES, sample_scan
 from synthpack.scan import Scan
 from synthpack.split import central_block
-from train import TrainSettings, resolve_device, train
 
-logger = logging.getLogger("experiment")
+from .evaluate import evaluate
+from .offline import offline_ultralytics
+from .train import TrainSettings, resolve_device, train
+
+logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 

@@ -2,11 +2,11 @@
 
 The model is built from its ``.yaml`` (``yolov8m-seg.yaml`` as in the paper,
 ``yolov8n-seg.yaml`` or ``yolov8s-seg.yaml`` on small machines), never from
-pretrained weights, and Ultralytics runs offline (see ``offline.py``).
+pretrained weights, and Ultralytics runs offline (see `training.offline`).
 
-Run::
+Run from the checkout root::
 
-    python training/train.py --data yolo_ds/data.yaml --out runs/real_large \
+    python -m training.train --data yolo_ds/data.yaml --out runs/real_large \
         --model yolov8n-seg.yaml --imgsz 256 --epochs 30 --batch 16 --device auto --seed 0
 """
 
@@ -21,8 +21,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
-from synthpack._atomic import atomic_file
+from synthpack.io import atomic_file
+
+from .offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
 
 logger = logging.getLogger(__name__)
 
