@@ -18,6 +18,7 @@ from typing import Any
 from pathlib import Path
 
 from . import __version__
+from ._atomic import Output, check_output
 from ._schema import default_of, help_of
 from .config import LibraryConfig, PourConfig
 from .physics.config import ENGINE_MODULES
@@ -28,6 +29,38 @@ logger = logging.getLogger("synthpack")
 __all__ = ["main"]
 
 _ENGINE_CHOICES = tuple(ENGINE_MODULES)
+
+#: Per command: the options that name an output, and what is written there (``module:Output``),
+#: checked before any work starts (:func:`synthpack._atomic.check_output`).
+_OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
+    "library build": (("out", "synthpack.library:LIBRARY_OUTPUT"), ("preview", "synthpack.preview:PREVIEW_OUTPUT")),
+    "generate": (("out", "synthpack.pack:PACKS_OUTPUT"),),
+    "compare": (("out", "synthpack.realism.report:REPORT_OUTPUT"),),
+    "pour": (("out", "synthpack.physics.placements:PLACEMENTS_OUTPUT"),),
+    "demo": (("out", "synthpack.cli:DEMO_OUTPUT"),),
+    "export-yolo": (("out", "synthpack.export.yolo:YOLO_OUTPUT"),),
+    "evaluate": (("out", "synthpack.metrics:EVALUATION_OUTPUT"),),
+}
+
+#: The demo's folder: an earlier demo (its library) is replaced, anything else is refused.
+DEMO_OUTPUT = Output("demo folder", marker="library/library.json")
+
+
+def _check_outputs(command: str, args: argparse.Namespace) -> None:
+    """Refuse every output path of `command` that cannot or may not be written, before any work."""
+    import importlib
+
+    for option, where in _OUTPUTS.get(command, ()):
+        path = getattr(args, option, None)
+        if path is not None:
+            module, name = where.split(":")
+            check_output(path, getattr(importlib.import_module(module), name), overwrite=args.overwrite)
+
+
+def _add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into an output folder (or replace an output file) that holds something other "
+                             "than synthpack's own earlier output; files of other names are kept")
 
 
 def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,12 +123,12 @@ def _cmd_library_build(args: argparse.Namespace) -> None:
     from .library import ParticleLibrary
 
     library = ParticleLibrary.from_scan(scan, **_library_options(args, scan))
-    library.save(args.out)
+    library.save(args.out, overwrite=args.overwrite)
     print(library.summary())
     if args.preview:
         from .preview import save_library_preview
 
-        save_library_preview(scan, library, args.preview)
+        save_library_preview(scan, library, args.preview, overwrite=args.overwrite)
         logger.info("preview written to %s", args.preview)
 
 
@@ -163,7 +196,7 @@ def _cmd_compare(args: argparse.Namespace) -> None:
             raise SynthpackInputError("give either --source T L or --tomogram/--labels, not both")
         args.tomogram, args.labels = args.source
     report = compare(_read_source_scan(args), args.packs, patch=args.patch, seed=args.seed)
-    paths = report.write(args.out)
+    paths = report.write(args.out, overwrite=args.overwrite)
     for pack in report.to_dict()["packs"]:
         d = pack["distances"]
         print(f"{pack['name']}: classifier AUC {d['classifier']['auc']:.3f}, KS diameter {d['ks_diameter']:.3f}, "
@@ -187,7 +220,7 @@ def _cmd_pour(args: argparse.Namespace) -> None:
                                      height=args.tube_height)
     placements = pour(library, args.n_particles, args.batch_size, engine=args.engine, seed=args.seed,
                       container=container)
-    placements.save(args.out)
+    placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks
     packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
                else f"{checks.packing_fraction:.3f}")
@@ -241,7 +274,7 @@ def _cmd_export_yolo(args: argparse.Namespace) -> None:
         args.out, packs=args.packs or (), real=[tuple(pair) for pair in args.real or ()], axis=args.axis,
         split=args.split, val_fraction=args.val_fraction, postprocess=args.postprocess,
         window=None if args.window is None else tuple(args.window), min_area=args.min_area,
-        tolerance=args.tolerance, truth_splits=args.truth_splits,
+        tolerance=args.tolerance, truth_splits=args.truth_splits, overwrite=args.overwrite,
     )
     lo, hi = summary.window
     print(summary.table())
@@ -253,7 +286,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
     from .metrics import evaluate_folders
 
     report = evaluate_folders(args.pred, args.truth, per=args.per, axis=args.axis, iou_threshold=args.iou)
-    paths = report.write(args.out)
+    paths = report.write(args.out, overwrite=args.overwrite)
     print(report.markdown(rows=False), end="")
     print(f"\nreport: {', '.join(str(p) for p in paths.values())}")
 
@@ -282,6 +315,7 @@ def _add_demo_command(commands: Any) -> None:
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out)")
     demo.add_argument("--sample", choices=("large", "small"), default="large", help="built-in sample (default large)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the sample scan (default 0)")
+    _add_overwrite_argument(demo)
     demo.set_defaults(run=_cmd_demo)
 
 
@@ -313,6 +347,7 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--calibrate", action="store_true",
                           help="fit blur and noise to the source scan's edge width and noise level "
                                "(config postprocess: calibrated)")
+    _add_overwrite_argument(generate)
     generate.set_defaults(run=_cmd_generate)
 
 
@@ -328,6 +363,7 @@ def _add_compare_command(commands: Any) -> None:
                          help="report folder: realism.md, realism.json and PNG pictures")
     compare.add_argument("--patch", type=int, default=16, help="classifier patch side in voxels (default 16)")
     compare.add_argument("--seed", type=int, default=0, help="seed of the classifier's folds (default 0)")
+    _add_overwrite_argument(compare)
     compare.set_defaults(run=_cmd_compare)
 
 
@@ -342,6 +378,7 @@ def _add_pour_command(commands: Any) -> None:
     pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     for name in ("tube_radius", "tube_height"):
         pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
+    _add_overwrite_argument(pour)
     pour.set_defaults(run=_cmd_pour)
 
 
@@ -370,6 +407,7 @@ def _add_export_command(commands: Any) -> None:
                         help="polygon simplification in pixels (default 0: exact outlines)")
     export.add_argument("--truth-splits", nargs="*", choices=("train", "val", "test"), default=["test"],
                         help="splits that also get truth/ instance images for `evaluate` (default test)")
+    _add_overwrite_argument(export)
     export.set_defaults(run=_cmd_export_yolo)
 
 
@@ -384,6 +422,7 @@ def _add_evaluate_command(commands: Any) -> None:
                           help="rows per 2D slice (default) or per 3D file (instances matched in 3D)")
     evaluate.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help="slicing axis of 3D files (default 0)")
     evaluate.add_argument("--iou", type=float, default=0.5, help="IoU threshold of a matched instance (default 0.5)")
+    _add_overwrite_argument(evaluate)
     evaluate.set_defaults(run=_cmd_evaluate)
 
 
@@ -396,6 +435,7 @@ def _add_library_command(commands: Any) -> None:
     _add_library_arguments(build)
     build.add_argument("--out", type=Path, required=True, help="library folder to write")
     build.add_argument("--preview", type=Path, help="also write a preview PNG here")
+    _add_overwrite_argument(build)
     build.set_defaults(run=_cmd_library_build)
     info = library_commands.add_parser("info", help="print a library's particle count and size distribution")
     info.add_argument("library", type=Path, help="library folder")
@@ -407,7 +447,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="synthpack: %(message)s")
+    command = " ".join(filter(None, (args.command, getattr(args, "library_command", None))))
     try:
+        _check_outputs(command, args)
         args.run(args)
     except SynthpackInputError as error:
         print(f"synthpack: error: {error}", file=sys.stderr)
@@ -418,6 +460,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("synthpack: interrupted", file=sys.stderr)
         return 130
+    except OSError as error:  # disk full, permissions changed mid-run: one line, no traceback
+        where = f" ({error.filename})" if error.filename else ""
+        print(f"synthpack: error: {error.strerror or error}{where}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -63,7 +63,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ._atomic import atomic_file
+from ._atomic import Output, atomic_directory
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
@@ -512,6 +512,10 @@ def _row(name: str, index: int | None, stats: DiceStats) -> dict:
     return row
 
 
+#: An evaluation report folder: an earlier report (``evaluation.json``) is replaced, anything else is refused.
+EVALUATION_OUTPUT = Output("evaluation report", marker="evaluation.json")
+
+
 @dataclass
 class EvaluationReport:
     """Scores of a folder comparison: one row per file (or per slice) and a summary.
@@ -581,17 +585,18 @@ class EvaluationReport:
         writer.writerows(self.rows)
         return buffer.getvalue()
 
-    def write(self, out: str | os.PathLike) -> dict[str, Path]:
-        """Write ``evaluation.json``, ``evaluation.csv`` and ``evaluation.md`` into `out` (each atomically)."""
+    def write(self, out: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write ``evaluation.json``, ``evaluation.csv`` and ``evaluation.md`` into the folder `out`, atomically.
+
+        An earlier report there is replaced; with `overwrite` a folder holding
+        anything else receives the report's files and keeps its other files.
+        """
         out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
         texts = {"json": json.dumps(self.to_dict(), indent=1), "csv": self.csv(), "md": self.markdown()}
-        paths = {}
-        for kind, text in texts.items():
-            paths[kind] = out / f"evaluation.{kind}"
-            with atomic_file(paths[kind]) as staging:
-                staging.write_text(text)
-        return paths
+        with atomic_directory(out, EVALUATION_OUTPUT, overwrite=overwrite) as staging:
+            for kind, text in texts.items():
+                (staging / f"evaluation.{kind}").write_text(text)
+        return {kind: out / f"evaluation.{kind}" for kind in texts}
 
 
 def evaluate_folders(pred: str | os.PathLike, truth: str | os.PathLike, *, per: str = "slice", axis: int = 0,

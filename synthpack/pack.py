@@ -45,6 +45,8 @@ PACK_VOLUMES = ("tomogram", "clean", "labels")
 _FORMATS = ("tiff", "zarr")
 #: A pack folder: an earlier pack (``manifest.json``) is replaced, anything else is refused.
 PACK_OUTPUT = Output("pack", marker="manifest.json")
+#: The output folder of a run: synthpack's own when it holds packs (complete or staged) of an earlier run.
+PACKS_OUTPUT = Output("folder of packs", is_ours=lambda path: any(path.glob("pack_*")) or any(path.glob(".pack_*")))
 
 
 @dataclass

@@ -7,12 +7,36 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_file
+from ._atomic import Output, atomic_file
 from .library import ParticleLibrary
 from .particles import equivalent_diameter
 from .scan import Scan
 
 __all__ = ["label_overlay", "save_library_preview"]
+
+
+#: The PNG text entry that marks a picture as synthpack's own (replaced on a rerun).
+_SOFTWARE = "synthpack"
+
+
+def _is_our_png(path: Path) -> bool:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as image:
+            return image.format == "PNG" and image.text.get("Software") == _SOFTWARE
+    except OSError:
+        return False
+
+
+#: A preview picture: an earlier synthpack preview is replaced, any other file is refused.
+PREVIEW_OUTPUT = Output("preview picture", folder=False, is_ours=_is_our_png)
+
+
+def _save_png(fig, path: str | os.PathLike, dpi: int, overwrite: bool) -> Path:
+    with atomic_file(path, PREVIEW_OUTPUT, overwrite=overwrite) as staging:
+        fig.savefig(staging, dpi=dpi, format="png", metadata={"Software": _SOFTWARE})
+    return Path(path)
 
 
 def label_overlay(image: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> np.ndarray:
@@ -56,7 +80,7 @@ def _draw_mesh(ax, mesh, colour) -> None:
 
 
 def save_library_preview(
-    scan: Scan, library: ParticleLibrary, path: str | os.PathLike, n_meshes: int = 6
+    scan: Scan, library: ParticleLibrary, path: str | os.PathLike, n_meshes: int = 6, *, overwrite: bool = False
 ) -> Path:
     """Write a PNG: the scan's middle slices with labels, the size distribution, and meshes.
 
@@ -71,6 +95,8 @@ def save_library_preview(
     n_meshes : int
         How many particle meshes to draw (spread over the size range; rounded
         to a multiple of 3, at least 3).
+    overwrite : bool
+        Replace an existing file at `path` that is not a synthpack preview.
     """
     import matplotlib
 
@@ -100,10 +126,10 @@ def save_library_preview(
         particle = library[int(index)]
         _draw_mesh(ax, particle.mesh, np.array([0.85, 0.7, 0.45]))
         ax.set_title(f"label {particle.label}\n{len(particle.mesh.faces)} faces", fontsize=9)
-    with atomic_file(path) as staging:
-        fig.savefig(staging, dpi=90, format="png")
-    plt.close(fig)
-    return Path(path)
+    try:
+        return _save_png(fig, path, 90, overwrite)
+    finally:
+        plt.close(fig)
 
 
 def equivalent_diameters(labels: np.ndarray, voxel_size: tuple[float, float, float]) -> np.ndarray:
@@ -120,6 +146,8 @@ def save_pack_preview(
     unit: str,
     source_diameters: np.ndarray,
     path: str | os.PathLike,
+    *,
+    overwrite: bool = False,
 ) -> Path:
     """Write a PNG to check a synthetic pack by eye.
 
@@ -142,6 +170,8 @@ def save_pack_preview(
         Equivalent diameters of the source particles (e.g. the library's).
     path : path-like
         Output PNG.
+    overwrite : bool
+        Replace an existing file at `path` that is not a synthpack preview.
     """
     import matplotlib
 
@@ -170,7 +200,7 @@ def save_pack_preview(
     ax.set_ylabel("density")
     ax.legend()
     ax.set_title("grain-size distribution")
-    with atomic_file(path) as staging:
-        fig.savefig(staging, dpi=80, format="png")
-    plt.close(fig)
-    return Path(path)
+    try:
+        return _save_png(fig, path, 80, overwrite)
+    finally:
+        plt.close(fig)

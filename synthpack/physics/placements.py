@@ -12,7 +12,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._atomic import atomic_file
+from .._atomic import Output, atomic_file
 from ..errors import SynthpackInputError
 from .checks import PourChecks
 from .container import Tube
@@ -23,6 +23,18 @@ __all__ = ["Placements", "FORMAT_VERSION"]
 
 #: Version of the JSON layout written by :meth:`Placements.save`.
 FORMAT_VERSION = 1
+_FORMAT = "synthpack.placements"
+
+
+def _is_placements_file(path: Path) -> bool:
+    try:
+        return json.loads(path.read_text(encoding="utf-8")).get("format") == _FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+#: A placements file: an earlier one is replaced, any other file is refused.
+PLACEMENTS_OUTPUT = Output("placements file", folder=False, is_ours=_is_placements_file)
 
 
 @dataclass
@@ -151,7 +163,7 @@ class Placements:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dictionary (without `snapshots`)."""
         return {
-            "format": "synthpack.placements",
+            "format": _FORMAT,
             "version": FORMAT_VERSION,
             "unit": self.unit,
             "voxel_size": list(self.voxel_size),
@@ -167,8 +179,10 @@ class Placements:
             "batches": self.batches.tolist(),
         }
 
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the placements as JSON, atomically (temporary name, then rename).
+
+        Earlier placements at `path` are replaced; any other file only with `overwrite`.
 
         Returns
         -------
@@ -176,7 +190,7 @@ class Placements:
             The written file.
         """
         final = Path(path)
-        with atomic_file(final) as staging:
+        with atomic_file(final, PLACEMENTS_OUTPUT, overwrite=overwrite) as staging:
             staging.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
         logger.info("Saved %d placements to %s", len(self), final)
         return final
@@ -202,7 +216,7 @@ class Placements:
             raise SynthpackInputError(
                 f"Cannot read placements file {source} ({error}); it is corrupt: pour again."
             ) from None
-        if not isinstance(data, dict) or data.get("format") != "synthpack.placements":
+        if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise SynthpackInputError(f"{source} is not a synthpack placements file.")
         if data.get("version") != FORMAT_VERSION:
             raise SynthpackInputError(
