@@ -19,7 +19,10 @@ from typing import Any
 
 from .errors import SynthpackInputError
 
-__all__ = ["setting", "finite", "positive", "non_negative", "in_range", "one_of", "build", "default_of", "help_of"]
+__all__ = [
+    "setting", "finite", "positive", "non_negative", "in_range", "one_of", "build", "config_key", "option_name",
+    "default_of", "help_of",
+]
 
 Check = Callable[[Any], bool]
 
@@ -104,14 +107,36 @@ def _type_name(annotation: Any) -> str:
     return " or ".join("null" if n == "NoneType" else n for n in names)
 
 
-def build(cls: type, data: Any, prefix: str = ""):
+def config_key(key: str) -> str:
+    """How a setting is named in messages about a config file: ``config key 'pour.scale'``."""
+    return f"config key {key!r}"
+
+
+def option_name(key: str) -> str:
+    """How a setting is named in messages about command-line options: ``--tube-radius``."""
+    return "--" + key.rsplit(".", 1)[-1].replace("_", "-")
+
+
+def build(cls: type, data: Any, prefix: str = "", name: Callable[[str], str] = config_key):
     """An instance of settings dataclass `cls` from a (partial) dict, every value checked.
+
+    Parameters
+    ----------
+    cls : type
+        A settings dataclass whose fields were declared with :func:`setting`.
+    data : dict
+        Values by field name; missing fields take their defaults.
+    prefix : str
+        Dotted path of this section in the whole config, for messages.
+    name : callable
+        ``name(key) -> str`` names a setting in messages (:func:`config_key`,
+        :func:`option_name`).
 
     Raises
     ------
     SynthpackInputError
         For a section that is not a mapping, an unknown key, a wrong type or a
-        value its check refuses; the message names the key (``prefix + name``).
+        value its check refuses; the message names the key.
     """
     if not isinstance(data, dict):
         raise SynthpackInputError(f"config section {prefix or 'top level'!r} must be a mapping, got {data!r}")
@@ -123,20 +148,20 @@ def build(cls: type, data: Any, prefix: str = ""):
             f"unknown config key {prefix + unknown[0]!r}; valid keys here: {', '.join(fields)}"
         )
     values = {}
-    for name, value in data.items():
-        key, annotation = prefix + name, hints[name]
+    for field_name, value in data.items():
+        key, annotation = prefix + field_name, hints[field_name]
         if dataclasses.is_dataclass(annotation):
-            values[name] = build(annotation, value, key + ".")
+            values[field_name] = build(annotation, value, key + ".", name)
             continue
         if not _type_ok(value, annotation):
             raise SynthpackInputError(
-                f"config key {key!r} has the wrong type: got {value!r}, expected {_type_name(annotation)}"
+                f"{name(key)} has the wrong type: got {value!r}, expected {_type_name(annotation)}"
             )
-        check = fields[name].metadata.get("check")
+        check = fields[field_name].metadata.get("check")
         if check is not None and value is not None and not check(value):
             raise SynthpackInputError(
-                f"config key {key!r} is out of range: got {value!r}, "
-                f"expected {check.__doc__ or fields[name].metadata['help']}"
+                f"{name(key)} is out of range: got {value!r}, "
+                f"expected {check.__doc__ or fields[field_name].metadata['help']}"
             )
-        values[name] = value
+        values[field_name] = value
     return cls(**values)

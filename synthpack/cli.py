@@ -19,7 +19,7 @@ from pathlib import Path
 
 from . import __version__
 from ._atomic import Output, check_output
-from ._schema import default_of, help_of
+from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
 from .physics.config import ENGINE_MODULES
 from .errors import PackBuildError, SynthpackInputError
@@ -29,6 +29,8 @@ logger = logging.getLogger("synthpack")
 __all__ = ["main"]
 
 _ENGINE_CHOICES = tuple(ENGINE_MODULES)
+#: The `pour` command's options that are `PourConfig` settings (validated by it).
+_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "tube_radius", "tube_height")
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack._atomic.check_output`).
@@ -78,6 +80,9 @@ def _read_source_scan(args: argparse.Namespace):
     if args.sample:
         if args.tomogram or args.labels:
             raise SynthpackInputError("give either --sample or --tomogram/--labels, not both")
+        if args.voxel_size is not None or args.unit is not None:
+            raise SynthpackInputError("--voxel-size and --unit are for --tomogram/--labels: a built-in sample "
+                                      "has its own voxel size")
         from .samples import sample_scan
 
         return sample_scan(args.sample, seed=args.sample_seed)
@@ -211,14 +216,15 @@ def _cmd_pour(args: argparse.Namespace) -> None:
     from .library import ParticleLibrary
     from .physics import pour
 
+    settings = build(PourConfig, {name: getattr(args, name) for name in _POUR_OPTIONS}, name=option_name)
     library = ParticleLibrary.load(args.library)
     container = None
-    if args.tube_radius or args.tube_height:
+    if settings.tube_radius is not None or settings.tube_height is not None:
         from .physics import Tube
 
-        container = Tube.for_library(library, args.n_particles, inner_radius=args.tube_radius,
-                                     height=args.tube_height)
-    placements = pour(library, args.n_particles, args.batch_size, engine=args.engine, seed=args.seed,
+        container = Tube.for_library(library, settings.n_particles, inner_radius=settings.tube_radius,
+                                     height=settings.tube_height)
+    placements = pour(library, settings.n_particles, settings.batch_size, engine=settings.engine, seed=args.seed,
                       container=container)
     placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks

@@ -100,7 +100,19 @@ def load_config(path: str | os.PathLike | None) -> PackConfig:
     if not path.is_file():
         raise SynthpackInputError(f"config file {path} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise SynthpackInputError(
+            f"config file {path} is not UTF-8 text (byte {error.start}): save it as a plain UTF-8 YAML file"
+        ) from error
     except yaml.YAMLError as error:
-        raise SynthpackInputError(f"config file {path} is not valid YAML: {error}") from error
+        raise SynthpackInputError(f"config file {path} is not valid YAML: {_yaml_problem(error)}") from error
     return PackConfig.from_dict(data)
+
+
+def _yaml_problem(error: yaml.YAMLError) -> str:
+    """One line: what the YAML parser found and where (line and column, 1-based)."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return f"{problem}{where}"

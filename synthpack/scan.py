@@ -75,6 +75,10 @@ class Scan:
         )
 
 
+#: Voxel edge lengths synthpack accepts, in any unit: volumes (edge^3) and masses stay well inside float range.
+VOXEL_SIZE_RANGE = (1e-30, 1e30)
+
+
 def validate_voxel_size(voxel_size: float | tuple[float, ...]) -> tuple[float, float, float]:
     """Return `voxel_size` as a ``(dz, dy, dx)`` tuple of positive floats.
 
@@ -95,6 +99,12 @@ def validate_voxel_size(voxel_size: float | tuple[float, ...]) -> tuple[float, f
         raise SynthpackInputError(
             f"voxel size {tuple(values)} must be positive and finite: give the edge "
             "length of one voxel, e.g. --voxel-size 10 for 10 um voxels"
+        )
+    low, high = VOXEL_SIZE_RANGE
+    if np.any(values < low) or np.any(values > high):
+        raise SynthpackInputError(
+            f"voxel size {tuple(values)} is outside {low:g}-{high:g}: volumes and masses would under- or "
+            "overflow; give it in a unit that makes it a plain number, e.g. --voxel-size 10 --unit um"
         )
     return tuple(float(v) for v in values)  # type: ignore[return-value]
 
