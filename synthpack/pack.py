@@ -6,10 +6,16 @@ Layout of one pack directory (names scripts and the dataset rely on)::
     clean.tif        the same before post-processing
     labels.tif       instance labels (uint16 when they fit, else the pack is Zarr)
     placements.json  the pour: library index, pose, scale and batch of every grain
-    manifest.json    config, seeds, source, versions, timings, counts; written last
+    manifest.json    config, seeds, source, versions, timings, counts, and the size and
+                     SHA-256 of every other file (``files``); written last
 
 With ``format="zarr"`` the three volumes are arrays of one store ``pack.zarr``
 under the same names (``tomogram``, ``clean``, ``labels``).
+
+A pack is complete when its manifest says so and every file it lists has the recorded
+size (:func:`is_complete_pack`, cheap: a rerun rebuilds a pack whose file was cut
+short). :func:`open_pack` with ``verify=True`` also recomputes the checksums and checks
+that the labels fit the placements, for readers that read the volumes anyway.
 
 The directory is built under a temporary name and renamed when complete, so an
 interrupted run leaves no directory that looks complete. `stage_pack` gives the
@@ -21,6 +27,7 @@ pack is published.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import shutil
@@ -38,7 +45,7 @@ from .errors import SynthpackInputError
 from .io import create_zarr_volume, write_tiff, write_zarr
 
 __all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "is_complete_pack",
-           "open_pack"]
+           "open_pack", "verify_pack"]
 
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
@@ -150,7 +157,8 @@ class StagedPack:
             for extra in sorted(p for p in store.iterdir() if p.is_dir() and p.name not in PACK_VOLUMES):
                 shutil.rmtree(extra)
         placements.save(self.path / "placements.json")
-        full = dict(manifest, format=self.format, voxel_size=list(self.voxel_size), unit=self.unit, complete=True)
+        full = dict(manifest, format=self.format, voxel_size=list(self.voxel_size), unit=self.unit,
+                    files=_file_records(self.path), complete=True)
         (self.path / "manifest.json").write_text(json.dumps(full, indent=1, default=_json_default))
         self.finished = True
 
@@ -197,6 +205,28 @@ def _read_manifest(directory: Path) -> dict | None:
     return manifest if isinstance(manifest, dict) and manifest.get("complete") is True else None
 
 
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as handle:
+        return hashlib.file_digest(handle, "sha256").hexdigest()
+
+
+def _file_records(directory: Path) -> dict[str, dict[str, Any]]:
+    """Size (bytes) and SHA-256 of every file under `directory` but the manifest, by relative POSIX path."""
+    files = sorted(p for p in directory.rglob("*") if p.is_file() and p.name != "manifest.json")
+    return {p.relative_to(directory).as_posix(): {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in files}
+
+
+def _size_problem(directory: Path, manifest: dict) -> str | None:
+    """What is missing or of the wrong size among the files the manifest lists, or None."""
+    for name, record in manifest.get("files", {}).items():
+        path = directory / name
+        if not path.is_file():
+            return f"{name} is missing"
+        if path.stat().st_size != record["bytes"]:
+            return f"{name} has {path.stat().st_size} bytes, {record['bytes']} were written"
+    return None
+
+
 def _volume_paths(directory: Path, manifest: dict) -> list[Path]:
     if manifest.get("format") == "zarr":
         return [directory / "pack.zarr" / name for name in PACK_VOLUMES]
@@ -204,12 +234,39 @@ def _volume_paths(directory: Path, manifest: dict) -> list[Path]:
 
 
 def is_complete_pack(directory: str | os.PathLike) -> bool:
-    """True when `directory` holds a complete pack (manifest and every file present)."""
+    """True when `directory` holds a complete pack: its manifest, and every file it lists at its recorded size."""
     directory = Path(directory)
     manifest = _read_manifest(directory)
     if manifest is None or not (directory / "placements.json").is_file():
         return False
-    return all(path.exists() for path in _volume_paths(directory, manifest))
+    if not all(path.exists() for path in _volume_paths(directory, manifest)):
+        return False
+    return _size_problem(directory, manifest) is None
+
+
+def verify_pack(pack: Pack) -> None:
+    """Check an opened pack's files against their recorded checksums, and its labels against its placements.
+
+    Raises
+    ------
+    SynthpackInputError
+        If a file changed since the pack was written, or the labels hold values
+        no placement has (a label volume that is not this pack's).
+    """
+    for name, record in pack.manifest.get("files", {}).items():
+        if _sha256(pack.path / name) != record["sha256"]:
+            raise SynthpackInputError(
+                f"pack {pack.path} is corrupt: {name} changed since it was written (checksum differs); "
+                "delete the pack folder and run `synthpack generate` again to rebuild it"
+            )
+    n_particles = int(pack.manifest.get("n_particles", 0))
+    for index in np.linspace(0, pack.shape[0] - 1, 5).astype(int):
+        highest = int(np.max(pack.labels[int(index)]))
+        if highest > n_particles:
+            raise SynthpackInputError(
+                f"pack {pack.path} is corrupt: slice {index} of its labels holds label {highest}, but the pack "
+                f"has {n_particles} grains; delete the pack folder and run `synthpack generate` again"
+            )
 
 
 def find_packs(path: str | os.PathLike) -> list[Path]:
@@ -249,8 +306,16 @@ def find_packs(path: str | os.PathLike) -> list[Path]:
     return packs
 
 
-def open_pack(directory: str | os.PathLike) -> Pack:
+def open_pack(directory: str | os.PathLike, *, verify: bool = False) -> Pack:
     """Open a pack for lazy slice access.
+
+    Parameters
+    ----------
+    directory : path-like
+        The pack directory.
+    verify : bool
+        Also check every file's checksum and the labels against the placements
+        (:func:`verify_pack`): reads the whole pack once.
 
     Raises
     ------
@@ -260,9 +325,10 @@ def open_pack(directory: str | os.PathLike) -> Pack:
     directory = Path(directory)
     manifest = _read_manifest(directory)
     if manifest is None or not is_complete_pack(directory):
+        problem = None if manifest is None else _size_problem(directory, manifest)
         raise SynthpackInputError(
-            f"{directory} is not a complete synthpack pack (manifest.json missing, unreadable "
-            "or incomplete): generate it again with `synthpack generate`"
+            f"{directory} is not a complete synthpack pack ({problem or 'manifest.json missing, unreadable or incomplete'})"
+            ": run the same `synthpack generate` again to rebuild it"
         )
     try:
         if manifest["format"] == "zarr":
@@ -275,4 +341,7 @@ def open_pack(directory: str | os.PathLike) -> Pack:
     shapes = {tuple(a.shape) for a in arrays}
     if len(shapes) != 1 or len(next(iter(shapes))) != 3:
         raise SynthpackInputError(f"pack {directory} is corrupt: volumes of shapes {sorted(shapes)}")
-    return Pack(directory, *arrays, manifest=manifest)
+    pack = Pack(directory, *arrays, manifest=manifest)
+    if verify:
+        verify_pack(pack)
+    return pack

@@ -562,7 +562,7 @@ def export_yolo(
     synthetic = []
     for path in packs:
         for pack_dir in find_packs(path):
-            pack = open_pack(pack_dir)
+            pack = open_pack(pack_dir, verify=True)
             volume = "tomogram" if postprocess else "clean"
             synthetic.append((pack, _Source(f"syn_{_safe(pack_dir.name)}", "synthetic", str(pack_dir), volume,
                                             getattr(pack, volume), pack.labels)))
