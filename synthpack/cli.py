@@ -19,14 +19,14 @@ from pathlib import Path
 from . import __version__
 from ._schema import default_of, help_of
 from .config import LibraryConfig, PourConfig
-from .physics.config import ENGINE_MODULES
+from .physics.registry import ENGINES
 from .errors import PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
 
 __all__ = ["main"]
 
-_ENGINE_CHOICES = tuple(ENGINE_MODULES)
+_ENGINE_CHOICES = tuple(ENGINES)
 
 
 def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:

@@ -5,14 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .._schema import in_range, non_negative, one_of, positive, setting
+from .registry import DEFAULT_ENGINE, ENGINES
 
-__all__ = ["PourConfig", "ENGINE_MODULES"]
-
-#: Engine name -> module implementing ``simulate`` (imported on first use).
-ENGINE_MODULES: dict[str, str] = {
-    "pybullet": "synthpack.physics.pybullet_engine",
-    "blender": "synthpack.physics.blender_engine",
-}
+__all__ = ["PourConfig"]
 
 
 @dataclass(frozen=True)
@@ -21,7 +16,7 @@ class PourConfig:
 
     n_particles: int = setting(150, positive, "grains poured into the tube")
     batch_size: int = setting(50, positive, "grains per batch; each batch settles and is locked")
-    engine: str = setting("pybullet", one_of(ENGINE_MODULES), "rigid-body engine: " + " or ".join(ENGINE_MODULES))
+    engine: str = setting(DEFAULT_ENGINE, one_of(ENGINES), "rigid-body engine: " + " or ".join(ENGINES))
     scale: float | list = setting(1.0, None, "grain scale factor, or [min, max] drawn per grain")
     tube_radius: float | None = setting(None, positive, "inner tube radius (physical units); default from the scan")
     tube_height: float | None = setting(None, positive, "tube height (physical units); default from n_particles")
