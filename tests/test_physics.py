@@ -9,6 +9,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from synthpack import generate
+from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.physics import ENGINES, Material, Placements, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, hulls, pybullet_engine
@@ -349,6 +351,25 @@ def test_engine_options_reach_the_engine(large_library, monkeypatch):
     placements = pour(large_library, 2, 2, seed=1, progress=False, engine_options={"max_hull_vertices": 16})
     assert seen and set(seen) == {16}
     assert placements.parameters["engine_options"] == {"max_hull_vertices": 16}
+
+
+def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch):
+    """YAML ``pour.engine_options`` -> PourConfig -> build_pack -> pour -> the engine's options."""
+    received = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(self, bodies, tube, material, settle, options, progress):
+        received.append(options)
+        raise Stop
+
+    monkeypatch.setattr(pybullet_engine.PybulletEngine, "_simulate", capture)
+    config = PackConfig.from_dict({"pour": {"n_particles": 2, "batch_size": 2,
+                                            "engine_options": {"convex_decomposition": True}}})
+    with pytest.raises(Stop):
+        generate.build_pack(large_library, config, 0, progress=False)
+    assert received == [pybullet_engine.PybulletOptions(convex_decomposition=True)]
 
 
 def test_both_engines_use_the_shared_hull_and_burial_helpers():
