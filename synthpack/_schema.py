@@ -33,14 +33,15 @@ def setting(default: Any, check: Check | None = None, help: str = "") -> Any:
     Parameters
     ----------
     default : Any
-        The default value (a list default is copied for each instance).
+        The default value (a list or dict default is copied for each instance).
     check : callable, optional
         ``check(value) -> bool``; its ``__doc__`` says what is expected, for the
         error message. Not called for ``None``.
     help : str
         One line for ``--help`` and ``--print-config`` readers.
     """
-    factory = {"default_factory": lambda: list(default)} if isinstance(default, list) else {"default": default}
+    mutable = isinstance(default, (list, dict))
+    factory = {"default_factory": lambda: type(default)(default)} if mutable else {"default": default}
     return dataclasses.field(**factory, metadata={"check": check, "help": help})
 
 

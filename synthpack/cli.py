@@ -21,14 +21,14 @@ from . import __version__
 from ._atomic import Output, check_output
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
-from .physics.config import ENGINE_MODULES
+from .physics.registry import ENGINES
 from .errors import PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
 
 __all__ = ["main"]
 
-_ENGINE_CHOICES = tuple(ENGINE_MODULES)
+_ENGINE_CHOICES = tuple(ENGINES)
 #: The `pour` command's options that are `PourConfig` settings (validated by it).
 _POUR_OPTIONS = ("n_particles", "batch_size", "engine", "tube_radius", "tube_height")
 

@@ -213,7 +213,7 @@ def build_pack(
         library, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
         seed=seed, container=_tube(library, config), scale=scale,
         material=Material(friction=pour_config.friction, restitution=pour_config.restitution),
-        progress=progress,
+        progress=progress, engine_options=pour_config.engine_options,
     )
     timings["pour"] = time.perf_counter() - start
 

@@ -7,23 +7,27 @@ executable; without one they are skipped. Run only them with ``pytest -m blender
 
 from __future__ import annotations
 
+import ast
+import importlib.util
 import sys
+import types
 
 import numpy as np
 import pytest
 import trimesh
 
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import blender_engine
+from synthpack.physics import ENGINES, blender_engine, burial
 from synthpack.physics.engine import Body, Material, SettleCriteria, TubeSpec
 
 TUBE = TubeSpec(inner_radius=2.0, height=12.0, wall_thickness=0.2, base_thickness=0.2)
 MATERIAL = Material()
 SETTLE = SettleCriteria()
 N_BATCHES, PER_BATCH = 3, 6
+BLENDER = ENGINES["blender"]
 
 requires_blender = pytest.mark.skipif(
-    not blender_engine.blender_available(),
+    not BLENDER.available(),
     reason="no Blender found: set SYNTHPACK_BLENDER to a Python with bpy or to a blender "
     "executable (`bash .ci/make-blender-venv` makes .venv-blender)",
 )
@@ -97,14 +101,13 @@ def pour(tmp_path_factory: pytest.TempPathFactory):
     bodies = make_bodies()
     calls: list[tuple[int, int]] = []
     blend = tmp_path_factory.mktemp("blend") / "pack.blend"
-    result = blender_engine.simulate(
+    result = BLENDER.simulate(
         bodies,
         TUBE,
         MATERIAL,
         SETTLE,
+        BLENDER.options({"record_snapshots": True, "blend_file": blend}),
         progress=lambda i, n: calls.append((i, n)),
-        record_snapshots=True,
-        blend_file=blend,
     )
     return bodies, result, calls, blend
 
@@ -181,7 +184,7 @@ def test_off_centre_centre_of_mass_rolls_to_the_bottom():
     upright, above_floor = np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.0])
     body = Body(vertices, ball.faces, 1.0, center_mass, upright, above_floor, 0)
     damped = Material(angular_damping=0.5)  # a weighted ball rocks long with little damping
-    result = blender_engine.simulate([body], TUBE, damped, SETTLE, max_hull_vertices=None)
+    result = BLENDER.simulate([body], TUBE, damped, SETTLE, BLENDER.options({"max_hull_vertices": None}))
     assert result.settled_per_batch == [True]
     p, q = result.positions[0], result.quaternions[0]
     rotation = rotation_matrix(q)
@@ -199,16 +202,16 @@ def test_off_centre_centre_of_mass_rolls_to_the_bottom():
 def test_missing_blender_gives_setup_hint(monkeypatch, tmp_path):
     monkeypatch.setenv(blender_engine.BLENDER_ENV_VAR, str(tmp_path / "no" / "blender"))
     assert blender_engine.find_blender() is None
-    assert not blender_engine.blender_available()
+    assert not BLENDER.available()
     with pytest.raises(SynthpackInputError, match="make-blender-venv"):
-        blender_engine.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
 
 
 def test_python_without_bpy_gives_setup_hint(monkeypatch):
     monkeypatch.setenv(blender_engine.BLENDER_ENV_VAR, sys.executable)
     assert blender_engine.find_blender() == [sys.executable]
     with pytest.raises(SynthpackInputError, match="cannot import bpy"):
-        blender_engine.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
 
 
 @pytest.mark.blender
@@ -231,7 +234,7 @@ def test_runs_a_blender_executable_with_fixed_steps(monkeypatch, tmp_path):
     assert prefix[0] == str(blender) and "--background" in prefix and prefix[-1] == "--python"
     bodies = make_bodies()[:2]
     low_tube = TubeSpec(TUBE.inner_radius, 1.0, TUBE.wall_thickness, TUBE.base_thickness)
-    result = blender_engine.simulate(bodies, low_tube, MATERIAL, SETTLE, fixed_steps=90)
+    result = BLENDER.simulate(bodies, low_tube, MATERIAL, SETTLE, BLENDER.options({"fixed_steps": 90}))
     assert result.steps_per_batch == [90]
     spawn_heights = np.array([b.spawn_offset[2] for b in bodies])
     assert np.all(result.positions[:, 2] < spawn_heights)  # both grains fell ...
@@ -243,9 +246,17 @@ def test_runs_a_blender_executable_with_fixed_steps(monkeypatch, tmp_path):
 
 def test_bad_input_is_rejected():
     with pytest.raises(SynthpackInputError, match="no bodies"):
-        blender_engine.simulate([], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate([], TUBE, MATERIAL, SETTLE)
     with pytest.raises(SynthpackInputError, match="linear_damping"):
-        blender_engine.simulate(make_bodies()[:1], TUBE, Material(linear_damping=2.0), SETTLE)
+        BLENDER.simulate(make_bodies()[:1], TUBE, Material(linear_damping=2.0), SETTLE)
+    with pytest.raises(SynthpackInputError, match="collision_margin must be within"):
+        BLENDER.simulate(make_bodies()[:1], TUBE, Material(collision_margin=2.0), SETTLE)
+    with pytest.raises(SynthpackInputError, match="Blender's last frame"):
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SettleCriteria(max_steps=2_000_000))
+    with pytest.raises(SynthpackInputError, match="'engine_options.fixed_steps' is out of range"):
+        BLENDER.options({"fixed_steps": 2_000_000})
+    with pytest.raises(SynthpackInputError, match="takes BlenderOptions options"):
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, ENGINES["pybullet"].options())
 
 
 def test_blender_failure_shows_its_output(monkeypatch, tmp_path):
@@ -255,13 +266,27 @@ def test_blender_failure_shows_its_output(monkeypatch, tmp_path):
     monkeypatch.setenv(blender_engine.BLENDER_ENV_VAR, sys.executable)
     calls = []
     with pytest.raises(blender_engine.BlenderError, match="(?s)exit status 1.*RuntimeError: boom"):
-        blender_engine.simulate(
-            make_bodies()[:1], TUBE, MATERIAL, SETTLE, progress=lambda *a: calls.append(a)
-        )
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, progress=lambda *a: calls.append(a))
     assert calls == [(0, 2)]
 
 
 def test_unwritable_blend_file_is_rejected_before_simulating(tmp_path):
     with pytest.raises(SynthpackInputError, match="missing-folder"):
         blend = tmp_path / "missing-folder" / "a.blend"
-        blender_engine.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, blend_file=blend)
+        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, BLENDER.options({"blend_file": blend}))
+
+
+def test_the_script_uses_synthpacks_burial_rule_without_importing_synthpack(monkeypatch):
+    """blender_script.py loads physics/burial.py by path: the rule the pybullet engine uses."""
+    tree = ast.parse(blender_engine.SCRIPT.read_text())
+    imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    imported += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert not [name for name in imported if name.split(".")[0] == "synthpack"]
+    monkeypatch.setitem(sys.modules, "bpy", types.ModuleType("bpy"))  # the script needs it to load
+    spec = importlib.util.spec_from_file_location("blender_script_under_test", blender_engine.SCRIPT)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.burial.__file__ == burial.__file__
+    corners = np.array([[x, y, 0.0] for x in (-0.5, 0.5) for y in (-0.5, 0.5)])
+    hulls = [corners + [0, 0, 0.5], corners + [0, 0, 9.0]]  # a deep grain under a covering one
+    assert script.burial.buried(hulls, 1.5, 1.0).tolist() == [True, False]

@@ -31,6 +31,14 @@ def test_replace_merges_sections():
         ({"library": {"include_border": 1}}, "'library.include_border' has the wrong type"),
         ({"pour": {"n_particles": 0}}, "'pour.n_particles' is out of range"),
         ({"pour": {"engine": "havok"}}, "'pour.engine' is out of range"),
+        ({"pour": {"engine_options": {"warp": 1}}}, "unknown config key 'pour.engine_options.warp'"),
+        ({"pour": {"engine_options": {"max_hull_vertices": 3}}},
+         "'pour.engine_options.max_hull_vertices' is out of range"),
+        ({"pour": {"engine_options": {"allow_sleeping": "yes"}}},
+         "'pour.engine_options.allow_sleeping' has the wrong type"),
+        ({"pour": {"engine": "blender", "engine_options": {"convex_decomposition": True}}},
+         "unknown config key 'pour.engine_options.convex_decomposition'"),
+        ({"pour": {"engine_options": None}}, "'pour.engine_options' has the wrong type"),
         ({"pour": {"restitution": 1.5}}, "'pour.restitution' is out of range"),
         ({"reconstruct": {"chunks": [64, 0, 64]}}, "'reconstruct.chunks' is out of range"),
         ({"pour": 3}, "must be a mapping"),
@@ -57,3 +65,22 @@ def test_postprocess_pipeline_is_validated_when_read():
         PackConfig.from_dict({"postprocess": [{"name": "gaussian_nois", "std": 0.05}]})
     with pytest.raises(SynthpackInputError, match="'postprocess' is out of range"):
         PackConfig.from_dict({"postprocess": "fancy"})
+
+
+def test_engine_options_are_read_from_yaml_and_checked_against_the_engine(tmp_path):
+    path = tmp_path / "pack.yaml"
+    path.write_text("pour:\n  engine: blender\n  engine_options: {max_hull_vertices: 32, fixed_steps: 200}\n")
+    config = load_config(path)
+    assert config.pour.engine_options == {"max_hull_vertices": 32, "fixed_steps": 200}
+    assert PackConfig.from_dict(config.to_dict()) == config
+    assert PackConfig().pour.engine_options == {}
+    with pytest.raises(SynthpackInputError, match="'pour.engine_options.blend_file'"):
+        config.replace(pour={"engine": "pybullet", "engine_options": {"blend_file": "a.blend"}})
+
+
+def test_engine_names_come_from_the_registry():
+    from synthpack import cli
+    from synthpack.physics.registry import ENGINES
+
+    assert cli._ENGINE_CHOICES == tuple(ENGINES) == ("pybullet", "blender")
+    assert PackConfig.from_dict({"pour": {"engine": "blender"}}).pour.engine == "blender"

@@ -9,9 +9,13 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from synthpack import generate
+from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import Material, Placements, SettleCriteria, Tube, pour
+from synthpack.physics import ENGINES, Material, Placements, SettleCriteria, Tube, get_engine, pour
+from synthpack.physics import blender_engine, burial, hulls, pybullet_engine
 from synthpack.physics.checks import compute_checks, winding_number
+from synthpack.physics.engine import Body, Engine, EngineOptions, TubeSpec
 from synthpack.physics.plan import make_plan
 
 TOLERANCE_VOXELS = 0.5  # largest interpenetration accepted, grain-grain and grain-tube
@@ -172,7 +176,9 @@ def test_voxel_positions_map_world_to_grid_indices(poured):
         ({"scale": (2.0, 1.0)}, "max < min"),
         ({"size_classes": [(5.0, 1.0, 1.0)]}, "d_min < d_max"),
         ({"size_classes": [(1.0, 2.0, 1.0)]}, "No grain of the library"),
-        ({"engine_options": {"warp_speed": 9}}, "does not take the options"),
+        ({"engine_options": {"warp_speed": 9}}, "unknown config key 'engine_options.warp_speed'"),
+        ({"engine_options": {"fixed_steps": 0}}, "'engine_options.fixed_steps' is out of range"),
+        ({"engine_options": {"blend_file": "a.blend"}}, "unknown config key 'engine_options.blend_file'"),
         ({"container": Tube(50.0, 1000.0, 10.0, 10.0)}, "too narrow for the largest grain"),
         ({"material": Material(restitution=1.5)}, r"restitution must be a number in \[0, 1\]"),
         ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps must be"),
@@ -296,7 +302,7 @@ def test_convex_decomposition_option_pours_a_concave_aware_pack(large_library):
 
 
 def test_bad_engine_option_values_raise(large_library):
-    with pytest.raises(SynthpackInputError, match="max_hull_vertices must be"):
+    with pytest.raises(SynthpackInputError, match="'engine_options.max_hull_vertices' is out of range"):
         pour(large_library, 2, 2, progress=False, engine_options={"max_hull_vertices": 3})
 
 
@@ -310,3 +316,101 @@ def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow
     assert checks.n_outside == 0 and all(checks.settled_per_batch)
     assert checks.max_grain_penetration_voxels < TOLERANCE_VOXELS
     np.testing.assert_array_equal(placements.snapshots[2][0], placements.positions[:60])
+
+
+def test_the_registry_lists_both_engines():
+    assert list(ENGINES) == ["pybullet", "blender"]  # the default first
+    for name, engine in ENGINES.items():
+        assert isinstance(engine, Engine) and engine.name == name and get_engine(name) is engine
+        assert issubclass(engine.Options, EngineOptions)
+        assert engine.options() == engine.Options()  # no options: the defaults
+    assert isinstance(ENGINES["pybullet"], pybullet_engine.PybulletEngine)
+    assert isinstance(ENGINES["blender"], blender_engine.BlenderEngine)
+    assert ENGINES["pybullet"].available()
+    with pytest.raises(SynthpackInputError, match="Unknown engine 'havok'; choose one of: pybullet, blender"):
+        get_engine("havok")
+
+
+def test_engine_options_are_typed_dataclasses_with_defaults(tmp_path):
+    options = ENGINES["pybullet"].options({"max_hull_vertices": None, "fixed_steps": 5})
+    assert options == pybullet_engine.PybulletOptions(max_hull_vertices=None, fixed_steps=5)
+    assert options.convex_decomposition is False and options.allow_sleeping is True
+    assert ENGINES["blender"].options().max_hull_vertices == hulls.MAX_HULL_VERTICES
+    path = ENGINES["blender"].options({"blend_file": tmp_path / "pack.blend"}).blend_file
+    assert path == str(tmp_path / "pack.blend")  # a path-like is kept as its string
+
+
+def test_engine_options_reach_the_engine(large_library, monkeypatch):
+    seen = []
+
+    def spy(hull, max_vertices):
+        seen.append(max_vertices)
+        return hulls.simplify_hull(hull, max_vertices)
+
+    monkeypatch.setattr(pybullet_engine, "simplify_hull", spy)
+    placements = pour(large_library, 2, 2, seed=1, progress=False, engine_options={"max_hull_vertices": 16})
+    assert seen and set(seen) == {16}
+    assert placements.parameters["engine_options"] == {"max_hull_vertices": 16}
+
+
+def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch):
+    """YAML ``pour.engine_options`` -> PourConfig -> build_pack -> pour -> the engine's options."""
+    received = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(self, bodies, tube, material, settle, options, progress):
+        received.append(options)
+        raise Stop
+
+    monkeypatch.setattr(pybullet_engine.PybulletEngine, "_simulate", capture)
+    config = PackConfig.from_dict({"pour": {"n_particles": 2, "batch_size": 2,
+                                            "engine_options": {"convex_decomposition": True}}})
+    with pytest.raises(Stop):
+        generate.build_pack(large_library, config, 0, progress=False)
+    assert received == [pybullet_engine.PybulletOptions(convex_decomposition=True)]
+
+
+def test_both_engines_use_the_shared_hull_and_burial_helpers():
+    assert pybullet_engine.simplify_hull is hulls.simplify_hull
+    assert blender_engine.simplify_hull is hulls.simplify_hull
+    assert pybullet_engine.convex_hull is blender_engine.convex_hull is hulls.convex_hull
+    assert pybullet_engine.buried is burial.buried
+    assert pybullet_engine.largest_diameter is burial.largest_diameter
+    assert not hasattr(pybullet_engine, "MAX_HULL_VERTICES")
+    assert not hasattr(blender_engine, "MAX_HULL_VERTICES")
+
+
+def test_simplified_hulls_keep_at_most_the_vertices_asked_for():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    hull = hulls.convex_hull(sphere.vertices)
+    assert hulls.simplify_hull(hull, None) is hull and hulls.simplify_hull(hull, 1000) is hull
+    simple = hulls.simplify_hull(hull, 32)
+    assert len(simple.vertices) <= 32 and simple.is_convex and simple.volume < hull.volume
+
+
+def test_burial_removes_only_grains_covered_by_a_thick_layer():
+    corners = np.array([[x, y, 0.0] for x in (-0.5, 0.5) for y in (-0.5, 0.5)])
+    deep, middle, top = corners + [0, 0, 0.5], corners + [0, 0, 7.5], corners + [0, 0, 9.0]
+    assert burial.buried([deep, middle, top], 1.5, 1.0).tolist() == [True, False, False]
+    # an uncovered column counts as the floor: nothing is buried
+    assert not burial.buried([deep, top[:1]], 1.5, 1.0).any()
+    assert burial.buried([], 1.5, 1.0).shape == (0,)
+    assert burial.largest_diameter([corners, 3 * corners]) == pytest.approx(2 * 3 * np.sqrt(0.5))
+
+
+def test_engines_refuse_bad_bodies_with_input_errors():
+    box = trimesh.creation.box()
+
+    def body(batch):
+        return Body(box.vertices, box.faces, 1.0, np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), batch)
+
+    tube = TubeSpec(2.0, 5.0, 0.2, 0.2)
+    engine = ENGINES["pybullet"]
+    with pytest.raises(SynthpackInputError, match="ordered by batch"):
+        engine.simulate([body(1), body(0)], tube, Material(), SettleCriteria())
+    with pytest.raises(SynthpackInputError, match="TubeSpec.height must be > 0"):
+        engine.simulate([body(0)], TubeSpec(2.0, 0.0, 0.2, 0.2), Material(), SettleCriteria())
+    with pytest.raises(SynthpackInputError, match="takes PybulletOptions options"):
+        engine.simulate([body(0)], tube, Material(), SettleCriteria(), ENGINES["blender"].options())

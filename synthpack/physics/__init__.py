@@ -1,48 +1,50 @@
 """Pouring grains into a virtual tube: batched, locked rigid-body simulation (paper 3.3).
 
-:func:`pour` draws a pour plan from one seed (:mod:`.plan`), converts it to
-simulation units, runs an engine batch by batch (each batch falls, settles and is
-locked before the next enters), converts the poses back to physical units, checks
-the result (:mod:`.checks`) and returns :class:`Placements`.
+:func:`pour` checks its input, draws a pour plan from one seed (:mod:`.plan`),
+converts it to simulation units, runs an engine batch by batch (each batch falls,
+settles and is locked before the next enters), converts the poses back to physical
+units, checks the result (:mod:`.checks`) and returns :class:`Placements`.
 
 Simulation units: 1 length unit = the library's median equivalent diameter (grains
 are ~1 unit across; gravity 9.81 units/s^2), 1 mass unit = the library's median
-grain mass. Engines: ``"pybullet"`` (default, :mod:`.pybullet_engine`) and
-``"blender"`` (:mod:`.blender_engine`, bpy in a separate interpreter, as in the
-paper).
+grain mass. The engines are listed in :mod:`.registry`: ``"pybullet"`` (default,
+:mod:`.pybullet_engine`) and ``"blender"`` (:mod:`.blender_engine`, bpy in a separate
+interpreter, as in the paper); :mod:`.engine` is their common interface.
 """
 
 from __future__ import annotations
 
-import importlib
-import inspect
 import logging
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from ..errors import SynthpackInputError
 from .checks import PourChecks, compute_checks
-from .config import ENGINE_MODULES as ENGINES
 from .config import PourConfig
 from .container import Tube
-from .engine import Body, EngineResult, Material, SettleCriteria
+from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
 from .placements import Placements
-from .plan import make_plan, parse_scale
+from .plan import PourPlan, make_plan, parse_scale
+from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["pour", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks", "ENGINES"]
+__all__ = [
+    "pour", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks",
+    "ENGINES", "get_engine",
+]
 
 
 def pour(
     library: Any,
     n_particles: int,
     batch_size: int,
-    engine: str = "pybullet",
+    engine: str = DEFAULT_ENGINE,
     seed: int = 0,
     container: Tube | None = None,
     scale: float | Sequence[float] = 1.0,
@@ -50,7 +52,7 @@ def pour(
     material: Material | None = None,
     settle: SettleCriteria | None = None,
     progress: bool = True,
-    engine_options: dict[str, Any] | None = None,
+    engine_options: Mapping[str, Any] | None = None,
 ) -> Placements:
     """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
 
@@ -64,7 +66,7 @@ def pour(
     batch_size : int
         Grains per batch; each batch settles and is locked before the next falls.
     engine : {"pybullet", "blender"}
-        Rigid-body engine.
+        Rigid-body engine, a name of :data:`~synthpack.physics.registry.ENGINES`.
     seed : int
         Seed of every random choice (grains, orientations, scales, spawn points).
     container : Tube, optional
@@ -80,11 +82,12 @@ def pour(
         Time step and settle detection; default ``SettleCriteria()``.
     progress : bool
         Show a progress bar over batches.
-    engine_options : dict, optional
-        Extra keyword arguments of the engine's ``simulate`` (pybullet:
-        ``convex_decomposition``, ``max_hull_vertices``, ``record_snapshots``,
-        ``fixed_steps``, ``allow_sleeping``; see
-        :func:`synthpack.physics.pybullet_engine.simulate`).
+    engine_options : mapping, optional
+        The engine's options that differ from its defaults: fields of
+        :class:`~synthpack.physics.pybullet_engine.PybulletOptions` (e.g.
+        ``convex_decomposition``, ``max_hull_vertices``, ``fixed_steps``) or
+        :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
+        ``blend_file``). They are recorded in ``Placements.parameters``.
 
     Returns
     -------
@@ -94,66 +97,31 @@ def pour(
     Raises
     ------
     SynthpackInputError
-        For a bad count, batch size, engine, option, scale, size class or tube.
+        For a bad count, batch size, seed, engine, option, material, settle
+        criterion, scale, size class or tube, or an engine that cannot run here.
     """
-    n_particles = _count(n_particles, "n_particles")
-    batch_size = _count(batch_size, "batch_size")
-    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SynthpackInputError(f"seed must be a whole number >= 0, got {seed!r}.")
-    seed = int(seed)
-    if len(library) == 0:
-        raise SynthpackInputError(
-            "The particle library is empty; build it from a labelled scan with grains in it."
-        )
-    simulate = _engine(engine)
-    options = dict(engine_options or {})
-    try:
-        inspect.signature(simulate).bind([], None, None, None, None, **options)
-    except TypeError:
-        raise SynthpackInputError(
-            f"Engine {engine!r} does not take the options {sorted(options)}; see "
-            f"help({ENGINES[engine]}.simulate)."
-        ) from None
-    material = material if material is not None else Material()
-    settle = settle if settle is not None else SettleCriteria()
-    _check_material(material)
-    _check_settle(settle)
+    n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
+    chosen = get_engine(engine)
+    options = chosen.options(engine_options)
+    material = Material() if material is None else material
+    settle = SettleCriteria() if settle is None else settle
+    chosen.check(material, settle, options)
+    chosen.check_available()
     low, high = parse_scale(scale)
-    tube = container
-    if tube is None:
-        tube = Tube.for_library(library, n_particles, scale=high)
-    if not isinstance(tube, Tube):
-        raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
+    tube = _tube(library, n_particles, container, high)
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
                      size_classes=size_classes)
     length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float)))
     mass_unit = float(np.median([library[i].mass for i in range(len(library))]))
     bodies = _bodies(library, plan, length, mass_unit)
-
     logger.info("Pouring %d grains in %d batches with %s (seed %d)",
-                n_particles, plan.n_batches, engine, seed)
-    bar = tqdm(total=plan.n_batches, desc="pouring", unit="batch", disable=not progress)
-    start = time.perf_counter()
-    try:
-        result: EngineResult = simulate(
-            bodies, tube.spec(length), material, settle,
-            lambda done, total: bar.update(1), **options,
-        )
-    finally:
-        bar.close()
-    seconds = time.perf_counter() - start
+                n_particles, plan.n_batches, chosen.name, seed)
+    result, seconds = _run(chosen, bodies, tube.spec(length), material, settle, options,
+                           plan.n_batches, progress)
 
     positions = np.asarray(result.positions, dtype=float) * length
-    voxel = float(min(library.voxel_size))
-    checks = compute_checks(
-        [(np.asarray(library[i].mesh.vertices, dtype=float), np.asarray(library[i].mesh.faces))
-         for i in range(len(library))],
-        plan.indices, positions, result.quaternions, plan.scales, tube,
-        voxel_size=voxel, length_scale=length,
-        steps_per_batch=result.steps_per_batch, settled_per_batch=result.settled_per_batch,
-        seconds=seconds, seed=seed,
-    )
+    checks = _checks(library, plan, positions, result, tube, length, seconds, seed)
     parameters = {
         "n_particles": n_particles,
         "batch_size": batch_size,
@@ -163,26 +131,22 @@ def pour(
         "settle": asdict(settle),
         "length_scale": length,
         "mass_unit": mass_unit,
-        "engine_options": options,
+        "engine_options": {name: getattr(options, name) for name in engine_options or {}},
     }
-    snapshots = None
-    if result.snapshots is not None:
-        snapshots = [(np.asarray(pos) * length, np.asarray(quat)) for pos, quat in result.snapshots]
-    return Placements(
-        indices=plan.indices,
-        positions=positions,
-        quaternions=result.quaternions,
-        scales=plan.scales,
-        batches=plan.batches,
-        tube=tube,
-        unit=str(library.unit),
-        voxel_size=tuple(library.voxel_size),
-        seed=int(seed),
-        engine=engine,
-        parameters=parameters,
-        checks=checks,
-        snapshots=snapshots,
-    )
+    return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)
+
+
+def _check_request(library: Any, n_particles: Any, batch_size: Any, seed: Any) -> tuple[int, int, int]:
+    """The counts and the seed as ints; SynthpackInputError for bad ones or an empty library."""
+    n_particles = _count(n_particles, "n_particles")
+    batch_size = _count(batch_size, "batch_size")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SynthpackInputError(f"seed must be a whole number >= 0, got {seed!r}.")
+    if len(library) == 0:
+        raise SynthpackInputError(
+            "The particle library is empty; build it from a labelled scan with grains in it."
+        )
+    return n_particles, batch_size, int(seed)
 
 
 def _count(value: Any, name: str) -> int:
@@ -191,51 +155,62 @@ def _count(value: Any, name: str) -> int:
     return int(value)
 
 
-def _check_material(material: Material) -> None:
-    if not isinstance(material, Material):
-        raise SynthpackInputError(f"material must be a Material, got {type(material).__name__}.")
-    ranges = {
-        "friction": (0.0, np.inf), "restitution": (0.0, 1.0), "rolling_friction": (0.0, np.inf),
-        "linear_damping": (0.0, 1.0), "angular_damping": (0.0, 1.0),
-        "collision_margin": (0.0, np.inf),
-    }
-    for name, (low, high) in ranges.items():
-        value = getattr(material, name)
-        if not (isinstance(value, (int, float)) and low <= value <= high):
-            raise SynthpackInputError(
-                f"Material.{name} must be a number in [{low:g}, {high:g}], got {value!r}."
-            )
+def _tube(library: Any, n_particles: int, container: Tube | None, largest_scale: float) -> Tube:
+    """`container`, or the default tube for the library's grains at their largest scale."""
+    tube = Tube.for_library(library, n_particles, scale=largest_scale) if container is None else container
+    if not isinstance(tube, Tube):
+        raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
+    return tube
 
 
-def _check_settle(settle: SettleCriteria) -> None:
-    if not isinstance(settle, SettleCriteria):
-        raise SynthpackInputError(f"settle must be a SettleCriteria, got {type(settle).__name__}.")
-    for name in ("time_step", "linear_speed", "angular_speed"):
-        value = getattr(settle, name)
-        if not (isinstance(value, (int, float)) and 0 < value < np.inf):
-            raise SynthpackInputError(f"SettleCriteria.{name} must be > 0, got {value!r}.")
-    for name in ("substeps", "quiet_steps", "max_steps"):
-        value = getattr(settle, name)
-        if not (isinstance(value, int) and value >= 1):
-            raise SynthpackInputError(
-                f"SettleCriteria.{name} must be a whole number >= 1, got {value!r}."
-            )
-    if not (isinstance(settle.min_steps, int) and 0 <= settle.min_steps <= settle.max_steps):
-        raise SynthpackInputError(
-            "SettleCriteria.min_steps must be a whole number in [0, max_steps], "
-            f"got {settle.min_steps!r}."
-        )
+def _run(
+    engine: Engine, bodies: list[Body], tube: TubeSpec, material: Material, settle: SettleCriteria,
+    options: EngineOptions, n_batches: int, progress: bool,
+) -> tuple[EngineResult, float]:
+    """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
+    bar = tqdm(total=n_batches, desc="pouring", unit="batch", disable=not progress)
+    start = time.perf_counter()
+    try:
+        result = engine.simulate(bodies, tube, material, settle, options,
+                                 progress=lambda done, total: bar.update(1))
+    finally:
+        bar.close()
+    return result, time.perf_counter() - start
 
 
-def _engine(name: str):
-    if name not in ENGINES:
-        raise SynthpackInputError(
-            f"Unknown engine {name!r}; choose one of: {', '.join(ENGINES)}."
-        )
-    return importlib.import_module(ENGINES[name]).simulate
+def _checks(
+    library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
+    length: float, seconds: float, seed: int,
+) -> PourChecks:
+    """The checks of the finished pour (:func:`~synthpack.physics.checks.compute_checks`)."""
+    meshes = [(np.asarray(library[i].mesh.vertices, dtype=float), np.asarray(library[i].mesh.faces))
+              for i in range(len(library))]
+    return compute_checks(
+        meshes, plan.indices, positions, result.quaternions, plan.scales, tube,
+        voxel_size=float(min(library.voxel_size)), length_scale=length,
+        steps_per_batch=result.steps_per_batch, settled_per_batch=result.settled_per_batch,
+        seconds=seconds, seed=seed,
+    )
 
 
-def _bodies(library: Any, plan, length: float, mass_unit: float) -> list[Body]:
+def _placements(
+    library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
+    engine: str, seed: int, parameters: dict[str, Any], checks: PourChecks,
+) -> Placements:
+    """The pour's Placements; snapshots (simulation units) scaled like `positions`."""
+    length = parameters["length_scale"]
+    snapshots = None
+    if result.snapshots is not None:
+        snapshots = [(np.asarray(pos) * length, np.asarray(quat)) for pos, quat in result.snapshots]
+    return Placements(
+        indices=plan.indices, positions=positions, quaternions=result.quaternions,
+        scales=plan.scales, batches=plan.batches, tube=tube, unit=str(library.unit),
+        voxel_size=tuple(library.voxel_size), seed=seed, engine=engine,
+        parameters=parameters, checks=checks, snapshots=snapshots,
+    )
+
+
+def _bodies(library: Any, plan: PourPlan, length: float, mass_unit: float) -> list[Body]:
     """The plan's grains as engine bodies in simulation units."""
     bodies = []
     for k in range(len(plan)):

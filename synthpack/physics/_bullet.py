@@ -1,21 +1,27 @@
-"""pybullet, connected without its C-level chatter on stdout.
+"""A pybullet physics client, connected without its C-level chatter on stdout.
 
 pybullet prints a "pybullet build time: ..." banner when the first physics server
 starts, and V-HACD prints its progress; both come from C ``printf`` (buffered), which
 would end up in the middle of a command-line tool's output.
+
+:class:`Client` binds one headless physics server's id to pybullet's functions once,
+as Kubric's pybullet simulator does, so callers write ``client.stepSimulation()``
+rather than passing ``physicsClientId`` to every call.
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import os
 import sys
 from collections.abc import Iterator
+from typing import Any
 
 import pybullet
 
-__all__ = ["pybullet", "silenced_stdout", "connect"]
+__all__ = ["Client", "silenced_stdout"]
 
 _LIBC = ctypes.CDLL(None)
 
@@ -36,16 +42,38 @@ def silenced_stdout() -> Iterator[None]:
         os.close(saved)
 
 
-def connect() -> int:
-    """Start a headless (``DIRECT``) physics server; its client id.
+class Client:
+    """A headless (``DIRECT``) pybullet physics server of its own.
+
+    ``client.f(...)`` is ``pybullet.f(..., physicsClientId=client.id)`` for every
+    pybullet function; pybullet's constants are attributes too (``client.GEOM_MESH``).
+    Used as a context manager, it disconnects on exit.
 
     Raises
     ------
     RuntimeError
-        If pybullet cannot start one.
+        If pybullet cannot start a physics server.
     """
-    with silenced_stdout():
-        client = pybullet.connect(pybullet.DIRECT)
-    if client < 0:
-        raise RuntimeError("pybullet could not start a physics server")
-    return client
+
+    def __init__(self) -> None:
+        with silenced_stdout():
+            self.id: int = pybullet.connect(pybullet.DIRECT)
+        if self.id < 0:
+            raise RuntimeError("pybullet could not start a physics server")
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(pybullet, name)
+        if callable(value):
+            value = functools.partial(value, physicsClientId=self.id)
+        self.__dict__[name] = value  # bound once
+        return value
+
+    def close(self) -> None:
+        """Disconnect from the physics server."""
+        pybullet.disconnect(physicsClientId=self.id)
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

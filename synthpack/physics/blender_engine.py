@@ -18,6 +18,7 @@ Set the environment variable ``SYNTHPACK_BLENDER`` to either
 
 Without the variable, synthpack uses ``.venv-blender/bin/python`` in the current
 working directory if it exists, then ``blender`` on the ``PATH``.
+:meth:`BlenderEngine.available` says whether one is found.
 """
 
 from __future__ import annotations
@@ -31,31 +32,35 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import trimesh
 
-from synthpack.errors import SynthpackInputError
-from synthpack.physics.engine import (
+from .._schema import in_range, setting
+from ..errors import SynthpackInputError
+from .engine import (
     Body,
+    Engine,
+    EngineOptions,
     EngineResult,
     Material,
     ProgressCallback,
     SettleCriteria,
     TubeSpec,
 )
+from .hulls import convex_hull, simplify_hull
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "BlenderEngine",
+    "BlenderOptions",
     "BlenderError",
-    "simulate",
     "find_blender",
-    "blender_available",
+    "require_blender",
     "BLENDER_ENV_VAR",
-    "MAX_HULL_VERTICES",
 ]
 
 BLENDER_ENV_VAR = "SYNTHPACK_BLENDER"
@@ -73,16 +78,14 @@ SETUP_HINT = (
 SOLVER_ITERATIONS = 10
 """Constraint solver iterations per substep (Blender's default)."""
 
-MAX_HULL_VERTICES = 64
-"""Default cap on the vertices of a grain's collision hull (as in the pybullet engine)."""
-
 SCRIPT = Path(__file__).with_name("blender_script.py")
 """The script Blender runs."""
 
 NO_BPY_EXIT_CODE = 3
 """Exit status of the script when its interpreter cannot import bpy (see blender_script.py)."""
 
-_LAST_FRAME = 1_048_574  # Blender's largest frame number
+LAST_FRAME = 1_048_574
+"""Blender's largest frame number: a batch runs for fewer frames than this."""
 
 _BATCH_LINE = re.compile(r"^BATCH (\d+)/(\d+) frames=(\d+) settled=([01])")
 _OUTPUT_TAIL_LINES = 40
@@ -90,6 +93,108 @@ _OUTPUT_TAIL_LINES = 40
 
 class BlenderError(RuntimeError):
     """Blender ran but the simulation failed; the message holds the end of its output."""
+
+
+@dataclass(frozen=True)
+class BlenderOptions(EngineOptions):
+    """Options of the Blender engine (``engine_options`` of :func:`~synthpack.physics.pour`).
+
+    Attributes
+    ----------
+    fixed_steps : int or None
+        As in :class:`~synthpack.physics.engine.EngineOptions`, in frames, below
+        :data:`LAST_FRAME`; a batch then counts as settled when all its grains are below
+        the speed thresholds on the last frame.
+    blend_file : str or None
+        Also save the final pack (tube and grains at their final poses, no physics) as
+        this .blend file, to look at in Blender's GUI; its folder must exist.
+
+    See :class:`~synthpack.physics.engine.EngineOptions` for ``max_hull_vertices`` and
+    ``record_snapshots``.
+    """
+
+    fixed_steps: int | None = setting(
+        None, in_range(1, LAST_FRAME - 1),
+        "run every batch for exactly this many frames, without settle detection",
+    )
+    blend_file: str | None = setting(None, None, "also save the final pack as this .blend file")
+
+
+class BlenderEngine(Engine):
+    """Blender's rigid-body simulator, the paper's (section 3.3), in a separate interpreter.
+
+    Each batch spawns at ``(x, y, top + dz)``, falls, settles and is locked (made
+    passive) before the next batch, as in the paper (section 3.3.3). Mass ratios are
+    kept, absolute masses are rescaled (only ratios matter and Blender has a minimum
+    mass). Each grain collides as its convex hull (simplified to ``max_hull_vertices``,
+    :mod:`synthpack.physics.hulls`) grown by ``material.collision_margin``, so touching
+    grains keep a gap of about twice the margin. The tube is a box floor (top face
+    z = 0; grains rest one margin above it) and a triangle-mesh wall (a polygon
+    inscribed in the circle; grains keep two margins from it), raised above
+    ``tube.height`` where a batch spawns higher (so no grain escapes over the rim
+    while it falls). ``material.rolling_friction`` is ignored (Blender has none).
+    Grains never sleep (Blender's default: no deactivation). With ``record_snapshots``
+    the poses are read back from Blender after each batch.
+
+    :meth:`simulate` raises :class:`BlenderError` when Blender fails; the message holds
+    the end of its output.
+    """
+
+    name = "blender"
+    Options = BlenderOptions
+
+    def check(self, material: Material, settle: SettleCriteria, options: EngineOptions) -> None:
+        """The common checks, Blender's collision-margin and frame limits and the .blend file's folder."""
+        super().check(material, settle, options)
+        if not material.collision_margin <= 1:
+            raise SynthpackInputError(
+                "Material.collision_margin must be within [0, 1] simulation units, "
+                f"got {material.collision_margin}."
+            )
+        if options.fixed_steps is None and not settle.max_steps < LAST_FRAME:
+            raise SynthpackInputError(
+                f"SettleCriteria.max_steps must be a whole number within [1, {LAST_FRAME - 1}] "
+                f"(Blender's last frame is {LAST_FRAME}), got {settle.max_steps!r}."
+            )
+        blend_file = options.blend_file
+        if blend_file is not None and not Path(blend_file).absolute().parent.is_dir():
+            raise SynthpackInputError(
+                f"cannot save {blend_file}: its folder does not exist; create it or pick another path."
+            )
+
+    def check_available(self) -> None:
+        """Raise SynthpackInputError, with a setup hint, when no Blender or bpy is found."""
+        require_blender()
+
+    def _simulate(
+        self,
+        bodies: Sequence[Body],
+        tube: TubeSpec,
+        material: Material,
+        settle: SettleCriteria,
+        options: BlenderOptions,
+        progress: ProgressCallback | None,
+    ) -> EngineResult:
+        prefix = require_blender()
+        with tempfile.TemporaryDirectory(prefix="synthpack-blender-") as tmp:
+            directory = Path(tmp)
+            scene = _write_scene(directory, bodies, tube, material, settle, options)
+            result_path = directory / "result.json"
+            _run_blender(_script_command(prefix, scene, result_path), progress)
+            if not result_path.is_file():
+                raise BlenderError(
+                    f"Blender exited without an error but wrote no {result_path.name}: "
+                    f"check that {prefix[0]} runs Python scripts."
+                )
+            result = json.loads(result_path.read_text())
+        logger.info(
+            "Blender %s poured %d grains in %d batches in %.1f s",
+            result["blender_version"],
+            len(bodies),
+            len(result["frames_per_batch"]),
+            result["seconds"],
+        )
+        return _engine_result(result)
 
 
 def _venv_python(venv: Path) -> Path:
@@ -143,9 +248,25 @@ def find_blender() -> list[str] | None:
     return None
 
 
-def blender_available() -> bool:
-    """True when :func:`find_blender` finds a Blender to run (it is not started)."""
-    return find_blender() is not None
+def require_blender() -> list[str]:
+    """The command prefix of :func:`find_blender`.
+
+    Raises
+    ------
+    SynthpackInputError
+        When no Blender or bpy interpreter is found; the message says how to install one.
+    """
+    prefix = find_blender()
+    if prefix is None:
+        configured = os.environ.get(BLENDER_ENV_VAR)
+        found = (
+            f"{BLENDER_ENV_VAR}={configured} is not an executable file."
+            if configured
+            else f"No Blender found: {BLENDER_ENV_VAR} is unset, there is no {LOCAL_VENV}/ in "
+            f"{Path.cwd()} and no `blender` on the PATH."
+        )
+        raise SynthpackInputError(f"The Blender engine needs Blender or bpy. {found} {SETUP_HINT}")
+    return prefix
 
 
 def _script_command(prefix: list[str], scene: Path, result: Path) -> list[str]:
@@ -155,100 +276,20 @@ def _script_command(prefix: list[str], scene: Path, result: Path) -> list[str]:
     return [*prefix, str(SCRIPT), str(scene), str(result)]
 
 
-def _validate(
-    bodies: Sequence[Body],
-    tube: TubeSpec,
-    material: Material,
-    settle: SettleCriteria,
-    max_hull_vertices: int | None,
-    fixed_steps: int | None,
-    blend_file: str | os.PathLike | None,
-) -> None:
-    """Raise SynthpackInputError for input Blender cannot simulate."""
-    if blend_file is not None and not Path(blend_file).absolute().parent.is_dir():
-        raise SynthpackInputError(
-            f"cannot save {blend_file}: its folder does not exist; create it or pick another path."
-        )
-    if len(bodies) == 0:
-        raise SynthpackInputError("simulate() got no bodies: pass at least one Body to pour.")
-    for name in ("inner_radius", "height", "wall_thickness", "base_thickness"):
-        if not getattr(tube, name) > 0:
-            raise SynthpackInputError(
-                f"TubeSpec.{name} must be > 0, got {getattr(tube, name)}; pass a positive size."
-            )
-    for name in ("linear_damping", "angular_damping"):
-        if not 0 <= getattr(material, name) <= 1:
-            raise SynthpackInputError(
-                f"Material.{name} must be within [0, 1] for Blender (a fraction of the "
-                f"velocity lost per second), got {getattr(material, name)}."
-            )
-    if not 0 <= material.collision_margin <= 1:
-        raise SynthpackInputError(
-            "Material.collision_margin must be within [0, 1] simulation units, "
-            f"got {material.collision_margin}."
-        )
-    if not settle.time_step > 0 or settle.substeps < 1:
-        raise SynthpackInputError(
-            "SettleCriteria needs time_step > 0 and substeps >= 1, "
-            f"got {settle.time_step} and {settle.substeps}."
-        )
-    steps = settle.max_steps if fixed_steps is None else fixed_steps
-    if not (isinstance(steps, (int, np.integer)) and 1 <= steps < _LAST_FRAME):
-        name = "SettleCriteria.max_steps" if fixed_steps is None else "fixed_steps"
-        raise SynthpackInputError(
-            f"{name} must be a whole number within [1, {_LAST_FRAME - 1}] (Blender's last "
-            f"frame is {_LAST_FRAME}), got {steps!r}."
-        )
-    if max_hull_vertices is not None and not (
-        isinstance(max_hull_vertices, (int, np.integer)) and max_hull_vertices >= 8
-    ):
-        raise SynthpackInputError(
-            f"max_hull_vertices must be a whole number >= 8 or None, got {max_hull_vertices!r}."
-        )
-    for i, body in enumerate(bodies):
-        vertices = np.asarray(body.vertices)
-        faces = np.asarray(body.faces)
-        if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) < 4:
-            raise SynthpackInputError(
-                f"body {i}: vertices must have shape (V>=4, 3), got {vertices.shape}."
-            )
-        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-            raise SynthpackInputError(
-                f"body {i}: faces must have shape (F>0, 3), got {faces.shape}."
-            )
-        if not body.mass > 0:
-            raise SynthpackInputError(f"body {i}: mass must be > 0, got {body.mass}.")
-
-
-def _collision_hull(
-    vertices: np.ndarray, faces: np.ndarray, max_vertices: int | None
-) -> trimesh.Trimesh:
-    """Convex hull of a grain, simplified by quadric decimation to at most ``max_vertices``."""
-    hull = trimesh.Trimesh(vertices, faces, process=False).convex_hull
-    if max_vertices is None or len(hull.vertices) <= max_vertices:
-        return hull
-    # A closed triangulated convex polyhedron with V vertices has 2 V - 4 faces.
-    return hull.simplify_quadric_decimation(face_count=2 * max_vertices - 4).convex_hull
-
-
 def _write_scene(
     directory: Path,
     bodies: Sequence[Body],
     tube: TubeSpec,
     material: Material,
     settle: SettleCriteria,
-    options: dict,
+    options: BlenderOptions,
 ) -> Path:
-    """Write scene.json and one npz mesh file per body into ``directory``.
-
-    ``options`` holds ``max_hull_vertices``, ``fixed_steps``, ``record_snapshots`` and
-    ``blend_file`` of :func:`simulate`.
-    """
-    blend = options["blend_file"]
+    """Write scene.json and one npz mesh file per body into ``directory``."""
+    blend = options.blend_file
     specs = []
     for i, body in enumerate(bodies):
         vertices = np.asarray(body.vertices, dtype=np.float64)
-        hull = _collision_hull(vertices, np.asarray(body.faces), options["max_hull_vertices"])
+        hull = simplify_hull(convex_hull(vertices), options.max_hull_vertices)
         name = f"body_{i:06d}.npz"
         np.savez(
             directory / name,
@@ -291,8 +332,8 @@ def _write_scene(
             "min_steps": settle.min_steps,
         },
         "solver_iterations": SOLVER_ITERATIONS,
-        "fixed_steps": options["fixed_steps"],
-        "record_snapshots": options["record_snapshots"],
+        "fixed_steps": options.fixed_steps,
+        "record_snapshots": options.record_snapshots,
         "blend_file": None if blend is None else str(Path(blend).absolute()),
         "bodies": specs,
     }
@@ -351,111 +392,8 @@ def _run_blender(command: list[str], progress: ProgressCallback | None) -> None:
         )
 
 
-def simulate(
-    bodies: Sequence[Body],
-    tube: TubeSpec,
-    material: Material,
-    settle: SettleCriteria,
-    progress: ProgressCallback | None = None,
-    *,
-    max_hull_vertices: int | None = MAX_HULL_VERTICES,
-    fixed_steps: int | None = None,
-    record_snapshots: bool = False,
-    blend_file: str | os.PathLike | None = None,
-) -> EngineResult:
-    """Pour ``bodies`` batch by batch into the tube with Blender's rigid-body simulator.
-
-    Each batch spawns at ``(x, y, top + dz)``, falls, settles and is locked (made
-    passive) before the next batch, as in the paper (section 3.3.3). Everything is in
-    simulation units. Mass ratios are kept, absolute masses are rescaled (only ratios
-    matter and Blender has a minimum mass). Each grain collides as its convex hull
-    (simplified to ``max_hull_vertices``) grown by ``material.collision_margin``, so
-    touching grains keep a gap of about twice the margin. The tube is a box floor (top
-    face z = 0; grains rest one margin above it) and a triangle-mesh wall (a polygon
-    inscribed in the circle; grains keep two margins from it), raised above
-    ``tube.height`` where a batch spawns higher (so no grain escapes over the rim while
-    it falls).
-    ``material.rolling_friction`` is ignored (Blender has none). Grains never sleep
-    (Blender's default: no deactivation).
-
-    Parameters
-    ----------
-    bodies : sequence of Body
-        The grains (particle-local meshes, masses, centres of mass, spawn poses, batches).
-    tube : TubeSpec
-        The closed-bottom tube, axis along z, inner floor at z = 0.
-    material : Material
-        Friction, restitution, damping (each within [0, 1]) and collision margin.
-    settle : SettleCriteria
-        Time step and substeps per frame, rest thresholds, step limits per batch.
-    progress : callable, optional
-        ``progress(batch_index, n_batches)``, called after each batch is locked.
-    max_hull_vertices : int or None
-        Simplify collision hulls to at most this many vertices (>= 8) by quadric
-        decimation; None keeps the full hulls. Contact cost grows with the hull's
-        vertex count.
-    fixed_steps : int, optional
-        Run every batch for exactly this many frames, with no settle detection (the
-        paper's fixed-frame schedule); a batch then counts as settled when all its
-        grains are below the speed thresholds on the last frame. None: detect settling.
-    record_snapshots : bool
-        Also return, after each batch, the poses of all grains placed so far, read back
-        from Blender (``EngineResult.snapshots``), to check that locked grains stay put.
-    blend_file : str or os.PathLike, optional
-        Also save the final pack (tube and grains at their final poses, no physics) as
-        this .blend file, to look at in Blender's GUI.
-
-    Returns
-    -------
-    EngineResult
-        Positions (N, 3) of each body's local origin and quaternions (N, 4) (w, x, y, z),
-        local -> world, in the order of ``bodies``; steps (frames) and settled flag per
-        batch; with ``record_snapshots``, for each batch k the poses of the bodies of
-        batches 0..k (in the order of ``bodies``) once batch k had settled.
-
-    Raises
-    ------
-    SynthpackInputError
-        For invalid input, or when no Blender / bpy interpreter is found (the message
-        says how to install one).
-    BlenderError
-        When Blender fails; the message holds the end of its output.
-    """
-    _validate(bodies, tube, material, settle, max_hull_vertices, fixed_steps, blend_file)
-    prefix = find_blender()
-    if prefix is None:
-        configured = os.environ.get(BLENDER_ENV_VAR)
-        found = (
-            f"{BLENDER_ENV_VAR}={configured} is not an executable file."
-            if configured
-            else f"No Blender found: {BLENDER_ENV_VAR} is unset, there is no {LOCAL_VENV}/ in "
-            f"{Path.cwd()} and no `blender` on the PATH."
-        )
-        raise SynthpackInputError(f"The Blender engine needs Blender or bpy. {found} {SETUP_HINT}")
-    with tempfile.TemporaryDirectory(prefix="synthpack-blender-") as tmp:
-        directory = Path(tmp)
-        options = {
-            "max_hull_vertices": max_hull_vertices,
-            "fixed_steps": None if fixed_steps is None else int(fixed_steps),
-            "record_snapshots": bool(record_snapshots),
-            "blend_file": blend_file,
-        }
-        scene = _write_scene(directory, bodies, tube, material, settle, options)
-        result_path = directory / "result.json"
-        _run_blender(_script_command(prefix, scene, result_path), progress)
-        if not result_path.is_file():
-            raise BlenderError(
-                f"Blender exited without an error but wrote no {result_path.name}: "
-                f"check that {prefix[0]} runs Python scripts."
-            )
-        result = json.loads(result_path.read_text())
-    logger.info(
-        "Blender %s poured %d grains in %d batches in %.1f s",
-        result["blender_version"],
-        len(bodies),
-        len(result["frames_per_batch"]),
-        result["seconds"],
-    )
+def _engine_result(result: dict) -> EngineResult:
+    """The EngineResult of the script's result.json."""
     snapshots = None
     if result["snapshots"] is not None:
         snapshots = [

@@ -2,8 +2,9 @@
 
 This file runs INSIDE a Blender Python interpreter (``bpy``), never inside synthpack:
 it imports only the standard library, ``bpy`` and ``numpy`` (both ship with
-Blender). :mod:`synthpack.physics.blender_engine` writes its input and
-starts it in a subprocess, either as::
+Blender), and loads synthpack's NumPy-only ``burial.py`` from this folder by file path
+(no synthpack package is imported). :mod:`synthpack.physics.blender_engine` writes its
+input and starts it in a subprocess, either as::
 
     PYTHON_WITH_BPY blender_script.py SCENE_JSON RESULT_JSON
     blender --background --factory-startup --python blender_script.py -- SCENE_JSON RESULT_JSON
@@ -43,7 +44,8 @@ Method, batch by batch (batches in increasing order, as in the paper's section 3
 3. The batch is LOCKED: each grain becomes a PASSIVE rigid body at its settled pose,
    with the same convex-hull collision shape; Blender never moves a passive body.
    Locked grains buried too deep for any later grain to reach are then deleted (see
-   :func:`retire_buried`): Blender's cost per frame grows with the number of objects.
+   :func:`retire_buried`, the rule of ``burial.py`` that the pybullet engine uses too):
+   Blender's cost per frame grows with the number of objects.
 
 The tube is a PASSIVE box floor and a PASSIVE triangle-mesh wall; the wall is raised
 above ``height`` when a batch spawns higher, so no grain escapes over the rim while it
@@ -70,6 +72,7 @@ Blender version; the run time in seconds. Each batch prints one line
 ``BATCH k/n frames=F settled=0|1 seconds=S locked_in_scene=L`` to stdout.
 """
 
+import importlib.util
 import json
 import math
 import os
@@ -86,6 +89,18 @@ except ImportError:
     sys.exit(NO_BPY_EXIT_CODE)
 
 import numpy as np
+
+
+def load_burial():
+    """synthpack's ``burial.py`` (next to this file), loaded by path without the synthpack package."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "burial.py")
+    spec = importlib.util.spec_from_file_location("synthpack_burial", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+burial = load_burial()
 
 TUBE_CHORD_TOLERANCE = 0.002
 """Largest gap (simulation units) between the tube's polygonal inner wall and the circle."""
@@ -388,16 +403,11 @@ def lock_batch(grains):
 
 
 def retire_buried(locked, radius, largest):
-    """Delete locked grains buried too deep for any later grain to touch them.
+    """Delete the locked grains that ``burial.buried`` says no later grain can reach.
 
-    The pack's surface is sampled on a square grid of one-unit (about one grain)
-    columns inside the tube: each column's height is the highest locked hull vertex in
-    it (a column without any counts as the floor). A locked grain whose top lies more
-    than two of the largest grain diameters (``largest``) below the LOWEST column is
-    covered everywhere by a thick layer of locked grains, so no later grain can reach
-    it; its object is deleted (its final pose is already recorded). This keeps the
-    number of objects, and with it Blender's cost per frame, bounded as the pack grows
-    (the same rule as the pybullet engine's).
+    Their final poses are already recorded. This keeps the number of objects, and with
+    it Blender's cost per frame, bounded as the pack grows (the pybullet engine uses
+    the same rule).
 
     Parameters
     ----------
@@ -408,29 +418,13 @@ def retire_buried(locked, radius, largest):
     largest : float
         Largest grain diameter.
     """
-    half = int(math.ceil(radius))
-    centres = np.arange(-half, half) + 0.5
-    cx, cy = np.meshgrid(centres, centres, indexing="ij")
-    inside = np.hypot(cx, cy) <= radius - 0.5
-    if not locked or not inside.any():
-        return
-    hulls = [g.world_hull() for g in locked]
-    points = np.concatenate(hulls)
-    ix = np.clip(np.floor(points[:, 0]).astype(np.int64) + half, 0, 2 * half - 1)
-    iy = np.clip(np.floor(points[:, 1]).astype(np.int64) + half, 0, 2 * half - 1)
-    heights = np.zeros(cx.shape)
-    np.maximum.at(heights, (ix, iy), points[:, 2])
-    cut = float(heights[inside].min()) - 2 * largest
-    keep = []
-    for grain, hull in zip(locked, hulls):
-        if hull[:, 2].max() < cut:
-            mesh = grain.obj.data
-            bpy.data.objects.remove(grain.obj, do_unlink=True)
-            bpy.data.meshes.remove(mesh)
-            grain.obj = None
-        else:
-            keep.append(grain)
-    locked[:] = keep
+    gone = burial.buried([g.world_hull() for g in locked], radius, largest)
+    for grain in (g for g, out in zip(locked, gone) if out):
+        mesh = grain.obj.data
+        bpy.data.objects.remove(grain.obj, do_unlink=True)
+        bpy.data.meshes.remove(mesh)
+        grain.obj = None
+    locked[:] = [g for g, out in zip(locked, gone) if not out]
 
 
 def save_blend(path, grains, tube_objects):
@@ -468,7 +462,7 @@ def run(scene_path, result_path):
     floor = build_floor(spec["tube"], material)
     wall = build_wall(spec["tube"], material, wall_top)
 
-    largest = 2 * max(float(np.linalg.norm(g.vertices, axis=1).max()) for g in grains)
+    largest = burial.largest_diameter(g.vertices for g in grains)
     top = 0.0
     frames, settled, locked, placed, snapshots = [], [], [], [], []
     for k, batch_id in enumerate(batch_ids):

@@ -235,22 +235,17 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) 
 
 def _max_hull_penetration(world: list[np.ndarray], length_scale: float) -> float:
     """Largest penetration depth between the convex hulls of the placed grains."""
-    from ._bullet import connect
-    from ._bullet import pybullet as p
+    from ._bullet import Client
 
-    client = connect()
-    try:
+    with Client() as client:
         for vertices in world:
             hull = vertices[ConvexHull(vertices).vertices] / length_scale
-            shape = p.createCollisionShape(p.GEOM_MESH, vertices=hull.tolist(),
-                                           physicsClientId=client)
-            body = p.createMultiBody(1.0, shape, useMaximalCoordinates=True, physicsClientId=client)
-            p.changeDynamics(body, -1, collisionMargin=_QUERY_MARGIN, physicsClientId=client)
-        p.performCollisionDetection(physicsClientId=client)
-        contacts = p.getContactPoints(physicsClientId=client)
+            shape = client.createCollisionShape(client.GEOM_MESH, vertices=hull.tolist())
+            body = client.createMultiBody(1.0, shape, useMaximalCoordinates=True)
+            client.changeDynamics(body, -1, collisionMargin=_QUERY_MARGIN)
+        client.performCollisionDetection()
+        contacts = client.getContactPoints()
         depth = max((-c[8] - 2 * _QUERY_MARGIN for c in contacts), default=0.0)
-    finally:
-        p.disconnect(physicsClientId=client)
     return max(depth, 0.0) * length_scale
 
 
