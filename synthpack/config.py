@@ -13,9 +13,10 @@ optional and falls back to the default shown by ``synthpack generate
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.LibraryConfig`,
 :class:`~synthpack.physics.PourConfig` and
-:class:`~synthpack.reconstruct.ReconstructConfig`. Unknown keys, wrong types and
-out-of-range values raise :class:`~synthpack.errors.SynthpackInputError` naming
-the key.
+:class:`~synthpack.reconstruct.ReconstructConfig`. What each ``postprocess`` value
+means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`. Unknown
+keys, wrong types and out-of-range values raise
+:class:`~synthpack.errors.SynthpackInputError` naming the key.
 """
 
 from __future__ import annotations
@@ -29,9 +30,11 @@ from typing import Any
 import yaml
 
 from ._schema import build, non_negative, setting
+from .artefacts import from_config
 from .errors import SynthpackInputError
 from .library import LibraryConfig
 from .physics.config import PourConfig
+from .postprocess import POSTPROCESS_MODES
 from .reconstruct import ReconstructConfig
 
 __all__ = [
@@ -39,19 +42,13 @@ __all__ = [
     "LibraryConfig",
     "PourConfig",
     "ReconstructConfig",
-    "POSTPROCESS_MODES",
     "load_config",
 ]
-
-#: The named post-processing recipes; a list of artefact transforms is the alternative.
-POSTPROCESS_MODES = ("default", "none", "match_source", "calibrated")
 
 
 def _valid_postprocess(value: str | list) -> bool:
     """'default', 'none', 'match_source', 'calibrated' or a valid list of artefact transforms"""
     if isinstance(value, list):
-        from .artefacts import from_config
-
         from_config(value)  # a bad pipeline raises with the transform's own message
         return True
     return value in POSTPROCESS_MODES

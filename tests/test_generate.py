@@ -33,8 +33,8 @@ def test_voxel_counts_match_the_source_particles(small_pack, large_library):
 def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
     clean, tomogram, labels = small_pack.clean, small_pack.tomogram, small_pack.labels
     grains = labels > 0
-    pore = large_library.phases["pore_mean"]
-    assert np.median(clean[grains]) > pore + 0.5 * (large_library.phases["grain_mean"] - pore)
+    pore, contrast = large_library.statistics.pore_mean, large_library.statistics.contrast
+    assert np.median(clean[grains]) > pore + 0.5 * contrast
     assert not np.array_equal(clean, tomogram)  # post-processing applied
     assert small_pack.manifest["postprocessing"]  # and recorded
     # the tube wall is brighter than the pores in the clean volume, at the outer radius
@@ -45,7 +45,7 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
     x = grid.origin[2] + np.arange(labels.shape[2]) * grid.voxel_size[2]
     radius = np.hypot(*np.meshgrid(y, x, indexing="ij"))
     wall = (radius > tube.inner_radius + 5) & (radius < tube.outer_radius - 5)
-    assert clean[z0][wall].mean() > pore + 0.2 * (large_library.phases["grain_mean"] - pore)
+    assert clean[z0][wall].mean() > pore + 0.2 * contrast
 
 
 def test_same_seed_same_pack(small_pack, large_library):
