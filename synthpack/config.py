@@ -7,13 +7,14 @@ optional and falls back to the default shown by ``synthpack generate
     seed: 0
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
-    reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256]}
+    reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {sigma: 0.8, tile: 64}}
     postprocess: default          # or none, match_source, calibrated, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.LibraryConfig`,
 :class:`~synthpack.physics.PourConfig` and
-:class:`~synthpack.reconstruct.ReconstructConfig`. What each ``postprocess`` value
+:class:`~synthpack.reconstruct.ReconstructConfig` (with its sub-section
+:class:`~synthpack.pore_texture.PoreTexture`). What each ``postprocess`` value
 means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`. Unknown
 keys, wrong types and out-of-range values raise
 :class:`~synthpack.errors.SynthpackInputError` naming the key.

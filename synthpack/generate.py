@@ -151,8 +151,8 @@ def build_pack(
         seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
-        pour_checks=dataclasses.asdict(placements.checks), postprocessing=applied, timings=timings,
-        **postprocessing.record,
+        pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        postprocessing=applied, timings=timings, **postprocessing.record,
     )
     return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
 
@@ -167,11 +167,12 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 
 @dataclass(frozen=True)
 class _Render:
-    """What the render made: clean volume and labels on their grid, and the contested voxels."""
+    """What the render made: clean volume and labels on their grid, the background drawn, contested voxels."""
 
     grid: Grid
     clean: Any
     labels: Any
+    background: Background
     contested: int
 
 
@@ -199,13 +200,14 @@ def _render(
                          library.voxel_size, margin=config.margin)
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid)
+    background = Background.from_source(library.statistics, config)
     clean, labels, contested = reconstruct(
-        [(p.tomogram, p.mask) for p in library], maps, grid, Background.from_source(library.statistics, config),
+        [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
     )
-    return _Render(grid, clean, labels, contested)
+    return _Render(grid, clean, labels, background, contested)
 
 
 def _postprocess(

@@ -18,10 +18,9 @@ derived from the source scan's statistics in one place, `Background.from_source`
 
 from __future__ import annotations
 
-import functools
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -29,6 +28,7 @@ from scipy import ndimage
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from ._schema import finite, non_negative, one_of, setting
 from .errors import SynthpackInputError
+from .pore_texture import PoreTexture
 from .source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)
@@ -44,10 +44,6 @@ __all__ = [
     "render_chunk",
 ]
 
-#: Correlation length (Gaussian sigma, voxels) of the pore texture: CT noise is not
-#: white after reconstruction and detector blur.
-_TEXTURE_SIGMA = 0.8
-_TEXTURE_TILE = 64  # period of the pore texture, voxels
 #: Default wall intensity, as a fraction of the way from pore to grain level (a plastic tube).
 WALL_FRACTION = 0.4
 
@@ -62,7 +58,10 @@ def _chunk_shape(value: list) -> bool:
 
 @dataclass(frozen=True)
 class ReconstructConfig:
-    """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults."""
+    """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults.
+
+    ``pore_texture`` is a sub-section: the settings of the pore texture (`PoreTexture`).
+    """
 
     order: int = setting(1, one_of((0, 1, 3)), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
     wall: bool = setting(True, None, "draw the tube wall")
@@ -71,6 +70,7 @@ class ReconstructConfig:
     chunks: list = setting([64, 256, 256], _chunk_shape,
                            "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
                            "(and the shards of Zarr packs)")
+    pore_texture: PoreTexture = field(default_factory=PoreTexture)
 
 
 @dataclass(frozen=True)
@@ -130,15 +130,17 @@ class Background:
     pore_mean : float
         Pore level: the space between grains.
     pore_std : float
-        Amplitude of the pore texture added to it (0: flat pores): white noise of
-        this standard deviation, correlated over about one voxel.
+        Amplitude of the pore texture added to it (0: flat pores).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
+    texture : PoreTexture
+        Correlation length and period of the pore texture.
     """
 
     pore_mean: float
     pore_std: float = 0.0
     wall: float | None = None
+    texture: PoreTexture = PoreTexture()
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
@@ -150,7 +152,11 @@ class Background:
         """
         wall = config.wall_intensity if config.wall_intensity is not None else (
             statistics.pore_mean + WALL_FRACTION * statistics.contrast)
-        return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None)
+        return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture)
+
+    def texture_record(self, seed: int) -> dict:
+        """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
+        return self.texture.record(self.pore_std, seed)
 
 
 @dataclass(frozen=True)
@@ -254,31 +260,6 @@ def _surface_voxels(mask: np.ndarray) -> np.ndarray:
     return np.argwhere(surface).astype(float)
 
 
-@functools.lru_cache(maxsize=8)
-def _texture_tile(seed: int) -> np.ndarray:
-    """A periodic cube of unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA`.
-
-    White noise from ``seed``, smoothed with wrap-around boundaries, so copies of
-    the cube tile space seamlessly. Read-only; shape ``(_TEXTURE_TILE,) * 3``.
-    """
-    white = np.random.default_rng([seed, 0x7E47]).standard_normal((_TEXTURE_TILE,) * 3)
-    smooth = ndimage.gaussian_filter(white, _TEXTURE_SIGMA, mode="wrap")
-    tile = ((smooth - smooth.mean()) / smooth.std()).astype(np.float32)
-    tile.flags.writeable = False
-    return tile
-
-
-def _pore_texture(lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
-    """The pore texture over the global index box ``[lo, hi)``, float32, unit variance.
-
-    The texture repeats every `_TEXTURE_TILE` voxels (far beyond its correlation
-    length, so the repetition is invisible) and is a pure function of the global
-    voxel index: the same voxel gets the same value whatever box it is rendered in.
-    """
-    wrapped = (np.arange(a, b) % _TEXTURE_TILE for a, b in zip(lo, hi))
-    return _texture_tile(seed)[np.ix_(*wrapped)]
-
-
 def _background(
     grid: Grid, lo: np.ndarray, hi: np.ndarray, background: Background, tube: tuple[float, float, float] | None,
     seed: int,
@@ -286,7 +267,7 @@ def _background(
     """The background over the box ``[lo, hi)``: pore level + amplitude x pore texture, then the wall."""
     values = np.full(tuple(hi - lo), background.pore_mean, dtype=np.float32)
     if background.pore_std > 0:
-        values += np.float32(background.pore_std) * _pore_texture(lo, hi, seed)
+        values += np.float32(background.pore_std) * background.texture.sample(lo, hi, seed)
     if tube is not None and background.wall is not None:
         inner, outer, base = tube
         index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]

@@ -48,6 +48,18 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
     assert clean[z0][wall].mean() > pore + 0.2 * contrast
 
 
+def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
+    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == {"sigma": 0.8, "tile": 64}
+    assert small_pack.manifest["pore_texture"] == {
+        "sigma": 0.8, "tile": 64, "amplitude": large_library.statistics.pore_std, "seed": 11}
+    smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"sigma": 1.5}}), seed=11,
+                          progress=False)
+    assert smoother.manifest["pore_texture"]["sigma"] == 1.5
+    np.testing.assert_array_equal(smoother.labels, small_pack.labels)
+    pores = small_pack.labels == 0
+    assert not np.array_equal(smoother.clean[pores], small_pack.clean[pores])
+
+
 def test_same_seed_same_pack(small_pack, large_library):
     again = build_pack(large_library, SMALL, seed=11, progress=False)
     np.testing.assert_array_equal(again.labels, small_pack.labels)

@@ -3,6 +3,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
+from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
 from synthpack.source import SourceStatistics
 
@@ -138,9 +139,32 @@ def test_bad_settings_are_rejected(particle):
         _render([particle], [0], [np.eye(3)], [[15, 12, 10]], chunks=(0, 4, 4))
 
 
+def _pore_texture_autocorrelation(texture: PoreTexture) -> tuple[np.ndarray, float]:
+    """The texture of an empty 64^3 grid (seed 3), and its correlation between neighbouring voxels along x."""
+    grid = Grid((64, 64, 64), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
+    out, _, _ = reconstruct([], maps, grid, Background(0.0, 1.0, texture=texture), seed=3)
+    return out, float(np.corrcoef(out[..., :-1].ravel(), out[..., 1:].ravel())[0, 1])
+
+
+def test_pore_texture_settings_shape_the_texture():
+    default, correlation = _pore_texture_autocorrelation(PoreTexture())
+    assert default.std() == pytest.approx(1.0, rel=1e-3)  # unit variance times the amplitude
+    assert correlation == pytest.approx(np.exp(-1 / (4 * 0.8**2)), abs=0.05)  # Gaussian smoothing, sigma 0.8
+    _, white = _pore_texture_autocorrelation(PoreTexture(sigma=0.0))
+    assert abs(white) < 0.02
+    _, smoother = _pore_texture_autocorrelation(PoreTexture(sigma=2.0))
+    assert smoother > correlation
+    short, _ = _pore_texture_autocorrelation(PoreTexture(tile=16))
+    np.testing.assert_array_equal(short[:16, :16, :16], short[16:32, 32:48, 48:64])  # period 16
+    assert not np.array_equal(default[:16, :16, :16], default[16:32, 32:48, 48:64])
+
+
 def test_background_from_source_statistics():
     statistics = SourceStatistics(pore_mean=0.2, pore_std=0.03, grain_mean=0.7, noise_std=0.05)
-    background = Background.from_source(statistics, ReconstructConfig())
-    assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5)
+    texture = PoreTexture(sigma=1.2, tile=32)
+    background = Background.from_source(statistics, ReconstructConfig(pore_texture=texture))
+    assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)
     assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9
     assert Background.from_source(statistics, ReconstructConfig(wall=False)).wall is None
+    assert background.texture_record(seed=5) == {"sigma": 1.2, "tile": 32, "amplitude": 0.03, "seed": 5}
