@@ -50,10 +50,9 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from synthpack.config import ReconstructConfig
-from synthpack.generate import pack_phases
 from synthpack.library import ParticleLibrary
 from synthpack.physics import Placements, pour
-from synthpack.reconstruct import Grid, Phases, pose_maps, reconstruct
+from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
 from synthpack.samples import sample_scan
 
 SUPERSAMPLE = 4
@@ -163,8 +162,8 @@ def per_grain_dice(labels: np.ndarray, references: list[tuple[tuple, np.ndarray]
 # -- target 1 ----------------------------------------------------------------------
 
 
-def _phases(library: ParticleLibrary, wall: bool = True) -> Phases:
-    return pack_phases(library, ReconstructConfig(wall=wall))
+def _background(library: ParticleLibrary, wall: bool = True) -> Background:
+    return Background.from_source(library.statistics, ReconstructConfig(wall=wall))
 
 
 def ours(library: ParticleLibrary, placements: Placements, grid: Grid, order: int,
@@ -173,9 +172,9 @@ def ours(library: ParticleLibrary, placements: Placements, grid: Grid, order: in
     tube = placements.tube
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid)
-    phases = _phases(library) if texture_and_wall else Phases(library.phases["pore_mean"])
+    background = _background(library) if texture_and_wall else Background(library.statistics.pore_mean)
     clean, labels, contested = reconstruct(
-        [(p.tomogram, p.mask) for p in library], maps, grid, phases,
+        [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness), order=order, seed=seed,
         chunks=(64, 256, 256),
     )
@@ -257,7 +256,7 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
     box_voxels = np.prod(maps.box_hi - maps.box_lo, axis=1).mean()
     grain_voxels = np.mean([library[int(i)].voxel_count for i in placements.indices])
     start = time.perf_counter()
-    paper_tomogram, paper_labels = paper_reconstruct(library, placements, grid, library.phases["pore_mean"])
+    paper_tomogram, paper_labels = paper_reconstruct(library, placements, grid, library.statistics.pore_mean)
     timings["paper method (3 x ndimage.rotate, cubic)"] = time.perf_counter() - start
     del paper_tomogram
 
@@ -380,12 +379,12 @@ def memory_child(workdir: Path) -> None:
     grid = Grid(tuple(int(n) for n in data["grid_shape"]), tuple(data["grid_origin"]), tuple(data["voxel_size"]))
     crops = [(p.tomogram, p.mask) for p in library]
     masks = [p.mask for p in library]
-    phases = _phases(library)
+    background = _background(library)
     tube = tuple(float(v) for v in data["tube"])
     baseline_rss, baseline_hwm = _rss_kib()
     start = time.perf_counter()
     maps = pose_maps(masks, data["indices"], data["rotations"], data["positions"], data["scales"], grid)
-    tomogram, labels, contested = reconstruct(crops, maps, grid, phases, tube=tube, order=1, seed=0,
+    tomogram, labels, contested = reconstruct(crops, maps, grid, background, tube=tube, order=1, seed=0,
                                               chunks=(64, 256, 256))
     seconds = time.perf_counter() - start
     _, peak_hwm = _rss_kib()

@@ -7,15 +7,17 @@ optional and falls back to the default shown by ``synthpack generate
     seed: 0
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
-    reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256]}
+    reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {sigma: 0.8, tile: 64}}
     postprocess: default          # or none, match_source, calibrated, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.LibraryConfig`,
 :class:`~synthpack.physics.PourConfig` and
-:class:`~synthpack.reconstruct.ReconstructConfig`. Unknown keys, wrong types and
-out-of-range values raise :class:`~synthpack.errors.SynthpackInputError` naming
-the key.
+:class:`~synthpack.reconstruct.ReconstructConfig` (with its sub-section
+:class:`~synthpack.pore_texture.PoreTexture`). What each ``postprocess`` value
+means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`. Unknown
+keys, wrong types and out-of-range values raise
+:class:`~synthpack.errors.SynthpackInputError` naming the key.
 """
 
 from __future__ import annotations
@@ -29,9 +31,11 @@ from typing import Any
 import yaml
 
 from ._schema import build, non_negative, setting
+from .artefacts import from_config
 from .errors import SynthpackInputError
 from .library import LibraryConfig
 from .physics.config import PourConfig
+from .postprocess import POSTPROCESS_MODES
 from .reconstruct import ReconstructConfig
 
 __all__ = [
@@ -39,19 +43,13 @@ __all__ = [
     "LibraryConfig",
     "PourConfig",
     "ReconstructConfig",
-    "POSTPROCESS_MODES",
     "load_config",
 ]
-
-#: The named post-processing recipes; a list of artefact transforms is the alternative.
-POSTPROCESS_MODES = ("default", "none", "match_source", "calibrated")
 
 
 def _valid_postprocess(value: str | list) -> bool:
     """'default', 'none', 'match_source', 'calibrated' or a valid list of artefact transforms"""
     if isinstance(value, list):
-        from .artefacts import from_config
-
         from_config(value)  # a bad pipeline raises with the transform's own message
         return True
     return value in POSTPROCESS_MODES

@@ -6,41 +6,33 @@ import dataclasses
 import functools
 import importlib.metadata
 import logging
-import math
 import os
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from . import __version__
 from ._chunks import bounded_map, chunk_boxes, thread_count
+from .artefacts.blockwise import apply_blockwise
 from .config import PackConfig, ReconstructConfig
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
 from .pack import is_complete_pack, stage_pack
 from .physics import Placements, Tube, pour
 from .physics.engine import Material
-from .reconstruct import Grid, Phases, pose_maps, reconstruct
+from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
+from .reconstruct import Background, Grid, pose_maps, reconstruct
 from .runner import run_packs
-
-if TYPE_CHECKING:
-    from .realism.calibrate import Calibration
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_phases", "pack_seed", "pack_name",
-]
-
-#: Wall intensity as a fraction of the way from pore to grain intensity (a plastic tube).
-_WALL_FRACTION = 0.4
-#: ``match_source`` measures the clean pack's noise on at most about this many central voxels.
-_NOISE_SAMPLE_VOXELS = 1 << 24
+__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name"]
 
 #: ``allocate(name, shape, dtype, chunks) -> array``: where `build_pack` writes a volume.
 Allocate = Callable[[str, tuple[int, int, int], Any, tuple[int, int, int]], Any]
@@ -92,63 +84,6 @@ def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
     )
 
 
-def pack_phases(library: ParticleLibrary, config: ReconstructConfig) -> Phases:
-    """Pore and tube-wall intensities of a pack, from the library's source-scan statistics.
-
-    The wall defaults to 40% of the way from pore to grain intensity (a plastic tube)
-    unless ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
-    """
-    phases = library.phases
-    wall = config.wall_intensity if config.wall_intensity is not None else (
-        phases["pore_mean"] + _WALL_FRACTION * (phases["grain_mean"] - phases["pore_mean"]))
-    return Phases(phases["pore_mean"], phases["pore_std"], wall if config.wall else None)
-
-
-def _postprocessing(config: PackConfig, phases: dict[str, float], clean, labels):
-    from .artefacts import Compose, default_postprocessing, estimate_noise, from_config, noise_to_add
-
-    choice = config.postprocess
-    if choice == "default":
-        return default_postprocessing(contrast=phases["grain_mean"] - phases["pore_mean"])
-    if choice == "match_source":
-        window = _central_slab(labels.shape)
-        return Compose([noise_to_add(phases["noise_std"], estimate_noise(clean[window], labels[window])["std"])])
-    if choice in ("none", []):
-        return Compose([])
-    return from_config(list(choice))
-
-
-def _calibration(
-    clean: np.ndarray, labels: np.ndarray, grid: Grid, placements: Placements, targets: dict[str, float]
-) -> Calibration:
-    """Blur and noise fitted in the pack's bulk region to the source's edge width and noise level."""
-    from .realism.calibrate import calibrate
-    from .realism.region import bulk_region
-
-    region = bulk_region(labels.shape, grid.origin, grid.voxel_size, placements.checks.packing_region)
-    return calibrate(clean, labels, region, **targets)
-
-
-def _central_slab(shape: tuple[int, ...], max_voxels: int = _NOISE_SAMPLE_VOXELS) -> tuple[slice, ...]:
-    """The central slices of a volume of `shape` holding at most about `max_voxels` voxels (at least one slice)."""
-    n = min(shape[0], max(1, max_voxels // math.prod(shape[1:])))
-    start = (shape[0] - n) // 2
-    return (slice(start, start + n), slice(None), slice(None))
-
-
-def _labels_present(labels, n_labels: int, chunks: tuple[int, int, int], threads: int | None) -> np.ndarray:
-    """Which of the labels ``0..n_labels`` occur in `labels`, read chunk by chunk: bool, (n_labels + 1,)."""
-    present = np.zeros(n_labels + 1, dtype=bool)
-
-    def found(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        lo, hi = box
-        return np.unique(labels[tuple(slice(a, b) for a, b in zip(lo, hi))])
-
-    for _, values in bounded_map(found, chunk_boxes(tuple(labels.shape), chunks), thread_count(threads)):
-        present[values] = True
-    return present
-
-
 def _derived_seed(seed: int, stream: int) -> int:
     """A 32-bit seed for stream `stream` of `seed` (pack `stream` of a run, or a pack's post-processing)."""
     return int(np.random.SeedSequence([int(seed), int(stream)]).generate_state(1, np.uint32)[0])
@@ -178,14 +113,14 @@ def build_pack(
     Parameters
     ----------
     library : ParticleLibrary
-        The grains.
+        The grains, and the statistics of their source scan.
     config : PackConfig
-        Pour, reconstruction and post-processing settings. With ``postprocess:
-        calibrated`` the blur and noise are fitted to the source scan
-        (`synthpack.realism.calibrate`) and the fit is recorded in the manifest
-        under ``calibration``.
+        Pour, reconstruction and post-processing settings. The post-processing is
+        resolved by `synthpack.postprocess.resolve_postprocessing`; with
+        ``postprocess: calibrated`` the blur and noise are fitted to the source
+        scan and the fit is recorded in the manifest under ``calibration``.
     seed : int
-        Seed of this pack (pour and artefacts).
+        Seed of this pack (pour, pore texture and artefacts).
     progress : bool
         Show progress bars.
     threads : int, optional
@@ -197,16 +132,52 @@ def build_pack(
         (float32), e.g. Zarr arrays (`synthpack.pack.StagedPack.zarr_array`).
         Default: NumPy arrays.
     """
-    targets = None
-    if config.postprocess == "calibrated":
-        from .realism.calibrate import targets_from_phases
-
-        targets = targets_from_phases(library.phases)  # fails before the pour if the library lacks them
-    from .artefacts.blockwise import apply_blockwise
-
+    check_postprocess(config.postprocess, library.statistics)  # fail before the pour, not after it
     allocate = allocate or _numpy_volume
+    chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
+    with _timed(timings, "pour"):
+        placements = _pour(library, config, seed, progress)
+    with _timed(timings, "reconstruct"):
+        render = _render(library, placements, config.reconstruct, seed, threads, allocate)
+    with _timed(timings, "postprocess"):
+        postprocessing = resolve_postprocessing(
+            config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
+            grid=render.grid, packing_region=placements.checks.packing_region,
+        )
+        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks)
+    grid = render.grid
+    manifest = dict(
+        seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
+        n_labels=_grains_present(render.labels, len(placements), chunks, threads),
+        contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
+        pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        postprocessing=applied, timings=timings, **postprocessing.record,
+    )
+    return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
+
+
+@contextmanager
+def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
+    """Record the wall time of the ``with`` block as ``timings[step]``, seconds."""
     start = time.perf_counter()
+    yield
+    timings[step] = time.perf_counter() - start
+
+
+@dataclass(frozen=True)
+class _Render:
+    """What the render made: clean volume and labels on their grid, the background drawn, contested voxels."""
+
+    grid: Grid
+    clean: Any
+    labels: Any
+    background: Background
+    contested: int
+
+
+def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: bool) -> Placements:
+    """The pour (paper 3.3) of ``config.pour`` with `seed`."""
     pour_config = config.pour
     scale = pour_config.scale if isinstance(pour_config.scale, (int, float)) else tuple(pour_config.scale)
     placements = pour(
@@ -215,52 +186,58 @@ def build_pack(
         material=Material(friction=pour_config.friction, restitution=pour_config.restitution),
         progress=progress, engine_options=pour_config.engine_options,
     )
-    timings["pour"] = time.perf_counter() - start
+    return placements
 
-    start = time.perf_counter()
+
+def _render(
+    library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
+    threads: int | None, allocate: Allocate,
+) -> _Render:
+    """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays."""
     tube = placements.tube
-    rec = config.reconstruct
-    chunks = tuple(rec.chunks)
+    chunks = tuple(config.chunks)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, placements.checks.fill_height,
-                         library.voxel_size, margin=rec.margin)
+                         library.voxel_size, margin=config.margin)
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid)
+    background = Background.from_source(library.statistics, config)
     clean, labels, contested = reconstruct(
-        [(p.tomogram, p.mask) for p in library], maps, grid, pack_phases(library, rec),
+        [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
-        order=rec.order, seed=seed, chunks=chunks, workers=threads,
+        order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
     )
-    timings["reconstruct"] = time.perf_counter() - start
+    return _Render(grid, clean, labels, background, contested)
 
-    start = time.perf_counter()
-    calibration = None
-    if targets is not None:
-        calibration = _calibration(clean, labels, grid, placements, targets)
-        postprocessing = calibration.pipeline()
-    else:
-        postprocessing = _postprocessing(config, library.phases, clean, labels)
-    tomogram = allocate("tomogram", grid.shape, np.float32, chunks)
+
+def _postprocess(
+    postprocessing: Postprocessing, render: _Render, seed: int, threads: int | None, allocate: Allocate,
+    chunks: tuple[int, int, int],
+) -> tuple[Any, list[dict]]:
+    """The post-processed tomogram, chunk by chunk into `allocate`'s array, and the record of what was applied."""
+    shape = render.grid.shape
+    tomogram = allocate("tomogram", shape, np.float32, chunks)
     applied = apply_blockwise(
-        postprocessing, clean, tomogram, _derived_seed(seed, 1), chunks, threads=threads,
-        scratch=lambda: allocate("scratch", grid.shape, np.float32, chunks),
+        postprocessing.pipeline, render.clean, tomogram, _derived_seed(seed, 1), chunks, threads=threads,
+        scratch=lambda: allocate("scratch", shape, np.float32, chunks),
     )
-    timings["postprocess"] = time.perf_counter() - start
+    return tomogram, applied
 
-    n_present = int(np.count_nonzero(_labels_present(labels, len(placements), chunks, threads)[1:]))
-    if n_present < len(placements):
-        logger.warning("%d of %d placed grains have no voxel in the volume",
-                       len(placements) - n_present, len(placements))
-    manifest = dict(
-        seed=seed, config=config.to_dict(), library_source=library.source,
-        n_particles=len(placements), n_labels=n_present, contested_voxels=contested,
-        shape=list(grid.shape), grid_origin=list(grid.origin),
-        pour_checks=dataclasses.asdict(placements.checks),
-        postprocessing=applied, timings=timings,
-    )
-    if calibration is not None:
-        manifest["calibration"] = calibration.to_dict()
-    return SyntheticPack(tomogram, clean, labels, placements, grid, manifest)
+
+def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads: int | None) -> int:
+    """How many of the labels ``1..n_placed`` occur in `labels`, read chunk by chunk (warns if not all)."""
+    present = np.zeros(n_placed + 1, dtype=bool)
+
+    def found(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        lo, hi = box
+        return np.unique(labels[tuple(slice(a, b) for a, b in zip(lo, hi))])
+
+    for _, values in bounded_map(found, chunk_boxes(tuple(labels.shape), chunks), thread_count(threads)):
+        present[values] = True
+    n_present = int(np.count_nonzero(present[1:]))
+    if n_present < n_placed:
+        logger.warning("%d of %d placed grains have no voxel in the volume", n_placed - n_present, n_placed)
+    return n_present
 
 
 def _versions() -> dict[str, str]:

@@ -7,8 +7,8 @@ import json
 import logging
 import os
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,13 +16,12 @@ import trimesh
 from tqdm.auto import tqdm
 
 from ._atomic import Output, atomic_directory
-from .artefacts import estimate_noise
-from .errors import SynthpackInputError
 from ._schema import in_range, positive, setting
+from .errors import SynthpackInputError
 from .meshing import mesh_from_mask
-from .particles import Particle, ParticleCrop, estimate_phases, extract_particles
-from .realism.edges import volume_edge_width
+from .particles import Particle, ParticleCrop, extract_particles
 from .scan import Scan
+from .source.statistics import SourceStatistics, measure_source
 
 logger = logging.getLogger(__name__)
 
@@ -43,10 +42,13 @@ class LibraryConfig:
     density: float = setting(2.65, positive, "grain density for masses (paper eq. 1)")
     target_faces: int = setting(500, in_range(8, float("inf")), "faces per mesh after decimation")
 
+
 _FORMAT = "synthpack-particle-library"
 #: A library folder; an earlier one (``library.json``) is replaced, anything else is refused.
 LIBRARY_OUTPUT = Output("particle library", marker="library.json")
+#: Raised whenever what a library holds on disk changes; a library of another version must be rebuilt.
 _FORMAT_VERSION = 1
+_REBUILD = "rebuild it with `synthpack library build`"
 _TABLE_COLUMNS = (
     "index", "label", "z0", "y0", "x0", "z1", "y1", "x1", "voxel_count",
     "equivalent_diameter", "touches_border", "volume", "mass", "faces",
@@ -91,12 +93,9 @@ class ParticleLibrary(Sequence[Particle]):
         Length unit.
     density : float
         Grain density used for the particles' masses.
-    phases : dict
-        Intensity statistics of the source scan: ``pore_mean`` (the value outside
-        each particle's mask in its clean crop), ``pore_std`` and ``grain_mean``
-        (see :func:`~synthpack.particles.estimate_phases`), ``noise_std``
-        (see :func:`~synthpack.artefacts.estimate_noise`) and, where it could be measured,
-        ``edge_width`` (see :func:`~synthpack.realism.edges.volume_edge_width`).
+    statistics : SourceStatistics
+        What was measured of the source scan (its pore level is the value outside
+        each particle's mask in its clean crop).
     source_shape : tuple of 3 int
         Shape ``(Z, Y, X)`` of the source scan.
     source : str
@@ -112,7 +111,7 @@ class ParticleLibrary(Sequence[Particle]):
         voxel_size: tuple[float, float, float],
         unit: str,
         density: float,
-        phases: dict[str, float],
+        statistics: SourceStatistics,
         source_shape: tuple[int, int, int],
         source: str = "",
         settings: dict | None = None,
@@ -121,7 +120,7 @@ class ParticleLibrary(Sequence[Particle]):
         self.voxel_size = tuple(float(v) for v in voxel_size)
         self.unit = unit
         self.density = float(density)
-        self.phases = {key: float(value) for key, value in phases.items()}
+        self.statistics = statistics
         self.source_shape = tuple(int(n) for n in source_shape)
         self.source = source
         self.settings = dict(settings or {})
@@ -172,15 +171,10 @@ class ParticleLibrary(Sequence[Particle]):
         if workers < 1:
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")
         measured = scan if exclude_slices is None else _without_slices(scan, exclude_slices, axis)
-        phases = dict(estimate_phases(measured), noise_std=estimate_noise(measured.tomogram, measured.labels)["std"])
-        try:
-            phases["edge_width"] = volume_edge_width(measured.tomogram, measured.labels)
-        except SynthpackInputError as error:
-            logger.warning("the source's edge width cannot be measured (%s): 'postprocess: calibrated' "
-                           "will not be available", error)
+        statistics = measure_source(measured)
         crops = extract_particles(
             scan, min_voxels=min_voxels, include_border=include_border,
-            background=phases["pore_mean"],
+            background=statistics.pore_mean,
         )
         if exclude_slices is not None:
             start, stop = exclude_slices
@@ -206,7 +200,7 @@ class ParticleLibrary(Sequence[Particle]):
             settings.update(exclude_slices=[int(v) for v in exclude_slices], exclude_axis=axis)
         return cls(
             particles, voxel_size=scan.voxel_size, unit=scan.unit, density=density,
-            phases=phases, source_shape=scan.shape, source=scan.source, settings=settings,
+            statistics=statistics, source_shape=scan.shape, source=scan.source, settings=settings,
         )
 
     # -- sequence protocol ----------------------------------------------------------
@@ -227,11 +221,6 @@ class ParticleLibrary(Sequence[Particle]):
             f"ParticleLibrary({len(self)} particles, d_eq {d.min():.4g}-{d.max():.4g} "
             f"{self.unit}, voxel_size={self.voxel_size}, source={self.source!r})"
         )
-
-    @property
-    def background(self) -> float:
-        """Pore intensity of the source scan: the value outside each clean crop's mask."""
-        return self.phases["pore_mean"]
 
     # -- sieving (paper section 3: particles are sifted by size) --------------------
     @property
@@ -286,7 +275,7 @@ class ParticleLibrary(Sequence[Particle]):
     def _subset(self, particles: list[Particle]) -> ParticleLibrary:
         return ParticleLibrary(
             particles, voxel_size=self.voxel_size, unit=self.unit, density=self.density,
-            phases=self.phases, source_shape=self.source_shape, source=self.source,
+            statistics=self.statistics, source_shape=self.source_shape, source=self.source,
             settings=self.settings,
         )
 
@@ -298,7 +287,8 @@ class ParticleLibrary(Sequence[Particle]):
         refused (:class:`~synthpack.errors.SynthpackInputError`) unless `overwrite`,
         which writes the library's files into it and keeps its other files.
 
-        Layout: ``library.json`` (metadata and per-particle table),
+        Layout: ``library.json`` (metadata, the source statistics under
+        ``phases`` and the per-particle table),
         ``particles.csv`` (the same table for spreadsheets), ``crops.npz``
         (``tomogram_<i>`` float32 and ``mask_<i>`` bool arrays) and ``meshes.npz``
         (``vertices_<i>`` and ``faces_<i>``).
@@ -306,7 +296,7 @@ class ParticleLibrary(Sequence[Particle]):
         rows = [self._row(i, p) for i, p in enumerate(self.particles)]
         meta = dict(
             format=_FORMAT, version=_FORMAT_VERSION, voxel_size=self.voxel_size,
-            unit=self.unit, density=self.density, phases=self.phases,
+            unit=self.unit, density=self.density, phases=self.statistics.to_dict(),
             source_shape=self.source_shape, source=self.source, settings=self.settings,
             particles=rows,
         )
@@ -343,18 +333,26 @@ class ParticleLibrary(Sequence[Particle]):
         Raises
         ------
         SynthpackInputError
-            If the directory is missing, incomplete or corrupt.
+            If the directory is missing, incomplete or corrupt, or holds a library
+            of another format version (from an older or newer synthpack).
         """
         directory = Path(directory)
-        hint = "rebuild it with `synthpack library build`"
         missing = [n for n in ("library.json", "crops.npz", "meshes.npz") if not (directory / n).is_file()]
         if not directory.is_dir() or missing:
             what = "does not exist" if not directory.is_dir() else f"lacks {', '.join(missing)}"
-            raise SynthpackInputError(f"particle library {directory} {what}: {hint}")
+            raise SynthpackInputError(f"particle library {directory} {what}: {_REBUILD}")
         try:
             meta = json.loads((directory / "library.json").read_text())
             if meta.get("format") != _FORMAT:
                 raise ValueError("not a synthpack particle library")
+        except Exception as error:  # any parse error means a corrupt library
+            raise _corrupt(directory, error) from error
+        if meta.get("version") != _FORMAT_VERSION:
+            raise SynthpackInputError(
+                f"particle library {directory} has format version {meta.get('version')!r}, but this "
+                f"synthpack reads version {_FORMAT_VERSION}: {_REBUILD}"
+            )
+        try:
             voxel_size = tuple(meta["voxel_size"])
             particles = []
             with np.load(directory / "crops.npz") as crops, np.load(directory / "meshes.npz") as meshes:
@@ -368,14 +366,18 @@ class ParticleLibrary(Sequence[Particle]):
                     ))
             return cls(
                 particles, voxel_size=voxel_size, unit=meta["unit"], density=meta["density"],
-                phases=meta["phases"], source_shape=tuple(meta["source_shape"]),
+                statistics=SourceStatistics.from_dict(meta["phases"]), source_shape=tuple(meta["source_shape"]),
                 source=meta.get("source", ""), settings=meta.get("settings", {}),
             )
-        except Exception as error:  # any parse, key, shape or zip error means a corrupt library
-            raise SynthpackInputError(
-                f"particle library {directory} is corrupt or from an older synthpack "
-                f"({type(error).__name__}: {error}): {hint}"
-            ) from error
+        except Exception as error:  # any key, shape or zip error means a corrupt library
+            raise _corrupt(directory, error) from error
+
+
+def _corrupt(directory: Path, error: Exception) -> SynthpackInputError:
+    return SynthpackInputError(
+        f"particle library {directory} is corrupt or from an older synthpack "
+        f"({type(error).__name__}: {error}): {_REBUILD}"
+    )
 
 
 def _meshed(crop: ParticleCrop, mesh: trimesh.Trimesh, density: float) -> Particle:

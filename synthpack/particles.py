@@ -17,10 +17,12 @@ from scipy import ndimage
 
 from .errors import SynthpackInputError
 from .scan import Scan
+from .source.phases import estimate_phases
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Particle", "ParticleCrop", "equivalent_diameter", "extract_particles", "estimate_phases"]
+__all__ = ["Particle", "ParticleCrop", "equivalent_diameter", "extract_particles"]
+
 
 def equivalent_diameter(volume: float | np.ndarray) -> float | np.ndarray:
     """Diameter of the sphere of `volume` (cubic physical units), in physical units."""
@@ -114,49 +116,6 @@ class Particle(ParticleCrop):
         )
 
 
-#: Pore voxels this close to a grain (in voxels) are left out of the pore statistics.
-PORE_INTERIOR_DEPTH = 2
-
-
-def estimate_phases(scan: Scan, max_samples: int = 2_000_000) -> dict[str, float]:
-    """Intensity statistics of the pore (label 0) and grain phases of `scan`.
-
-    Parameters
-    ----------
-    scan : Scan
-        The source scan.
-    max_samples : int
-        The volume is subsampled with a regular stride so that at most about this
-        many voxels are read.
-
-    Returns
-    -------
-    dict
-        ``pore_mean`` (the median pore intensity: the background value of the
-        clean crops), ``pore_std`` (robust standard deviation, 1.4826 x the median
-        absolute deviation) and ``grain_mean`` (median grain intensity), in the
-        tomogram's units. The pore statistics come from the pore interior: pore
-        voxels at least `PORE_INTERIOR_DEPTH` voxels (of the subsampled grid) from
-        any grain, because the pore voxels along grain boundaries are brightened by
-        the scanner's blur (partial volume), which the pack's blur adds back. With
-        too thin pores all pore voxels are used; with fewer than 0.1% pore voxels
-        the pore values fall back to the 1st intensity percentile and 0.
-    """
-    stride = max(1, int(np.ceil((scan.labels.size / max_samples) ** (1.0 / 3.0))))
-    tomo = scan.tomogram[::stride, ::stride, ::stride].astype(np.float64)
-    pores = scan.labels[::stride, ::stride, ::stride] == 0
-    grain_mean = float(np.median(tomo[~pores])) if (~pores).any() else float(np.median(tomo))
-    minimum = 0.001 * pores.size
-    if np.count_nonzero(pores) < minimum:
-        logger.warning("almost no background voxels: using the 1st intensity percentile")
-        return dict(pore_mean=float(np.percentile(tomo, 1)), pore_std=0.0, grain_mean=grain_mean)
-    interior = ndimage.binary_erosion(pores, iterations=PORE_INTERIOR_DEPTH, border_value=1)
-    values = tomo[interior] if np.count_nonzero(interior) >= minimum else tomo[pores]
-    median = float(np.median(values))
-    spread = 1.4826 * float(np.median(np.abs(values - median)))
-    return dict(pore_mean=median, pore_std=spread, grain_mean=grain_mean)
-
-
 def _largest_component(mask: np.ndarray) -> tuple[np.ndarray, bool]:
     components, n = ndimage.label(mask)
     if n <= 1:
@@ -187,7 +146,7 @@ def extract_particles(
         cut by the field of view; excluded by default).
     background : float, optional
         Value written outside each particle's mask in its clean crop. Default: the
-        pore intensity from :func:`estimate_phases`.
+        pore level of :func:`~synthpack.source.phases.estimate_phases`.
 
     Returns
     -------
@@ -198,7 +157,7 @@ def extract_particles(
     if min_voxels < 1:
         raise SynthpackInputError(f"min_voxels must be at least 1, got {min_voxels}")
     if background is None:
-        background = estimate_phases(scan)["pore_mean"]
+        background = estimate_phases(scan).pore_mean
     labels, tomogram, shape = scan.labels, scan.tomogram, scan.shape
     boxes = ndimage.find_objects(labels)
     crops: list[ParticleCrop] = []

@@ -11,16 +11,16 @@ the particle is cut.
 The output is rendered chunk by chunk: each chunk renders the particles whose
 boxes intersect it, so memory stays bounded by the output arrays plus one chunk's
 work, no two workers write the same voxel, and nothing copies the whole volume per
-particle. The pore (background) texture and the tube wall are functions of the
-global voxel position, so the result does not depend on the chunking.
+particle. The background (pore level, pore texture, tube wall) is a function of
+the global voxel position, so the result does not depend on the chunking. It is
+derived from the source scan's statistics in one place, `Background.from_source`.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -28,25 +28,24 @@ from scipy import ndimage
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from ._schema import finite, non_negative, one_of, setting
 from .errors import SynthpackInputError
+from .pore_texture import PoreTexture
+from .source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "Background",
     "Grid",
     "ReconstructConfig",
     "PoseMaps",
-    "Phases",
     "pose_maps",
     "reconstruct",
     "prepare_crops",
     "render_chunk",
-    "chunk_boxes",
 ]
 
-#: Correlation length (Gaussian sigma, voxels) of the pore texture: CT noise is not
-#: white after reconstruction and detector blur.
-_TEXTURE_SIGMA = 0.8
-_TEXTURE_TILE = 64  # period of the pore texture, voxels
+#: Default wall intensity, as a fraction of the way from pore to grain level (a plastic tube).
+WALL_FRACTION = 0.4
 
 # (x, y, z) <-> (z, y, x): the permutation matrix is its own inverse.
 _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -59,7 +58,10 @@ def _chunk_shape(value: list) -> bool:
 
 @dataclass(frozen=True)
 class ReconstructConfig:
-    """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults."""
+    """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults.
+
+    ``pore_texture`` is a sub-section: the settings of the pore texture (`PoreTexture`).
+    """
 
     order: int = setting(1, one_of((0, 1, 3)), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
     wall: bool = setting(True, None, "draw the tube wall")
@@ -68,6 +70,7 @@ class ReconstructConfig:
     chunks: list = setting([64, 256, 256], _chunk_shape,
                            "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
                            "(and the shards of Zarr packs)")
+    pore_texture: PoreTexture = field(default_factory=PoreTexture)
 
 
 @dataclass(frozen=True)
@@ -117,29 +120,43 @@ class Grid:
         origin = (z_min - margin * dz, -(ny // 2) * dy, -(nx // 2) * dx)
         return cls((nz, ny, nx), origin, tuple(voxel_size))
 
-    def world_zyx(self, index: np.ndarray) -> np.ndarray:
-        """World ``(z, y, x)`` of voxel indices, shape (..., 3)."""
-        return np.asarray(self.origin) + np.asarray(index) * np.asarray(self.voxel_size)
-
 
 @dataclass(frozen=True)
-class Phases:
-    """Intensities of the non-particle phases, in the tomogram's units.
+class Background:
+    """What the render draws where no grain is, in the tomogram's intensity units.
 
     Attributes
     ----------
-    pore_mean, pore_std : float
-        Mean and standard deviation of the pore phase of the source scan. The
-        space between grains is filled with this mean plus white noise of this
-        standard deviation, correlated over about one voxel (the pore texture of
-        a CT scan).
+    pore_mean : float
+        Pore level: the space between grains.
+    pore_std : float
+        Amplitude of the pore texture added to it (0: flat pores).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
+    texture : PoreTexture
+        Correlation length and period of the pore texture.
     """
 
     pore_mean: float
     pore_std: float = 0.0
     wall: float | None = None
+    texture: PoreTexture = PoreTexture()
+
+    @classmethod
+    def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
+        """The background of a pack of grains from a source scan: the one place it is derived.
+
+        Pore level and texture amplitude are the source's pore level and spread.
+        The wall is `WALL_FRACTION` of the way from pore to grain level unless
+        ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
+        """
+        wall = config.wall_intensity if config.wall_intensity is not None else (
+            statistics.pore_mean + WALL_FRACTION * statistics.contrast)
+        return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture)
+
+    def texture_record(self, seed: int) -> dict:
+        """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
+        return self.texture.record(self.pore_std, seed)
 
 
 @dataclass(frozen=True)
@@ -243,44 +260,21 @@ def _surface_voxels(mask: np.ndarray) -> np.ndarray:
     return np.argwhere(surface).astype(float)
 
 
-@functools.lru_cache(maxsize=8)
-def _texture_tile(seed: int) -> np.ndarray:
-    """A periodic cube of unit-variance noise with a Gaussian correlation of `_TEXTURE_SIGMA`.
-
-    White noise from ``seed``, smoothed with wrap-around boundaries, so copies of
-    the cube tile space seamlessly. Read-only; shape ``(_TEXTURE_TILE,) * 3``.
-    """
-    white = np.random.default_rng([seed, 0x7E47]).standard_normal((_TEXTURE_TILE,) * 3)
-    smooth = ndimage.gaussian_filter(white, _TEXTURE_SIGMA, mode="wrap")
-    tile = ((smooth - smooth.mean()) / smooth.std()).astype(np.float32)
-    tile.flags.writeable = False
-    return tile
-
-
-def _pore_texture(lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
-    """The pore texture over the global index box ``[lo, hi)``, float32, unit variance.
-
-    The texture repeats every `_TEXTURE_TILE` voxels (far beyond its correlation
-    length, so the repetition is invisible) and is a pure function of the global
-    voxel index: the same voxel gets the same value whatever box it is rendered in.
-    """
-    wrapped = (np.arange(a, b) % _TEXTURE_TILE for a, b in zip(lo, hi))
-    return _texture_tile(seed)[np.ix_(*wrapped)]
-
-
 def _background(
-    grid: Grid, lo: np.ndarray, hi: np.ndarray, phases: Phases, tube: tuple[float, float, float] | None, seed: int
+    grid: Grid, lo: np.ndarray, hi: np.ndarray, background: Background, tube: tuple[float, float, float] | None,
+    seed: int,
 ) -> np.ndarray:
-    values = np.full(tuple(hi - lo), phases.pore_mean, dtype=np.float32)
-    if phases.pore_std > 0:
-        values += np.float32(phases.pore_std) * _pore_texture(lo, hi, seed)
-    if tube is not None and phases.wall is not None:
+    """The background over the box ``[lo, hi)``: pore level + amplitude x pore texture, then the wall."""
+    values = np.full(tuple(hi - lo), background.pore_mean, dtype=np.float32)
+    if background.pore_std > 0:
+        values += np.float32(background.pore_std) * background.texture.sample(lo, hi, seed)
+    if tube is not None and background.wall is not None:
         inner, outer, base = tube
         index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
         z, y, x = (grid.origin[a] + index[a] * grid.voxel_size[a] for a in range(3))
         radius = np.sqrt(x**2 + y**2)
         in_wall = (radius <= outer) & (z >= base) & ((radius >= inner) | (z < 0))
-        values[np.broadcast_to(in_wall, values.shape)] += np.float32(phases.wall - phases.pore_mean)
+        values[np.broadcast_to(in_wall, values.shape)] += np.float32(background.wall - background.pore_mean)
     return values
 
 
@@ -305,7 +299,7 @@ def render_chunk(
     grid: Grid,
     lo: np.ndarray,
     hi: np.ndarray,
-    phases: Phases,
+    background: Background,
     *,
     tube: tuple[float, float, float] | None = None,
     order: int = 1,
@@ -323,8 +317,8 @@ def render_chunk(
         Output grid.
     lo, hi : ndarray of int, shape (3,)
         Half-open box in output voxel indices.
-    phases : Phases
-        Pore and wall intensities.
+    background : Background
+        Pore level, pore texture and wall intensity.
     tube : (inner_radius, outer_radius, base_z) or None
         Tube wall geometry in physical units (None: no wall).
     order : int
@@ -344,7 +338,7 @@ def render_chunk(
         Number of voxels claimed by more than one particle.
     """
     shape = tuple(int(n) for n in hi - lo)
-    tomogram = _background(grid, lo, hi, phases, tube, seed)
+    tomogram = _background(grid, lo, hi, background, tube, seed)
     labels = np.zeros(shape, dtype=np.int32)
     claim = np.zeros(shape, dtype=np.float32)
     contested = 0
@@ -380,7 +374,7 @@ def reconstruct(
     crops: Sequence[tuple[np.ndarray, np.ndarray]],
     maps: PoseMaps,
     grid: Grid,
-    phases: Phases,
+    background: Background,
     *,
     tube: tuple[float, float, float] | None = None,
     order: int = 1,
@@ -399,7 +393,7 @@ def reconstruct(
     ----------
     crops : sequence of (tomogram, mask)
         Clean crop (float32) and mask (bool) of every library particle.
-    maps, grid, phases, tube, order, seed
+    maps, grid, background, tube, order, seed
         As in :func:`render_chunk`.
     chunks : tuple of 3 int
         Chunk shape in voxels.
@@ -430,7 +424,7 @@ def reconstruct(
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
-        return render_chunk(prepared, maps, grid, lo, hi, phases, tube=tube, order=order, seed=seed)
+        return render_chunk(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed)
 
     for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
         render, chunk_boxes(grid.shape, chunks), workers

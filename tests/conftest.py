@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from synthpack.library import ParticleLibrary
 from synthpack.samples import sample_scan
@@ -33,3 +34,15 @@ def blob_scan() -> Scan:
     labels[0:6, 30:40, 0:8] = 4  # touches three faces of the volume
     tomogram = np.where(labels > 0, 0.8, 0.2).astype(np.float32) + labels * 0.01
     return Scan(tomogram, labels, voxel_size=(2.0, 1.0, 1.0), unit="um", source="blobs")
+
+
+@pytest.fixture(scope="session")
+def phantom() -> tuple[np.ndarray, np.ndarray]:
+    """A smooth 32x64x64 phantom (float32) and its labels: blurred balls on a sloping, rippled background."""
+    z, y, x = np.mgrid[:32, :64, :64]
+    labels = np.zeros((32, 64, 64), dtype=np.int32)
+    for label, (cz, cy, cx, r) in enumerate([(16, 20, 20, 10), (16, 44, 44, 12), (10, 20, 48, 8)], 1):
+        labels[(z - cz) ** 2 + (y - cy) ** 2 + (x - cx) ** 2 <= r * r] = label
+    clean = ndimage.gaussian_filter(np.where(labels > 0, 0.8, 0.2), 1.0)
+    clean = clean + 0.05 * np.sin(x / 9.0) + 0.03 * y / 64
+    return clean.astype(np.float32), labels

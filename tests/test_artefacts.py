@@ -1,5 +1,5 @@
 """Tests of synthpack.artefacts: noise statistics, blur, radial artefacts, CT simulation,
-noise estimation, seeding, records and configs."""
+noise matching, seeding, records and configs."""
 
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ from synthpack.artefacts import (
     SpeckleNoise,
     available_transforms,
     default_postprocessing,
-    estimate_noise,
     from_config,
     line_kernel,
-    matched_noise,
+    noise_to_add,
 )
 from synthpack.errors import SynthpackInputError
+from synthpack.source import estimate_noise
 
 SHAPE = (16, 64, 64)
 
@@ -265,52 +265,19 @@ def test_ct_simulation_on_a_2d_slice() -> None:
     assert out[14:26, 16:40].mean() == pytest.approx(1.0, rel=0.05)
 
 
-# --- noise estimation -------------------------------------------------------------------
+# --- noise matching ---------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def phantom() -> tuple[np.ndarray, np.ndarray]:
-    """A smooth 32x64x64 phantom: blurred balls on a sloping, rippled background."""
-    z, y, x = np.mgrid[:32, :64, :64]
-    labels = np.zeros((32, 64, 64), dtype=np.int32)
-    for label, (cz, cy, cx, r) in enumerate([(16, 20, 20, 10), (16, 44, 44, 12), (10, 20, 48, 8)], 1):
-        labels[(z - cz) ** 2 + (y - cy) ** 2 + (x - cx) ** 2 <= r * r] = label
-    clean = ndimage.gaussian_filter(np.where(labels > 0, 0.8, 0.2), 1.0)
-    clean = clean + 0.05 * np.sin(x / 9.0) + 0.03 * y / 64
-    return clean.astype(np.float32), labels
-
-
-@pytest.mark.parametrize("std", [0.01, 0.05])
-def test_estimate_noise_recovers_added_noise(phantom: tuple[np.ndarray, np.ndarray], std: float) -> None:
+def test_noise_to_add_brings_clean_volume_to_source_level(phantom: tuple[np.ndarray, np.ndarray]) -> None:
     clean, labels = phantom
-    estimate = estimate_noise(GaussianNoise(std=std)(clean, 0), labels)
-    assert estimate["std"] == pytest.approx(std, rel=0.1)
-    assert estimate["grain_std"] == pytest.approx(std, rel=0.1)
-    assert estimate["pore_std"] == pytest.approx(std, rel=0.1)
-    assert estimate["n_grain"] > 1000 and estimate["n_pore"] > 1000
-    assert estimate_noise(clean, labels)["std"] < 0.1 * 0.01  # the smooth structure is ignored
-
-
-def test_matched_noise_brings_clean_volume_to_source_level(phantom: tuple[np.ndarray, np.ndarray]) -> None:
-    clean, labels = phantom
-    source = GaussianNoise(std=0.05)(clean, 1)
+    source = estimate_noise(GaussianNoise(std=0.05)(clean, 1), labels).std
     synthetic = GaussianNoise(std=0.03)(clean, 2)
-    transform = matched_noise(source, labels, synthetic, labels)
+    transform = noise_to_add(source, estimate_noise(synthetic, labels).std)
     assert isinstance(transform, GaussianNoise)
     assert transform.std == pytest.approx(0.04, rel=0.1)  # sqrt(0.05^2 - 0.03^2)
-    matched = estimate_noise(transform(synthetic, 3), labels)["std"]
+    matched = estimate_noise(transform(synthetic, 3), labels).std
     assert matched == pytest.approx(0.05, rel=0.1)
-    assert matched_noise(synthetic, labels, source, labels).std == 0.0
-
-
-def test_estimate_noise_input_errors(phantom: tuple[np.ndarray, np.ndarray]) -> None:
-    clean, labels = phantom
-    with pytest.raises(SynthpackInputError, match="shape"):
-        estimate_noise(clean, labels[:-1])
-    with pytest.raises(SynthpackInputError, match="integers"):
-        estimate_noise(clean, labels.astype(float))
-    with pytest.raises(SynthpackInputError, match="lower margin"):
-        estimate_noise(clean[:4, :8, :8], labels[:4, :8, :8])
+    assert noise_to_add(0.03, 0.05).std == 0.0  # already noisier: nothing added
 
 
 # --- configs ----------------------------------------------------------------------------

@@ -21,6 +21,13 @@ def test_replace_merges_sections():
     assert config.pour.engine == "pybullet"
 
 
+def test_pore_texture_is_a_sub_section_of_reconstruct():
+    assert PackConfig().to_dict()["reconstruct"]["pore_texture"] == {"sigma": 0.8, "tile": 64}
+    config = PackConfig().replace(reconstruct={"pore_texture": {"sigma": 1.5}})
+    assert (config.reconstruct.pore_texture.sigma, config.reconstruct.pore_texture.tile) == (1.5, 64)
+    assert PackConfig.from_dict(config.to_dict()) == config
+
+
 @pytest.mark.parametrize(
     "data, phrase",
     [
@@ -41,6 +48,9 @@ def test_replace_merges_sections():
         ({"pour": {"engine_options": None}}, "'pour.engine_options' has the wrong type"),
         ({"pour": {"restitution": 1.5}}, "'pour.restitution' is out of range"),
         ({"reconstruct": {"chunks": [64, 0, 64]}}, "'reconstruct.chunks' is out of range"),
+        ({"reconstruct": {"pore_texture": {"sigma": -0.5}}}, "'reconstruct.pore_texture.sigma' is out of range"),
+        ({"reconstruct": {"pore_texture": {"tile": 6.5}}}, "'reconstruct.pore_texture.tile' has the wrong type"),
+        ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
         ({"pour": 3}, "must be a mapping"),
     ],
 )

@@ -33,8 +33,8 @@ def test_voxel_counts_match_the_source_particles(small_pack, large_library):
 def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
     clean, tomogram, labels = small_pack.clean, small_pack.tomogram, small_pack.labels
     grains = labels > 0
-    pore = large_library.phases["pore_mean"]
-    assert np.median(clean[grains]) > pore + 0.5 * (large_library.phases["grain_mean"] - pore)
+    pore, contrast = large_library.statistics.pore_mean, large_library.statistics.contrast
+    assert np.median(clean[grains]) > pore + 0.5 * contrast
     assert not np.array_equal(clean, tomogram)  # post-processing applied
     assert small_pack.manifest["postprocessing"]  # and recorded
     # the tube wall is brighter than the pores in the clean volume, at the outer radius
@@ -45,7 +45,19 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
     x = grid.origin[2] + np.arange(labels.shape[2]) * grid.voxel_size[2]
     radius = np.hypot(*np.meshgrid(y, x, indexing="ij"))
     wall = (radius > tube.inner_radius + 5) & (radius < tube.outer_radius - 5)
-    assert clean[z0][wall].mean() > pore + 0.2 * (large_library.phases["grain_mean"] - pore)
+    assert clean[z0][wall].mean() > pore + 0.2 * contrast
+
+
+def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
+    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == {"sigma": 0.8, "tile": 64}
+    assert small_pack.manifest["pore_texture"] == {
+        "sigma": 0.8, "tile": 64, "amplitude": large_library.statistics.pore_std, "seed": 11}
+    smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"sigma": 1.5}}), seed=11,
+                          progress=False)
+    assert smoother.manifest["pore_texture"]["sigma"] == 1.5
+    np.testing.assert_array_equal(smoother.labels, small_pack.labels)
+    pores = small_pack.labels == 0
+    assert not np.array_equal(smoother.clean[pores], small_pack.clean[pores])
 
 
 def test_same_seed_same_pack(small_pack, large_library):

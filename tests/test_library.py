@@ -5,8 +5,8 @@ import pytest
 
 from synthpack.errors import SynthpackInputError
 from synthpack.library import ParticleLibrary
-from synthpack.particles import estimate_phases
 from synthpack.scan import Scan
+from synthpack.source import estimate_phases
 from synthpack.split import central_block
 
 
@@ -20,7 +20,7 @@ def test_library_of_sample_has_meshed_particles(large_library, large_scan):
         # the mesh encloses about the mask's volume (voxel count x voxel volume)
         assert particle.volume == pytest.approx(particle.voxel_count * 1000.0, rel=0.1)
     # the pore intensity of the sample is below the grains'
-    assert large_library.background < np.median(large_scan.tomogram[large_scan.labels > 0])
+    assert large_library.statistics.pore_mean < np.median(large_scan.tomogram[large_scan.labels > 0])
 
 
 def test_save_load_round_trip(large_library, tmp_path):
@@ -28,7 +28,7 @@ def test_save_load_round_trip(large_library, tmp_path):
     loaded = ParticleLibrary.load(out)
     assert len(loaded) == len(large_library)
     assert loaded.voxel_size == large_library.voxel_size
-    assert loaded.background == large_library.background
+    assert loaded.statistics == large_library.statistics
     for a, b in zip(large_library, loaded):
         assert (a.label, a.bbox, a.touches_border) == (b.label, b.bbox, b.touches_border)
         np.testing.assert_array_equal(a.mask, b.mask)
@@ -96,6 +96,29 @@ def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
         ParticleLibrary.load(out)
 
 
+@pytest.mark.parametrize("version", [None, 0, 2, "1"])
+def test_library_of_another_format_version_says_to_rebuild(large_library, tmp_path, version):
+    out = large_library[:3].save(tmp_path / "lib")
+    meta = json.loads((out / "library.json").read_text())
+    assert meta["version"] == 1
+    if version is None:
+        del meta["version"]
+    else:
+        meta["version"] = version
+    (out / "library.json").write_text(json.dumps(meta))
+    with pytest.raises(SynthpackInputError, match=f"format version {version!r}, but this synthpack reads "
+                                                  "version 1: rebuild it with `synthpack library build`"):
+        ParticleLibrary.load(out)
+
+
+def test_library_stores_its_source_statistics_under_phases(large_library, tmp_path):
+    out = large_library.save(tmp_path / "lib")
+    meta = json.loads((out / "library.json").read_text())
+    assert meta["phases"] == large_library.statistics.to_dict()
+    assert list(meta["phases"]) == ["pore_mean", "pore_std", "grain_mean", "noise_std", "edge_width"]
+    assert large_library[:2].statistics is large_library.statistics
+
+
 def test_bad_arguments(large_scan):
     with pytest.raises(SynthpackInputError, match="density"):
         ParticleLibrary.from_scan(large_scan, density=0)
@@ -119,7 +142,7 @@ def test_exclude_slices_keeps_the_test_block_out_of_the_library(large_scan, axis
     kept = np.ones(large_scan.shape[axis], bool)
     kept[start:stop] = False
     training = Scan(np.compress(kept, large_scan.tomogram, axis=axis), np.compress(kept, large_scan.labels, axis=axis))
-    assert library.phases["pore_mean"] == estimate_phases(training)["pore_mean"]
+    assert library.statistics.pore_mean == estimate_phases(training).pore_mean
     assert library.settings["exclude_slices"] == [start, stop]
 
 

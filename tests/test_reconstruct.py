@@ -3,7 +3,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
-from synthpack.reconstruct import Grid, Phases, pose_maps, reconstruct
+from synthpack.pore_texture import PoreTexture
+from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
+from synthpack.source import SourceStatistics
 
 
 def _tight(volume):
@@ -27,7 +29,7 @@ def _render(crops, index, rotations, positions, scales=None, grid=GRID, **kwargs
     n = len(index)
     maps = pose_maps([c[1] for c in crops], np.asarray(index), np.asarray(rotations),
                      np.asarray(positions, dtype=float), np.ones(n) if scales is None else scales, grid)
-    return reconstruct(crops, maps, grid, Phases(0.1), **kwargs)
+    return reconstruct(crops, maps, grid, Background(0.1), **kwargs)
 
 
 def test_identity_rotation_and_integer_translation_reproduce_the_voxels(particle):
@@ -61,11 +63,11 @@ def test_chunking_does_not_change_the_result(large_library):
     rotations = Rotation.random(n, random_state=2).as_matrix()
     positions = rng.uniform(-200, 200, size=(n, 3))
     grid = Grid.covering(400.0, -300.0, 300.0, large_library.voxel_size)
-    phases = Phases(0.2, 0.05, 0.5)
+    background = Background(0.2, 0.05, 0.5)
     maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(n), grid)
-    whole = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=grid.shape, seed=4)
+    whole = reconstruct(crops, maps, grid, background, tube=(300.0, 330.0, -30.0), chunks=grid.shape, seed=4)
     for workers in (1, 2):
-        chunked = reconstruct(crops, maps, grid, phases, tube=(300.0, 330.0, -30.0), chunks=(13, 17, 29),
+        chunked = reconstruct(crops, maps, grid, background, tube=(300.0, 330.0, -30.0), chunks=(13, 17, 29),
                               seed=4, workers=workers)
         np.testing.assert_array_equal(whole[0], chunked[0])
         np.testing.assert_array_equal(whole[1], chunked[1])
@@ -81,7 +83,7 @@ def test_rotated_voxel_counts_within_3_percent(large_library):
     positions = np.stack([np.zeros(n), np.zeros(n), 400.0 * np.arange(n)], axis=1)
     grid = Grid.covering(250.0, -250.0, 400.0 * n, large_library.voxel_size)
     maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(n), grid)
-    _, labels, contested = reconstruct(crops, maps, grid, Phases(0.2))
+    _, labels, contested = reconstruct(crops, maps, grid, Background(0.2))
     counts = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     source = np.array([crops[i][1].sum() for i in index])
     assert contested == 0
@@ -119,7 +121,7 @@ def test_contested_voxels_go_to_the_larger_mask_value_whatever_the_order():
 def test_background_texture_and_tube_wall():
     grid = Grid.covering(50.0, -10.0, 40.0, (1.0, 1.0, 1.0))
     crops, maps = [], pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
-    out, labels, _ = reconstruct(crops, maps, grid, Phases(0.2, 0.03, 0.6), tube=(40.0, 45.0, -5.0))
+    out, labels, _ = reconstruct(crops, maps, grid, Background(0.2, 0.03, 0.6), tube=(40.0, 45.0, -5.0))
     z, y, x = np.meshgrid(*(grid.origin[a] + np.arange(grid.shape[a]) for a in range(3)), indexing="ij")
     radius = np.hypot(x, y)
     pores = (radius < 38) & (z > 1)
@@ -135,3 +137,34 @@ def test_bad_settings_are_rejected(particle):
         _render([particle], [0], [np.eye(3)], [[15, 12, 10]], order=2)
     with pytest.raises(SynthpackInputError, match="chunk"):
         _render([particle], [0], [np.eye(3)], [[15, 12, 10]], chunks=(0, 4, 4))
+
+
+def _pore_texture_autocorrelation(texture: PoreTexture) -> tuple[np.ndarray, float]:
+    """The texture of an empty 64^3 grid (seed 3), and its correlation between neighbouring voxels along x."""
+    grid = Grid((64, 64, 64), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
+    out, _, _ = reconstruct([], maps, grid, Background(0.0, 1.0, texture=texture), seed=3)
+    return out, float(np.corrcoef(out[..., :-1].ravel(), out[..., 1:].ravel())[0, 1])
+
+
+def test_pore_texture_settings_shape_the_texture():
+    default, correlation = _pore_texture_autocorrelation(PoreTexture())
+    assert default.std() == pytest.approx(1.0, rel=1e-3)  # unit variance times the amplitude
+    assert correlation == pytest.approx(np.exp(-1 / (4 * 0.8**2)), abs=0.05)  # Gaussian smoothing, sigma 0.8
+    _, white = _pore_texture_autocorrelation(PoreTexture(sigma=0.0))
+    assert abs(white) < 0.02
+    _, smoother = _pore_texture_autocorrelation(PoreTexture(sigma=2.0))
+    assert smoother > correlation
+    short, _ = _pore_texture_autocorrelation(PoreTexture(tile=16))
+    np.testing.assert_array_equal(short[:16, :16, :16], short[16:32, 32:48, 48:64])  # period 16
+    assert not np.array_equal(default[:16, :16, :16], default[16:32, 32:48, 48:64])
+
+
+def test_background_from_source_statistics():
+    statistics = SourceStatistics(pore_mean=0.2, pore_std=0.03, grain_mean=0.7, noise_std=0.05)
+    texture = PoreTexture(sigma=1.2, tile=32)
+    background = Background.from_source(statistics, ReconstructConfig(pore_texture=texture))
+    assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)
+    assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9
+    assert Background.from_source(statistics, ReconstructConfig(wall=False)).wall is None
+    assert background.texture_record(seed=5) == {"sigma": 1.2, "tile": 32, "amplitude": 0.03, "seed": 5}

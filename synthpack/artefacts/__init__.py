@@ -28,14 +28,15 @@ Every transform also has ``p``, the probability that it is applied at a call.
 `from_config` builds a pipeline from a list of dicts such as
 ``[{"name": "gaussian_blur", "sigma": [0.5, 1.0]}, {"name": "gaussian_noise", "std": 0.05}]``
 and ``to_dict`` / ``Compose.to_config`` write it back. `default_postprocessing` is
-the default pipeline; `estimate_noise` and `matched_noise` measure a real scan's
-noise and match it.
+the default pipeline; `noise_to_add` matches a source scan's noise level and
+`calibrate` fits blur and noise to its edge width and noise level (the noise is
+measured by `synthpack.source.estimate_noise`).
 """
 
 from ._base import Compose, Transform, available_transforms, from_config
 from ._param import Param
 from .blur import GaussianBlur, MotionBlur, line_kernel
-from .calibrate import estimate_noise, matched_noise, noise_to_add
+from .calibrate import Calibration, calibrate, noise_to_add
 from .ct import CTSimulation
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
 from .presets import default_postprocessing
@@ -44,6 +45,7 @@ from .radial import BeamHardening, RingArtefacts
 __all__ = [
     "BeamHardening",
     "CTSimulation",
+    "Calibration",
     "Compose",
     "GaussianBlur",
     "GaussianNoise",
@@ -54,10 +56,9 @@ __all__ = [
     "SpeckleNoise",
     "Transform",
     "available_transforms",
+    "calibrate",
     "default_postprocessing",
-    "estimate_noise",
     "from_config",
     "line_kernel",
-    "matched_noise",
     "noise_to_add",
 ]

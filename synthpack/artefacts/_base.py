@@ -24,8 +24,8 @@ from typing import Any, ClassVar, Union
 
 import numpy as np
 
+from .._arrays import as_image
 from ..errors import SynthpackInputError
-from ._arrays import as_image
 from ._param import Param
 
 logger = logging.getLogger(__name__)

@@ -44,8 +44,8 @@ from typing import Any
 import numpy as np
 
 from .._chunks import bounded_map, chunk_boxes, thread_count
+from .._arrays import as_image
 from ..errors import SynthpackInputError
-from ._arrays import as_image
 from ._base import Compose, Transform, _plain
 
 logger = logging.getLogger(__name__)

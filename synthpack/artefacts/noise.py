@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._arrays import slabs
+from .._arrays import slabs
 from ._base import Transform
 from ._param import Param, Range
 

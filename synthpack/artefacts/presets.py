@@ -27,8 +27,8 @@ def default_postprocessing(contrast: float = 1.0) -> Compose:
     3. ``GaussianNoise(std=(0.03, 0.08) * contrast)``: 3-8 % of the grain-pore contrast.
 
     Intensities are in the tomogram's own units, so amplitudes are given as
-    fractions of `contrast`. To match a particular scan's noise instead, replace the
-    last step with `matched_noise`.
+    fractions of `contrast`. To match a particular scan's noise instead, use
+    ``postprocess: match_source`` or ``calibrated`` (`synthpack.postprocess`).
 
     Parameters
     ----------

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ._arrays import radius_grid
+from .._arrays import radius_grid
 from ._base import Transform
 from ._param import IntRange, Param, Range
 

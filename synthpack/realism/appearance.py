@@ -2,9 +2,9 @@
 
 Measured in the specimen's bulk region (`synthpack.realism.region`), with the
 phases defined by the signed distance from the grain-pore boundary
-(`synthpack.realism.edges`):
+(`synthpack.source.edges`):
 
-* **grains**: voxels at least `~synthpack.realism.edges.INTERIOR` voxels inside a grain;
+* **grains**: voxels at least `~synthpack.source.edges.INTERIOR` voxels inside a grain;
 * **pores**: voxels at least as far inside the pore space;
 * **edges**: the voxels within one voxel of the boundary, on either side.
 
@@ -12,7 +12,7 @@ Figures:
 
 * intensity samples of each phase (their histograms, compared by Wasserstein distance);
 * noise standard deviation in grains and pores, by
-  `synthpack.artefacts.estimate_noise` (second differences inside each label, away from
+  `synthpack.source.estimate_noise` (second differences inside each label, away from
   boundaries, robust spread);
 * noise power spectrum (NPS) of grains and pores: the radially averaged power of
   ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a phase's interior,
@@ -20,7 +20,7 @@ Figures:
   variance within a patch. Its centroid (the power-weighted mean frequency, in
   cycles per voxel) is high for white noise and low for smooth, correlated noise
   and texture;
-* the edge profile and its 10-90 width (`synthpack.realism.edges`).
+* the edge profile and its 10-90 width (`synthpack.source.edges`).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..artefacts import estimate_noise
-from .edges import INTERIOR, EdgeProfile, edge_profile, edge_width, signed_distance
+from ..source.edges import INTERIOR, EdgeProfile, edge_profile, edge_width, signed_distance
+from ..source.noise import NoiseEstimate, estimate_noise
 from .patches import patch_corners, take_patches
 from .region import Specimen
 
@@ -104,7 +104,7 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
     Parameters
     ----------
     distance : ndarray of float32, shape (Z, Y, X)
-        From `~synthpack.realism.edges.signed_distance`.
+        From `~synthpack.source.edges.signed_distance`.
     region : ndarray of bool, same shape
 
     Returns
@@ -119,14 +119,8 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
     }
 
 
-def noise_levels(specimen: Specimen) -> dict:
-    """`~synthpack.artefacts.estimate_noise` of the specimen's region (voxels outside it are ignored).
-
-    Returns
-    -------
-    dict
-        As `estimate_noise`: ``std`` (pooled), ``grain_std``, ``pore_std``, ``n_grain``, ``n_pore``.
-    """
+def noise_levels(specimen: Specimen) -> NoiseEstimate:
+    """`~synthpack.source.estimate_noise` of the specimen's region (voxels outside it are ignored)."""
     labels = np.where(specimen.region, specimen.labels, -1)
     return estimate_noise(specimen.tomogram, labels)
 
@@ -139,7 +133,7 @@ class Appearance:
     ----------
     samples : dict of str to ndarray of float32, shape (N_phase,)
         Intensities of ``"grains"``, ``"pores"`` and ``"edges"`` (an even subsample).
-    noise : dict
+    noise : NoiseEstimate
         From `noise_levels`.
     spectra : dict of str to NoiseSpectrum or None
         ``"grains"`` and ``"pores"``.
@@ -149,7 +143,7 @@ class Appearance:
     """
 
     samples: dict[str, np.ndarray]
-    noise: dict
+    noise: NoiseEstimate
     spectra: dict[str, NoiseSpectrum | None]
     profile: EdgeProfile
     edge_width: float
@@ -183,6 +177,6 @@ def measure_appearance(specimen: Specimen, *, max_samples: int = 200_000) -> App
     spectra = {phase: noise_power_spectrum(specimen.tomogram, masks[phase]) for phase in ("grains", "pores")}
     appearance = Appearance(samples, noise_levels(specimen), spectra, profile, edge_width(profile))
     logger.info("%s: edge width %.3f voxels, noise %.4g (grain %s, pore %s)", specimen.name,
-                appearance.edge_width, appearance.noise["std"], appearance.noise["grain_std"],
-                appearance.noise["pore_std"])
+                appearance.edge_width, appearance.noise.std, appearance.noise.grain_std,
+                appearance.noise.pore_std)
     return appearance

@@ -8,12 +8,12 @@ it that is measured, its *bulk region*:
   packing-fraction check uses (`synthpack.physics.checks`), i.e. one median grain
   diameter away from the tube wall and above the floor, and two diameters below
   the top of the pack (the highest grain point). That excludes the wall, the
-  air outside the tube, the ordered layer at the floor and the loose top.
+  air outside the tube, the ordered layer at the floor and the loose top. It is
+  `synthpack.postprocess.bulk_region`, where ``postprocess: calibrated`` fits too.
 """
 
 from __future__ import annotations
 
-import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,60 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SynthpackInputError
+from ..postprocess import bulk_region
 from ..scan import Scan
 
-logger = logging.getLogger(__name__)
-
-__all__ = ["MIN_REGION_VOXELS", "Specimen", "bulk_region"]
-
-#: A bulk region needs at least this many voxels to be measured.
-MIN_REGION_VOXELS = 1000
-
-
-def bulk_region(
-    shape: tuple[int, int, int],
-    origin: tuple[float, float, float],
-    voxel_size: tuple[float, float, float],
-    packing_region: dict[str, float],
-) -> np.ndarray:
-    """Voxels of a pack grid inside the bulk sub-cylinder of its pour.
-
-    Parameters
-    ----------
-    shape : tuple of 3 int
-        ``(Z, Y, X)`` of the pack volumes.
-    origin : tuple of 3 float
-        World position ``(z, y, x)`` of the centre of voxel ``(0, 0, 0)``, physical units.
-    voxel_size : tuple of 3 float
-        ``(dz, dy, dx)``, physical units.
-    packing_region : dict
-        ``radius``, ``z_min``, ``z_max`` of the sub-cylinder about the world z axis,
-        physical units (``PourChecks.packing_region``).
-
-    Returns
-    -------
-    ndarray of bool, shape (Z, Y, X)
-        True for voxels whose centre lies in the sub-cylinder.
-
-    Raises
-    ------
-    SynthpackInputError
-        If fewer than `MIN_REGION_VOXELS` voxels lie in it (a pack too shallow or too
-        narrow to have a bulk).
-    """
-    z = origin[0] + np.arange(shape[0]) * voxel_size[0]
-    y = origin[1] + np.arange(shape[1]) * voxel_size[1]
-    x = origin[2] + np.arange(shape[2]) * voxel_size[2]
-    in_disc = np.hypot(y[:, None], x[None, :]) <= packing_region["radius"]
-    in_height = (z >= packing_region["z_min"]) & (z <= packing_region["z_max"])
-    region = in_height[:, None, None] & in_disc[None, :, :]
-    if np.count_nonzero(region) < MIN_REGION_VOXELS:
-        raise SynthpackInputError(
-            f"the pack has no bulk to measure ({np.count_nonzero(region)} voxels lie one grain diameter "
-            "from the tube wall and floor and two below its top): pour more grains (pour.n_particles) "
-            "or use a wider tube (pour.tube_radius)"
-        )
-    return region
+__all__ = ["Specimen"]
 
 
 @dataclass

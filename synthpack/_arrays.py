@@ -1,4 +1,4 @@
-"""Array helpers shared by the artefacts: input checking, slabs and the slice radius."""
+"""Array helpers of the image stages (source measurement, artefacts): input checks, slabs, slice radius."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import SynthpackInputError
+from .errors import SynthpackInputError
 
 __all__ = ["SLAB_VOXELS", "as_image", "radius_grid", "slabs"]
 
-#: Noise is drawn in slabs of at most this many voxels along axis 0, so the extra
-#: memory a noise transform needs is bounded whatever the volume's size.
+#: Noise is drawn (and measured) in slabs of at most this many voxels along axis 0, so
+#: the extra memory it needs is bounded whatever the volume's size.
 SLAB_VOXELS = 1 << 22
 
 
@@ -33,12 +33,12 @@ def as_image(image: Any) -> np.ndarray:
     array = np.asarray(image)
     if array.ndim not in (2, 3):
         raise SynthpackInputError(
-            f"artefacts apply to a volume (z, y, x) or a slice (y, x), got an array of shape "
+            f"expected a volume (z, y, x) or a slice (y, x) of intensities, got an array of shape "
             f"{array.shape}: pass one volume or one 2D slice at a time"
         )
     if not np.issubdtype(array.dtype, np.number) or np.iscomplexobj(array):
         raise SynthpackInputError(
-            f"artefacts need real-valued intensities, got dtype {array.dtype}"
+            f"intensities must be real-valued, got dtype {array.dtype}"
         )
     return array.astype(np.float32, copy=False)
 
