@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from synthpack.io import read_label_image
 from synthpack.library import ParticleLibrary
-from synthpack.metrics import read_label_image
 from synthpack.split import central_block
 
 TRAINING = Path(__file__).resolve().parents[1] / "training"
@@ -124,7 +124,7 @@ def test_evaluate_scores_a_damaged_prediction_below_one(tmp_path):
         from evaluate import score
     finally:
         sys.path.remove(str(TRAINING))
-    from synthpack.metrics import write_label_image
+    from synthpack.io import write_label_image
 
     truth, pred = tmp_path / "truth", tmp_path / "pred"
     truth.mkdir(), pred.mkdir()

@@ -31,7 +31,8 @@ import numpy as np
 
 from offline import offline_ultralytics
 from synthpack._atomic import atomic_file
-from synthpack.metrics import evaluate_folders, write_label_image
+from synthpack.io import write_label_image
+from synthpack.metrics import evaluate_folders
 from train import resolve_device
 
 logger = logging.getLogger(__name__)

@@ -99,8 +99,7 @@ from tqdm.auto import tqdm
 from .. import __version__
 from .._atomic import atomic_directory
 from ..errors import SynthpackInputError
-from ..io import read_scan
-from ..metrics import write_label_image
+from ..io import read_scan, write_label_image
 from ..pack import find_packs, open_pack
 from ..scan import Scan
 from ..split import TEST_FRACTION, central_block
