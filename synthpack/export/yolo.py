@@ -80,7 +80,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import re
 from collections.abc import Sequence
@@ -99,6 +98,7 @@ from tqdm.auto import tqdm
 from .. import __version__
 from .._atomic import atomic_directory
 from ..errors import SynthpackInputError
+from ..intensity import intensity_window
 from ..io import read_scan, write_label_image
 from ..pack import find_packs, open_pack
 from ..scan import Scan
@@ -112,7 +112,6 @@ __all__ = [
     "ExportSummary",
     "SlicePolygons",
     "slice_splits",
-    "intensity_window",
     "to_uint8",
     "slice_polygons",
     "yolo_label_text",
@@ -130,7 +129,7 @@ _INSET = 0.25
 
 
 # --------------------------------------------------------------------------- #
-# Splits and intensities
+# Splits and 8-bit images
 # --------------------------------------------------------------------------- #
 
 
@@ -154,37 +153,6 @@ def slice_splits(n_slices: int, val_fraction: float = 0.1) -> dict[str, np.ndarr
     test = (every >= start) & (every < stop)
     val = (every >= wide_start) & (every < wide_stop) & ~test
     return {"train": every[~test & ~val], "val": every[val], "test": every[test]}
-
-
-def intensity_window(volumes: Sequence[Any], percentiles: tuple[float, float] = (0.5, 99.5),
-                     max_samples: int = 1 << 22) -> tuple[float, float]:
-    """Percentiles of the pooled intensities of `volumes`, from an even subsample.
-
-    Parameters
-    ----------
-    volumes : sequence of array-like, shape (Z, Y, X)
-        NumPy arrays, memory maps or Zarr arrays (read with a stride).
-    percentiles : (low, high)
-        In percent.
-    max_samples : int
-        About this many voxels are read from each volume (every ``s``-th along
-        each axis).
-
-    Returns
-    -------
-    (float, float)
-        ``(lo, hi)`` with ``lo < hi``.
-    """
-    samples = []
-    for volume in volumes:
-        stride = max(1, math.ceil((math.prod(volume.shape) / max_samples) ** (1 / 3)))
-        samples.append(np.asarray(volume[::stride, ::stride, ::stride], dtype=np.float64).ravel())
-    lo, hi = np.percentile(np.concatenate(samples), percentiles)
-    if not hi > lo:
-        raise SynthpackInputError(
-            f"the intensity window ({lo:g}, {hi:g}) is empty (constant volume?): give the window explicitly"
-        )
-    return float(lo), float(hi)
 
 
 def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
