@@ -56,15 +56,12 @@ Fragments
     Parts smaller than `min_area` pixels get no label line and are counted
     (``dropped_fragments``).
 Splits
-    Along the slicing axis, the paper's central 20% of each volume's slices
-    (`synthpack.split.split_slices`) is the test set. Validation slices are the
-    training slices nearest the test block on both sides: the central
-    ``20% + val_fraction`` block (`synthpack.split.central_block`) minus the
-    test block. So val touches train only at its two outer ends, and it also
-    separates the remaining training slices from the test slices. With
-    ``split="real-test"`` synthetic packs give training slices only (all of
-    them), so val and test hold real slices only (the paper's experiment:
-    train on real + synthetic, test on real).
+    Along the slicing axis, each volume's slices are split into train, val
+    and test by `synthpack.split.slice_splits`: the paper's central 20% is the
+    test set and the val slices are the training slices nearest it on both
+    sides. With ``split="real-test"`` synthetic packs give training slices
+    only (all of them), so val and test hold real slices only (the paper's
+    experiment: train on real + synthetic, test on real).
 Truth images
     For the splits in `truth_splits` (default test) ``truth/<split>/<name>.png``
     holds the slice's exact instances with the ids of the label lines (line
@@ -102,16 +99,14 @@ from ..intensity import intensity_window
 from ..io import read_scan, write_label_image
 from ..pack import find_packs, open_pack
 from ..scan import Scan
-from ..split import TEST_FRACTION, central_block
+from ..split import SPLITS, VAL_FRACTION, slice_splits
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "SPLITS",
     "SPLIT_MODES",
     "ExportSummary",
     "SlicePolygons",
-    "slice_splits",
     "to_uint8",
     "slice_polygons",
     "yolo_label_text",
@@ -119,7 +114,6 @@ __all__ = [
     "export_yolo",
 ]
 
-SPLITS = ("train", "val", "test")
 #: ``"paper"``: every volume split train/val/test; ``"real-test"``: synthetic packs train only.
 SPLIT_MODES = ("paper", "real-test")
 CLASS_NAMES = {0: "particle"}
@@ -129,30 +123,8 @@ _INSET = 0.25
 
 
 # --------------------------------------------------------------------------- #
-# Splits and 8-bit images
+# 8-bit images
 # --------------------------------------------------------------------------- #
-
-
-def slice_splits(n_slices: int, val_fraction: float = 0.1) -> dict[str, np.ndarray]:
-    """Slice indices of train, val and test for a volume of `n_slices` slices.
-
-    Test is the paper's central 20% block; val is the central
-    ``(20% + val_fraction)`` block minus the test block; train is the rest.
-
-    Returns
-    -------
-    dict
-        ``{"train", "val", "test"}`` -> sorted int64 indices; they partition
-        ``range(n_slices)``.
-    """
-    if not 0 <= val_fraction < 1 - TEST_FRACTION:
-        raise SynthpackInputError(f"val_fraction must be in [0, {1 - TEST_FRACTION:g}), got {val_fraction}")
-    start, stop = central_block(n_slices)
-    wide_start, wide_stop = central_block(n_slices, TEST_FRACTION + val_fraction) if val_fraction else (start, stop)
-    every = np.arange(n_slices, dtype=np.int64)
-    test = (every >= start) & (every < stop)
-    val = (every >= wide_start) & (every < wide_stop) & ~test
-    return {"train": every[~test & ~val], "val": every[val], "test": every[test]}
 
 
 def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
@@ -469,7 +441,7 @@ def export_yolo(
     *,
     axis: int = 0,
     split: str = "paper",
-    val_fraction: float = 0.1,
+    val_fraction: float = VAL_FRACTION,
     postprocess: bool = True,
     window: tuple[float, float] | None = None,
     min_area: int = 10,
