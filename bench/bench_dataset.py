@@ -27,12 +27,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import tifffile
 import torch
 from torch.utils.data import DataLoader, Dataset
 
 from synthpack.config import PackConfig
 from synthpack.dataset import SyntheticParticlePackDataset, collate_fn, collate_stacked
+from synthpack.io import memmap_volume
 
 #: Batch sizes of the compact rows (ultralytics trains with 16 by default).
 BATCH_SIZES = (8, 16, 32)
@@ -80,13 +80,16 @@ class _BuiltAndDropped(Dataset):
 
 
 def _fresh_shared_page_us(mib: int = 4, repeats: int = 20) -> float:
-    """Microseconds to create new shared memory and write one byte in each of its 4 KiB pages, per page."""
+    """Microseconds per 4 KiB page to move a written tensor to new shared memory, as the DataLoader does."""
     nbytes = mib * 2**20
-    start = time.perf_counter()
+    elapsed = 0.0
     for _ in range(repeats):
-        storage = torch.UntypedStorage._new_shared(nbytes)
-        torch.empty(0, dtype=torch.uint8).set_(storage).numpy()[::4096] = 1
-    return (time.perf_counter() - start) / repeats / (nbytes // 4096) * 1e6
+        tensor = torch.empty(nbytes, dtype=torch.uint8)
+        tensor.numpy()[::4096] = 1
+        start = time.perf_counter()
+        tensor.share_memory_()
+        elapsed += time.perf_counter() - start
+    return elapsed / repeats / (nbytes // 4096) * 1e6
 
 
 def main() -> None:
@@ -110,8 +113,8 @@ def run(root: Path, seconds: float) -> None:
     dataset.build()
     build_s = time.perf_counter() - start
     path = dataset.pack_paths[0]
-    tomogram = tifffile.memmap(path / "tomogram.tif", mode="r")
-    labels = tifffile.memmap(path / "labels.tif", mode="r")
+    tomogram = memmap_volume(path / "tomogram.tif")
+    labels = memmap_volume(path / "labels.tif")
     slices = dataset.slices(0)
     instances = np.array([len(dataset[i][1]["labels"]) for i in range(len(dataset))])
     bytes_per_item = 4 * tomogram[0].size + tomogram[0].size * (1 + instances.mean())
@@ -144,8 +147,8 @@ def run(root: Path, seconds: float) -> None:
     print(f"| diagnostic: 2 workers build each item and drop it (nothing sent back) | {diagnostic:,.0f} "
           f"| {diagnostic / baseline:.3f} |")
     print()
-    print(f"New shared memory (where a worker puts each item's tensors) costs {_fresh_shared_page_us():.2f} us "
-          "per 4 KiB page written on this machine.")
+    print(f"Moving a tensor to new shared memory (as the DataLoader does with each tensor a worker returns) "
+          f"costs {_fresh_shared_page_us():.2f} us per 4 KiB page on this machine.")
     for name, rate in rows:
         if name.endswith(", 2 workers"):
             print(f"{name}: {rate:,.0f} slices/s (target >= 1,000)")

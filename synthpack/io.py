@@ -1,8 +1,12 @@
-"""Read and write CT volumes: TIFF, TIFF-slice folders, NPY, Zarr and Mango NetCDF.
+"""Read and write CT volumes (TIFF, TIFF-slice folders, NPY, Zarr, Mango NetCDF) and 2D label images.
 
 Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
 ``(dz, dy, dx)`` and its length unit when the file records them; `read_scan`
 turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
+`memmap_volume` memory-maps a volume file and `read_slice` reads one slice of
+a memory map, a Zarr array or an array, so a slice is read without the volume.
+`write_label_image` and `read_label_image` store 2D instance label images
+(PNG, TIFF, NPY), e.g. the truth and predictions of scored slices.
 Writers are atomic: the data go to a temporary sibling first and are renamed
 into place only once complete, so a failed write leaves nothing behind.
 Their helpers, public for other writers: `atomic_file`, `atomic_directory`.
@@ -34,11 +38,13 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import netCDF4
 import numpy as np
 import tifffile
 import zarr
+from PIL import Image
 
 from ._atomic import Output, atomic_directory, atomic_file
 from .errors import SynthpackInputError
@@ -46,14 +52,29 @@ from .scan import Scan, validate_voxel_size
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SUPPORTED_FORMATS", "atomic_directory", "atomic_file", "create_zarr_volume", "read_scan", "read_volume",
-           "write_tiff", "write_zarr"]
+__all__ = [
+    "LABEL_IMAGE_SUFFIXES",
+    "SUPPORTED_FORMATS",
+    "atomic_directory",
+    "atomic_file",
+    "create_zarr_volume",
+    "memmap_volume",
+    "read_label_image",
+    "read_scan",
+    "read_slice",
+    "read_volume",
+    "write_label_image",
+    "write_tiff",
+    "write_zarr",
+]
 
 PathLike = str | os.PathLike
 VoxelSize = tuple[float, float, float]
 # What a reader returns: the array, and the voxel size and unit if recorded.
 Volume = tuple[np.ndarray, VoxelSize | None, str | None]
 Metadata = tuple[VoxelSize | None, str | None]
+# A volume read lazily: ndarray, numpy.memmap or zarr.Array, indexed (z, y, x).
+ArrayLike = Any
 
 SUPPORTED_FORMATS = (
     "multi-page TIFF (.tif, .tiff)",
@@ -64,6 +85,8 @@ SUPPORTED_FORMATS = (
 )
 
 _TIFF_SUFFIXES = (".tif", ".tiff")
+#: File types `read_label_image` reads.
+LABEL_IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 _ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
 _NAMES = {
     "tomogram": ("tomogram", "tomo", "tomo_float"),
@@ -402,6 +425,143 @@ def _zarr_layout(voxel_size: VoxelSize, unit: str, chunks: tuple[int, int, int] 
         dimension_names=("z", "y", "x"),
         attributes={"voxel_size": list(voxel_size), "unit": unit, "axes": ["z", "y", "x"]},
     )
+
+
+# --------------------------------------------------------------------------- #
+# Slices of volumes
+# --------------------------------------------------------------------------- #
+
+
+def memmap_volume(path: PathLike) -> np.ndarray:
+    """Memory-map a volume file read-only, so that slicing it reads only the slices asked for.
+
+    Parameters
+    ----------
+    path : str or Path
+        A NumPy ``.npy`` file or an uncompressed, contiguous TIFF stack
+        (``.tif``/``.tiff``, as `write_tiff` writes).
+
+    Returns
+    -------
+    numpy.memmap, usually shape (Z, Y, X)
+        The data as stored (any dtype), read-only. A memory map belongs to the
+        process that made it: open it again in each process (e.g. in each
+        DataLoader worker) instead of pickling it.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the file is missing, of another type, compressed, tiled or truncated
+        (read it with `read_volume` instead).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".npy", *_TIFF_SUFFIXES):
+        raise SynthpackInputError(
+            f"{path} cannot be memory-mapped: only .npy files and uncompressed TIFF stacks can; "
+            "read it with read_volume instead"
+        )
+    with _reading(path, "a memory-mappable NPY or uncompressed TIFF file"):
+        return np.load(path, mmap_mode="r") if suffix == ".npy" else tifffile.memmap(path, mode="r")
+
+
+def read_slice(volume: ArrayLike, axis: int, index: int) -> np.ndarray:
+    """One 2D slice of a 3D volume, read alone.
+
+    Parameters
+    ----------
+    volume : array-like, shape (Z, Y, X)
+        A NumPy array, a memory map (`memmap_volume`) or a Zarr array: only the
+        slice is read (from a Zarr array, only the chunks it crosses).
+    axis : {0, 1, 2}
+        Slicing axis.
+    index : int
+        Slice index along `axis`.
+
+    Returns
+    -------
+    ndarray, dtype of `volume`
+        Shape (Y, X) for axis 0, (Z, X) for axis 1, (Z, Y) for axis 2; a view
+        when `volume` is a NumPy array or memory map.
+    """
+    return np.asarray(volume[(slice(None),) * axis + (index,)])
+
+
+# --------------------------------------------------------------------------- #
+# Label images (2D instance labels of slices)
+# --------------------------------------------------------------------------- #
+
+
+def write_label_image(stem: str | os.PathLike, labels: np.ndarray) -> Path:
+    """Write a 2D label image that `read_label_image` reads back exactly.
+
+    Parameters
+    ----------
+    stem : path-like
+        Path without extension: ``.png`` (16-bit grey) is added when every id
+        fits in 16 bits, else ``.tif`` (uint32).
+    labels : ndarray of int, shape (H, W)
+        0 = background, one positive id per instance.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    stem = Path(stem)
+    png = labels.max(initial=0) <= np.iinfo(np.uint16).max
+    path = stem.with_suffix(".png" if png else ".tif")
+    with atomic_file(path) as tmp:
+        if png:
+            Image.fromarray(labels.astype(np.uint16)).save(tmp, format="PNG")
+        else:
+            tifffile.imwrite(tmp, labels.astype(np.uint32))
+    return path
+
+
+def read_label_image(path: str | os.PathLike) -> np.ndarray:
+    """Read a label image: PNG (8/16/32-bit grey or palette), TIFF (2D or 3D stack) or NPY.
+
+    Returns
+    -------
+    ndarray of int, shape (H, W) or (Z, Y, X)
+
+    Raises
+    ------
+    SynthpackInputError
+        If the file is unreadable, a colour image, not integral or not 2D/3D.
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".png":
+            with Image.open(path) as image:
+                if image.mode not in ("1", "L", "P", "I", "I;16", "I;16B", "I;16L"):
+                    raise SynthpackInputError(
+                        f"{path} is a {image.mode} image: label images must be single-channel "
+                        "(grey or palette), one integer id per instance"
+                    )
+                array = np.array(image)
+        elif path.suffix.lower() in (".tif", ".tiff"):
+            array = tifffile.imread(path)
+        elif path.suffix.lower() == ".npy":
+            array = np.load(path, allow_pickle=False)
+        else:
+            raise SynthpackInputError(f"{path}: unknown label image type; use one of {', '.join(LABEL_IMAGE_SUFFIXES)}")
+    except SynthpackInputError:
+        raise
+    except Exception as error:
+        raise SynthpackInputError(f"cannot read label image {path} ({error}): check the file") from error
+    if array.ndim not in (2, 3):
+        raise SynthpackInputError(f"{path} has shape {array.shape}: label images must be 2D (H, W) or 3D (Z, Y, X)")
+    if array.dtype == bool:
+        return array.astype(np.uint8)
+    if not np.issubdtype(array.dtype, np.integer):
+        if not np.all(np.isfinite(array)) or np.any(array != np.round(array)):
+            raise SynthpackInputError(f"{path} holds fractional values: label images must hold integer ids")
+        array = array.astype(np.int64)
+    if array.size and array.min() < 0:
+        raise SynthpackInputError(f"{path} holds negative values: use 0 for background and 1..N for instances")
+    return array
 
 
 # --------------------------------------------------------------------------- #

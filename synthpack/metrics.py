@@ -58,18 +58,17 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-import tifffile
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ._atomic import Output, atomic_directory
 from .errors import SynthpackInputError
+from .io import LABEL_IMAGE_SUFFIXES, read_label_image
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "LABEL_IMAGE_SUFFIXES",
     "DiceStats",
     "InstanceMatches",
     "EvaluationReport",
@@ -78,13 +77,9 @@ __all__ = [
     "dice_stats",
     "slice_dice_stats",
     "instance_dice",
-    "read_label_image",
-    "write_label_image",
     "evaluate_folders",
 ]
 
-#: File types `read_label_image` and `evaluate_folders` read.
-LABEL_IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 # Above this many (pred, truth) id pairs the joint histogram is built sparsely.
 _DENSE_PAIRS = 1 << 22
 # Above this label value ids are compacted by sorting instead of a lookup table.
@@ -403,81 +398,6 @@ def instance_dice(pred: np.ndarray, truth: np.ndarray, *, average: str = "macro"
 # --------------------------------------------------------------------------- #
 # Folders of label images
 # --------------------------------------------------------------------------- #
-
-
-def write_label_image(stem: str | os.PathLike, labels: np.ndarray) -> Path:
-    """Write a 2D label image that `read_label_image` reads back exactly.
-
-    Parameters
-    ----------
-    stem : path-like
-        Path without extension: ``.png`` (16-bit grey) is added when every id
-        fits in 16 bits, else ``.tif`` (uint32).
-    labels : ndarray of int, shape (H, W)
-        0 = background, one positive id per instance.
-
-    Returns
-    -------
-    Path
-        The file written.
-    """
-    from PIL import Image
-
-    stem = Path(stem)
-    if labels.max(initial=0) <= np.iinfo(np.uint16).max:
-        path = stem.with_suffix(".png")
-        Image.fromarray(labels.astype(np.uint16)).save(path)
-    else:
-        path = stem.with_suffix(".tif")
-        tifffile.imwrite(path, labels.astype(np.uint32))
-    return path
-
-
-def read_label_image(path: str | os.PathLike) -> np.ndarray:
-    """Read a label image: PNG (8/16/32-bit grey or palette), TIFF (2D or 3D stack) or NPY.
-
-    Returns
-    -------
-    ndarray of int, shape (H, W) or (Z, Y, X)
-
-    Raises
-    ------
-    SynthpackInputError
-        If the file is unreadable, a colour image, not integral or not 2D/3D.
-    """
-    from PIL import Image
-
-    path = Path(path)
-    try:
-        if path.suffix.lower() == ".png":
-            with Image.open(path) as image:
-                if image.mode not in ("1", "L", "P", "I", "I;16", "I;16B", "I;16L"):
-                    raise SynthpackInputError(
-                        f"{path} is a {image.mode} image: label images must be single-channel "
-                        "(grey or palette), one integer id per instance"
-                    )
-                array = np.array(image)
-        elif path.suffix.lower() in (".tif", ".tiff"):
-            array = tifffile.imread(path)
-        elif path.suffix.lower() == ".npy":
-            array = np.load(path, allow_pickle=False)
-        else:
-            raise SynthpackInputError(f"{path}: unknown label image type; use one of {', '.join(LABEL_IMAGE_SUFFIXES)}")
-    except SynthpackInputError:
-        raise
-    except Exception as error:
-        raise SynthpackInputError(f"cannot read label image {path} ({error}): check the file") from error
-    if array.ndim not in (2, 3):
-        raise SynthpackInputError(f"{path} has shape {array.shape}: label images must be 2D (H, W) or 3D (Z, Y, X)")
-    if array.dtype == bool:
-        return array.astype(np.uint8)
-    if not np.issubdtype(array.dtype, np.integer):
-        if not np.all(np.isfinite(array)) or np.any(array != np.round(array)):
-            raise SynthpackInputError(f"{path} holds fractional values: label images must hold integer ids")
-        array = array.astype(np.int64)
-    if array.size and array.min() < 0:
-        raise SynthpackInputError(f"{path} holds negative values: use 0 for background and 1..N for instances")
-    return array
 
 
 def _label_files(folder: Path, role: str) -> dict[str, Path]:

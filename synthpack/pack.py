@@ -37,12 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tifffile
 import zarr
 
 from ._atomic import Output, atomic_directory
 from .errors import SynthpackInputError
-from .io import create_zarr_volume, write_tiff, write_zarr
+from .io import create_zarr_volume, memmap_volume, write_tiff, write_zarr
 
 __all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "is_complete_pack",
            "open_pack", "verify_pack"]
@@ -335,7 +334,7 @@ def open_pack(directory: str | os.PathLike, *, verify: bool = False) -> Pack:
             store = zarr.open_group(str(directory / "pack.zarr"), mode="r")
             arrays = [store[name] for name in PACK_VOLUMES]
         else:
-            arrays = [tifffile.memmap(path, mode="r") for path in _volume_paths(directory, manifest)]
+            arrays = [memmap_volume(path) for path in _volume_paths(directory, manifest)]
     except Exception as error:
         raise SynthpackInputError(f"pack {directory} is corrupt ({error}): generate it again") from error
     shapes = {tuple(a.shape) for a in arrays}

@@ -12,12 +12,12 @@ from synthpack.cli import main
 from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export import export_yolo
-from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, slice_splits, to_uint8, yolo_label_text
+from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, to_uint8, yolo_label_text
 from synthpack.generate import generate_packs
 from synthpack.io import write_tiff
 from synthpack.pack import open_pack
 from synthpack.scan import Scan
-from synthpack.split import split_slices
+from synthpack.split import slice_splits, split_slices
 
 SPLIT_NAMES = ("train", "val", "test")
 

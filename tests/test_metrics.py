@@ -12,6 +12,7 @@ from scipy.optimize import linear_sum_assignment
 import synthpack.metrics as metrics
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
+from synthpack.io import read_label_image
 from synthpack.metrics import (
     DiceStats,
     dice,
@@ -19,7 +20,6 @@ from synthpack.metrics import (
     evaluate_folders,
     instance_dice,
     match_instances,
-    read_label_image,
     slice_dice_stats,
 )
 

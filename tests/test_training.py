@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from synthpack.io import read_label_image, write_label_image
 from synthpack.library import ParticleLibrary
-from synthpack.metrics import read_label_image, write_label_image
 from synthpack.split import central_block
 from training.evaluate import score
 

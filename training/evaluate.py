@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from synthpack.io import atomic_file
-from synthpack.metrics import evaluate_folders, write_label_image
+from synthpack.io import atomic_file, write_label_image
+from synthpack.metrics import evaluate_folders
 
 from .offline import offline_ultralytics
 from .train import resolve_device

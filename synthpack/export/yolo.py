@@ -56,15 +56,12 @@ Fragments
     Parts smaller than `min_area` pixels get no label line and are counted
     (``dropped_fragments``).
 Splits
-    Along the slicing axis, the paper's central 20% of each volume's slices
-    (`synthpack.split.split_slices`) is the test set. Validation slices are the
-    training slices nearest the test block on both sides: the central
-    ``20% + val_fraction`` block (`synthpack.split.central_block`) minus the
-    test block. So val touches train only at its two outer ends, and it also
-    separates the remaining training slices from the test slices. With
-    ``split="real-test"`` synthetic packs give training slices only (all of
-    them), so val and test hold real slices only (the paper's experiment:
-    train on real + synthetic, test on real).
+    Along the slicing axis, each volume's slices are split into train, val
+    and test by `synthpack.split.slice_splits`: the paper's central 20% is the
+    test set and the val slices are the training slices nearest it on both
+    sides. With ``split="real-test"`` synthetic packs give training slices
+    only (all of them), so val and test hold real slices only (the paper's
+    experiment: train on real + synthetic, test on real).
 Truth images
     For the splits in `truth_splits` (default test) ``truth/<split>/<name>.png``
     holds the slice's exact instances with the ids of the label lines (line
@@ -80,7 +77,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import re
 from collections.abc import Sequence
@@ -99,21 +95,18 @@ from tqdm.auto import tqdm
 from .. import __version__
 from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
-from ..io import read_scan
-from ..metrics import write_label_image
-from ..pack import find_packs, open_pack
+from ..intensity import intensity_window
+from ..io import read_scan, read_slice, write_label_image
+from ..pack import Pack, find_packs, open_pack
 from ..scan import Scan
-from ..split import TEST_FRACTION, central_block
+from ..split import SPLITS, VAL_FRACTION, slice_splits
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "SPLITS",
     "SPLIT_MODES",
     "ExportSummary",
     "SlicePolygons",
-    "slice_splits",
-    "intensity_window",
     "to_uint8",
     "slice_polygons",
     "yolo_label_text",
@@ -121,7 +114,6 @@ __all__ = [
     "export_yolo",
 ]
 
-SPLITS = ("train", "val", "test")
 #: ``"paper"``: every volume split train/val/test; ``"real-test"``: synthetic packs train only.
 SPLIT_MODES = ("paper", "real-test")
 CLASS_NAMES = {0: "particle"}
@@ -131,61 +123,8 @@ _INSET = 0.25
 
 
 # --------------------------------------------------------------------------- #
-# Splits and intensities
+# 8-bit images
 # --------------------------------------------------------------------------- #
-
-
-def slice_splits(n_slices: int, val_fraction: float = 0.1) -> dict[str, np.ndarray]:
-    """Slice indices of train, val and test for a volume of `n_slices` slices.
-
-    Test is the paper's central 20% block; val is the central
-    ``(20% + val_fraction)`` block minus the test block; train is the rest.
-
-    Returns
-    -------
-    dict
-        ``{"train", "val", "test"}`` -> sorted int64 indices; they partition
-        ``range(n_slices)``.
-    """
-    if not 0 <= val_fraction < 1 - TEST_FRACTION:
-        raise SynthpackInputError(f"val_fraction must be in [0, {1 - TEST_FRACTION:g}), got {val_fraction}")
-    start, stop = central_block(n_slices)
-    wide_start, wide_stop = central_block(n_slices, TEST_FRACTION + val_fraction) if val_fraction else (start, stop)
-    every = np.arange(n_slices, dtype=np.int64)
-    test = (every >= start) & (every < stop)
-    val = (every >= wide_start) & (every < wide_stop) & ~test
-    return {"train": every[~test & ~val], "val": every[val], "test": every[test]}
-
-
-def intensity_window(volumes: Sequence[Any], percentiles: tuple[float, float] = (0.5, 99.5),
-                     max_samples: int = 1 << 22) -> tuple[float, float]:
-    """Percentiles of the pooled intensities of `volumes`, from an even subsample.
-
-    Parameters
-    ----------
-    volumes : sequence of array-like, shape (Z, Y, X)
-        NumPy arrays, memory maps or Zarr arrays (read with a stride).
-    percentiles : (low, high)
-        In percent.
-    max_samples : int
-        About this many voxels are read from each volume (every ``s``-th along
-        each axis).
-
-    Returns
-    -------
-    (float, float)
-        ``(lo, hi)`` with ``lo < hi``.
-    """
-    samples = []
-    for volume in volumes:
-        stride = max(1, math.ceil((math.prod(volume.shape) / max_samples) ** (1 / 3)))
-        samples.append(np.asarray(volume[::stride, ::stride, ::stride], dtype=np.float64).ravel())
-    lo, hi = np.percentile(np.concatenate(samples), percentiles)
-    if not hi > lo:
-        raise SynthpackInputError(
-            f"the intensity window ({lo:g}, {hi:g}) is empty (constant volume?): give the window explicitly"
-        )
-    return float(lo), float(hi)
 
 
 def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
@@ -369,6 +308,8 @@ def rasterize_yolo_labels(text: str, shape: tuple[int, int]) -> list[np.ndarray]
 
 @dataclass
 class _Source:
+    """One volume to export: file-name prefix, origin, and image and label volumes, shape (Z, Y, X)."""
+
     name: str
     kind: str  # "real" or "synthetic"
     path: str
@@ -385,7 +326,15 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "scan"
 
 
+def _pack_source(pack: Pack, postprocess: bool) -> _Source:
+    """A synthetic pack's images (post-processed tomogram or clean volume) and labels."""
+    volume = "tomogram" if postprocess else "clean"
+    return _Source(f"syn_{_safe(pack.path.name)}", "synthetic", str(pack.path), volume, getattr(pack, volume),
+                   pack.labels)
+
+
 def _real_source(item: Scan | tuple, index: int) -> _Source:
+    """A real scan, given as a `Scan` or read from a ``(tomogram, labels)`` pair of paths."""
     if isinstance(item, Scan):
         return _Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels)
     if not (isinstance(item, (tuple, list)) and len(item) == 2):
@@ -404,10 +353,6 @@ def _unique_names(sources: list[_Source]) -> None:
         seen[source.name] = count
         if count > 1:
             source.name = f"{source.name}-{count}"
-
-
-def _take(volume: Any, index: int, axis: int) -> np.ndarray:
-    return np.asarray(volume[(slice(None),) * axis + (index,)])
 
 
 # --------------------------------------------------------------------------- #
@@ -463,6 +408,15 @@ class ExportSummary:
                 "window": list(self.window), "window_from": self.window_from, **counts,
                 "sources": self.sources, "settings": self.settings}
 
+    def _count(self, split: str, result: SlicePolygons) -> None:
+        """Add one exported slice of `split`, with its polygons `result`, to the counts."""
+        self.images[split] += 1
+        self.instances[split] += len(result.polygons)
+        self.empty_images[split] += not result.polygons
+        self.dropped_fragments[split] += result.dropped_fragments
+        self.instance_pixels[split] += result.instance_pixels
+        self.hole_pixels[split] += result.hole_pixels
+
     def table(self) -> str:
         """Markdown table of the counts per split."""
         lines = ["| split | " + " | ".join(name.replace("_", " ") for name in self._COUNTS) + " |",
@@ -496,7 +450,7 @@ def export_yolo(
     *,
     axis: int = 0,
     split: str = "paper",
-    val_fraction: float = 0.1,
+    val_fraction: float = VAL_FRACTION,
     postprocess: bool = True,
     window: tuple[float, float] | None = None,
     min_area: int = 10,
@@ -523,7 +477,8 @@ def export_yolo(
         ``"paper"``: every volume gives train, val and test slices;
         ``"real-test"``: synthetic packs give training slices only.
     val_fraction : float
-        Fraction of each split volume's slices for validation, next to the test block.
+        Fraction of each split volume's slices for validation, next to the test
+        block (`synthpack.split.slice_splits`).
     postprocess : bool
         Synthetic images from the post-processed ``tomogram`` (True) or the
         ``clean`` volume (False).
@@ -546,6 +501,35 @@ def export_yolo(
     ExportSummary
     """
     out = Path(out)
+    _check_arguments(axis, split, truth_splits, min_area, tolerance, bool(packs or real))
+    check_output(out, YOLO_OUTPUT, overwrite=overwrite)
+    opened = [open_pack(directory, verify=True) for path in packs for directory in find_packs(path)]
+    reals = [_real_source(item, k) for k, item in enumerate(real)]
+    sources = [_pack_source(pack, postprocess) for pack in opened] + reals
+    _unique_names(sources)
+    window, window_from = _choose_window(window, reals, opened)
+    plans = [_slice_plan(source, axis, split, val_fraction) for source in sources]
+    _check_plans(plans)
+    summary = ExportSummary(out, window, window_from, settings={
+        "axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
+        "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits), "class_names": CLASS_NAMES,
+    })
+    options = _SliceOptions(axis, window, min_area, tolerance, frozenset(truth_splits))
+    with atomic_directory(out, YOLO_OUTPUT, overwrite=overwrite) as staging:
+        _make_folders(staging, truth_splits)
+        with tqdm(total=sum(s.shape[axis] for s in sources), desc="export", unit="slice",
+                  disable=not progress) as bar:
+            for source, plan in zip(sources, plans):
+                _export_source(staging, source, plan, options, summary, bar)
+        (staging / "data.yaml").write_text(_data_yaml(out, summary))
+        (staging / "export.json").write_text(json.dumps(summary.to_dict(), indent=1))
+    logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
+    return summary
+
+
+def _check_arguments(axis: int, split: str, truth_splits: Sequence[str], min_area: int, tolerance: float,
+                     anything: bool) -> None:
+    """Check `export_yolo`'s settings before anything is read; `anything`: packs or real scans were given."""
     if axis not in (0, 1, 2):
         raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis}")
     if split not in SPLIT_MODES:
@@ -555,41 +539,34 @@ def export_yolo(
         raise SynthpackInputError(f"unknown truth split(s) {', '.join(unknown)}: use {', '.join(SPLITS)}")
     if min_area < 1 or tolerance < 0:
         raise SynthpackInputError(f"min_area must be >= 1 and tolerance >= 0, got {min_area} and {tolerance}")
-    if not packs and not real:
+    if not anything:
         raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
-    check_output(out, YOLO_OUTPUT, overwrite=overwrite)
 
-    synthetic = []
-    for path in packs:
-        for pack_dir in find_packs(path):
-            pack = open_pack(pack_dir, verify=True)
-            volume = "tomogram" if postprocess else "clean"
-            synthetic.append((pack, _Source(f"syn_{_safe(pack_dir.name)}", "synthetic", str(pack_dir), volume,
-                                            getattr(pack, volume), pack.labels)))
-    reals = [_real_source(item, k) for k, item in enumerate(real)]
-    sources = [s for _, s in synthetic] + reals
-    _unique_names(sources)
 
+def _choose_window(window: tuple[float, float] | None, reals: list[_Source],
+                   packs: list[Pack]) -> tuple[tuple[float, float], str]:
+    """The intensity window ``(lo, hi)`` and where it came from (see "Intensity window" in the module docstring)."""
     if window is not None:
         lo, hi = (float(v) for v in window)
         if not hi > lo:
             raise SynthpackInputError(f"the window needs lo < hi, got ({lo}, {hi})")
-        window, window_from = (lo, hi), "given"
-    elif reals:
-        window = intensity_window([s.tomogram for s in reals])
-        window_from = "0.5/99.5 percentiles of the real tomograms"
-    else:
-        window = intensity_window([synthetic[0][0].clean])
-        window_from = f"0.5/99.5 percentiles of the clean volume of {synthetic[0][1].path}"
+        return (lo, hi), "given"
+    if reals:
+        return intensity_window([s.tomogram for s in reals]), "0.5/99.5 percentiles of the real tomograms"
+    return intensity_window([packs[0].clean]), f"0.5/99.5 percentiles of the clean volume of {packs[0].path}"
 
-    plans = []
-    for source in sources:
-        n = source.shape[axis]
-        if split == "real-test" and source.kind == "synthetic":
-            plans.append({"train": np.arange(n, dtype=np.int64), "val": np.zeros(0, np.int64),
-                          "test": np.zeros(0, np.int64)})
-        else:
-            plans.append(slice_splits(n, val_fraction))
+
+def _slice_plan(source: _Source, axis: int, split: str, val_fraction: float) -> dict[str, np.ndarray]:
+    """Slice indices of each split (`SPLITS`) of `source` along `axis` for the split mode `split`."""
+    n = source.shape[axis]
+    if split == "real-test" and source.kind == "synthetic":
+        none = np.zeros(0, np.int64)
+        return {"train": np.arange(n, dtype=np.int64), "val": none, "test": none}
+    return slice_splits(n, val_fraction)
+
+
+def _check_plans(plans: list[dict[str, np.ndarray]]) -> None:
+    """Raise unless every split gets slices from some source."""
     empty = [s for s in SPLITS if not any(len(plan[s]) for plan in plans)]
     if empty:
         raise SynthpackInputError(
@@ -597,48 +574,50 @@ def export_yolo(
             "and use a val_fraction > 0"
         )
 
-    summary = ExportSummary(out, window, window_from)
-    summary.settings = {"axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
-                        "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits),
-                        "class_names": CLASS_NAMES}
-    total = sum(source.shape[axis] for source in sources)
-    with atomic_directory(out, YOLO_OUTPUT, overwrite=overwrite) as staging:
-        for sub in ("images", "labels"):
-            for s in SPLITS:
-                (staging / sub / s).mkdir(parents=True)
-        for s in truth_splits:
-            (staging / "truth" / s).mkdir(parents=True)
-        with tqdm(total=total, desc="export", unit="slice", disable=not progress) as bar:
-            for source, plan in zip(sources, plans):
-                _export_source(staging, source, plan, axis, summary, min_area, tolerance,
-                               set(truth_splits), bar)
-        (staging / "data.yaml").write_text(_data_yaml(out, summary))
-        (staging / "export.json").write_text(json.dumps(summary.to_dict(), indent=1))
-    logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
-    return summary
+
+def _make_folders(staging: Path, truth_splits: Sequence[str]) -> None:
+    """``images/<split>``, ``labels/<split>`` and ``truth/<truth split>`` under `staging`."""
+    for sub in ("images", "labels"):
+        for s in SPLITS:
+            (staging / sub / s).mkdir(parents=True)
+    for s in truth_splits:
+        (staging / "truth" / s).mkdir(parents=True)
 
 
-def _export_source(staging: Path, source: _Source, plan: dict[str, np.ndarray], axis: int, summary: ExportSummary,
-                   min_area: int, tolerance: float, truth_splits: set[str], bar) -> None:
+@dataclass(frozen=True)
+class _SliceOptions:
+    """How every slice is exported: slicing axis, intensity window and polygon settings (see `export_yolo`)."""
+
+    axis: int
+    window: tuple[float, float]
+    min_area: int
+    tolerance: float
+    truth_splits: frozenset[str]
+
+
+def _export_source(staging: Path, source: _Source, plan: dict[str, np.ndarray], options: _SliceOptions,
+                   summary: ExportSummary, bar: tqdm) -> None:
+    """Export every slice of `source` into the split `plan` gives it; add counts and the source to `summary`."""
     split_of = {int(i): s for s, indices in plan.items() for i in indices}
-    for index in range(source.shape[axis]):
-        s = split_of[index]
-        stem = f"{source.name}_a{axis}_s{index:04d}"
-        image = to_uint8(_take(source.tomogram, index, axis), summary.window)
-        Image.fromarray(image).save(staging / "images" / s / f"{stem}.png")
-        result = slice_polygons(_take(source.labels, index, axis), min_area=min_area, tolerance=tolerance)
-        (staging / "labels" / s / f"{stem}.txt").write_text(yolo_label_text(result.polygons, image.shape))
-        if s in truth_splits:
-            write_label_image(staging / "truth" / s / stem, result.parts)
-        summary.images[s] += 1
-        summary.instances[s] += len(result.polygons)
-        summary.empty_images[s] += not result.polygons
-        summary.dropped_fragments[s] += result.dropped_fragments
-        summary.instance_pixels[s] += result.instance_pixels
-        summary.hole_pixels[s] += result.hole_pixels
+    for index in range(source.shape[options.axis]):
+        split = split_of[index]
+        summary._count(split, _export_slice(staging, source, index, split, options))
         bar.update()
     summary.sources.append({
         "name": source.name, "kind": source.kind, "path": source.path, "volume": source.volume,
         "shape": list(source.shape), "slices": {s: len(indices) for s, indices in plan.items()},
         "test_block": [int(plan["test"][0]), int(plan["test"][-1]) + 1] if len(plan["test"]) else None,
     })
+
+
+def _export_slice(staging: Path, source: _Source, index: int, split: str, options: _SliceOptions) -> SlicePolygons:
+    """Write slice `index` of `source` into `split`: PNG image, label lines and, for a truth split, truth image."""
+    stem = f"{source.name}_a{options.axis}_s{index:04d}"
+    image = to_uint8(read_slice(source.tomogram, options.axis, index), options.window)
+    Image.fromarray(image).save(staging / "images" / split / f"{stem}.png")
+    result = slice_polygons(read_slice(source.labels, options.axis, index), min_area=options.min_area,
+                            tolerance=options.tolerance)
+    (staging / "labels" / split / f"{stem}.txt").write_text(yolo_label_text(result.polygons, image.shape))
+    if split in options.truth_splits:
+        write_label_image(staging / "truth" / split / stem, result.parts)
+    return result

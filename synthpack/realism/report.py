@@ -33,7 +33,7 @@ from scipy import stats
 
 from .._atomic import Output, atomic_directory
 from ..errors import SynthpackInputError
-from ..export.yolo import intensity_window
+from ..intensity import intensity_window
 from ..pack import find_packs
 from ..scan import Scan
 from .appearance import Appearance, measure_appearance

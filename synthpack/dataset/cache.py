@@ -1,0 +1,152 @@
+"""The pack cache: packs of one source and config, kept under a content-hash key and built when missing.
+
+This is the synthetic dataset's materialisation step (torchvision's
+``_check_exists()`` and ``download()``), kept apart from loading: `PackCache.check`
+finds the usable cached packs, `PackCache.build` runs the pipeline (particle
+library, then `synthpack.generate.generate_packs`) for the others.
+
+Layout under the cache root::
+
+    packs-<key>/pack_0000, ...      the packs; <key> hashes source, config, format, version
+    packs-<key>/key.json            what <key> covers
+    library-<key>/library           the particle library built from a scan source
+    library-<key>/key.json          (<key> hashes source, library config, version)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+
+from .. import __version__
+from .._atomic import atomic_file
+from ..config import PackConfig
+from ..errors import SynthpackInputError
+from ..generate import generate_packs, pack_name
+from ..library import ParticleLibrary
+from ..pack import is_complete_pack, open_pack
+from .source import PackSource
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["PackCache", "Shape"]
+
+#: A pack's volume shape ``(Z, Y, X)``.
+Shape = tuple[int, int, int]
+
+
+class PackCache:
+    """The packs ``0 .. n_packs - 1`` of `source` and `config` in `format`, cached under `root`.
+
+    Parameters
+    ----------
+    root : Path
+        Cache root (see the module docstring for the layout).
+    source : PackSource
+        What the grains come from; its identity (sample name and seed, scan
+        files' paths, sizes and modification times, or the hash of the
+        library's ``library.json``) is taken now.
+    n_packs : int
+        Number of packs; pack ``k`` is the same whatever `n_packs` is.
+    config : PackConfig
+        Pack configuration, seed included.
+    format : {"tiff", "zarr"}
+        Pack format.
+
+    Attributes
+    ----------
+    directory : Path
+        ``root/packs-<key>``.
+    paths : list of Path
+        The pack directories ``directory/pack_0000``, ...
+    """
+
+    def __init__(self, root: Path, source: PackSource, n_packs: int, config: PackConfig, format: str) -> None:
+        self.root = root
+        self.source = source
+        self.config = config
+        self.format = format
+        identity = source.identity()
+        self._library_key = {"source": identity, "library": config.to_dict()["library"], "synthpack": __version__}
+        self._pack_key = {"source": identity, "config": config.to_dict(), "format": format, "synthpack": __version__}
+        self.directory = root / f"packs-{_digest(self._pack_key)}"
+        self.paths = [self.directory / pack_name(k) for k in range(n_packs)]
+
+    def check(self) -> list[Shape | None]:
+        """Shape of each cached pack; None where it is missing, incomplete, corrupt or stale (logged)."""
+        config = json.loads(json.dumps(self.config.to_dict()))  # as the manifest stores it
+        return [_usable_pack_shape(path, config) for path in self.paths]
+
+    def build(self, shapes: Sequence[Shape | None], *, progress: bool = False) -> list[Shape]:
+        """Rebuild the packs that `check` found unusable (`shapes` is its result); return every pack's shape.
+
+        Unusable pack directories are removed first; the packs are built as Dask
+        tasks (`synthpack.generate.generate_packs`), which skips complete ones.
+        """
+        for path, shape in zip(self.paths, shapes):
+            if shape is None and path.exists():
+                shutil.rmtree(path)
+        generate_packs(self._library(progress), self.directory, len(self.paths), self.config, format=self.format,
+                       source=self.source.describe(), progress=progress)
+        _write_key(self.directory, self._pack_key)
+        built = self.check()
+        if any(shape is None for shape in built):
+            raise SynthpackInputError(f"packs in {self.directory} were built but cannot be read back: "
+                                      "check the disk (space, permissions) and try again")
+        return built  # type: ignore[return-value]
+
+    def _library(self, progress: bool) -> ParticleLibrary:
+        """The source's particle library: loaded, from the cache, or built from the scan and cached."""
+        if self.source.kind == "library":
+            return ParticleLibrary.load(self.source.paths[0])
+        directory = self.root / f"library-{_digest(self._library_key)}"
+        if (directory / "library").exists():
+            try:
+                return ParticleLibrary.load(directory / "library")
+            except SynthpackInputError as error:
+                logger.warning("cached library is unusable (%s): it will be rebuilt", error)
+        scan = self.source.read_scan()
+        logger.info("building the particle library of %s into %s", self.source.describe(), directory)
+        library = ParticleLibrary.from_scan(scan, **vars(self.config.library), progress=progress)
+        library.save(directory / "library")
+        _write_key(directory, self._library_key)
+        return library
+
+
+def _digest(data: dict) -> str:
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _write_key(directory: Path, key: dict) -> None:
+    directory.mkdir(parents=True, exist_ok=True)
+    with atomic_file(directory / "key.json") as tmp:
+        tmp.write_text(json.dumps(key, indent=1, sort_keys=True))
+
+
+def _usable_pack_shape(path: Path, config: dict) -> Shape | None:
+    """Shape of the cached pack at `path`, or None when it is missing, incomplete, corrupt or stale."""
+    if not path.exists():
+        return None
+    problem = None
+    if not is_complete_pack(path):
+        problem = "incomplete"
+    else:
+        try:
+            pack = open_pack(path)
+        except SynthpackInputError as error:
+            problem = str(error)
+        else:
+            if pack.shape != tuple(pack.manifest.get("shape", ())):
+                problem = f"volumes of shape {pack.shape}, manifest says {pack.manifest.get('shape')}"
+            elif pack.manifest.get("config") != config:
+                problem = "built with another config"
+            elif pack.labels.dtype.kind not in "iu":
+                problem = f"labels of dtype {pack.labels.dtype}"
+    if problem is not None:
+        logger.warning("cached pack %s is unusable (%s): it will be rebuilt", path, problem)
+        return None
+    return pack.shape

@@ -1,0 +1,80 @@
+"""A dataset's ``transform``: artefact transforms on the NumPy slice, then ``(image, target)`` callables."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..artefacts import Compose as ArtefactCompose
+from ..artefacts import Transform as ArtefactTransform
+from ..errors import SynthpackInputError
+from .targets import Item
+
+__all__ = ["SliceTransforms"]
+
+
+class SliceTransforms:
+    """The ``transform`` argument of a slice dataset, split by what each part acts on.
+
+    Parameters
+    ----------
+    transform : callable, artefact transform or list of them, optional
+        `synthpack.artefacts` transforms (listed first) act on the float32
+        NumPy slice; any other callable is called as
+        ``image, target = transform(image, target)`` on the item, in order.
+
+    Attributes
+    ----------
+    artefacts : list
+        The artefact transforms, in order.
+    callables : list
+        The ``(image, target)`` callables, in order.
+    """
+
+    def __init__(self, transform: Any) -> None:
+        self.artefacts: list = []
+        self.callables: list = []
+        if transform is None:
+            entries = []
+        elif isinstance(transform, (list, tuple)):
+            entries = list(transform)
+        else:
+            entries = [transform]
+        for entry in entries:
+            if isinstance(entry, (ArtefactTransform, ArtefactCompose)):
+                if self.callables:
+                    raise SynthpackInputError(
+                        f"artefact transform {entry!r} comes after an (image, target) transform: artefacts "
+                        "act on the raw slice, so list them first, e.g. transform=[GaussianNoise(std=0.05), "
+                        "v2.RandomHorizontalFlip()]"
+                    )
+                self.artefacts.append(entry)
+            elif callable(entry):
+                self.callables.append(entry)
+            else:
+                raise SynthpackInputError(
+                    f"transform {entry!r} is neither a synthpack.artefacts transform nor a callable "
+                    "image, target = transform(image, target): pass one of those, or a list of them"
+                )
+
+    def apply_artefacts(self, image: np.ndarray, seed: Sequence[int]) -> np.ndarray:
+        """The artefact transforms applied in order to the (H, W) slice `image`.
+
+        Their random draws come from one generator seeded by `seed` (the item's
+        ``(seed, epoch, volume, axis, slice)``), so an item is the same in any process.
+        """
+        if not self.artefacts:
+            return image
+        rng = np.random.default_rng(np.random.SeedSequence(list(seed)))
+        for artefact in self.artefacts:
+            image = artefact(image, rng)
+        return image
+
+    def __call__(self, image: Any, target: dict[str, Any]) -> Item:
+        """The ``(image, target)`` callables applied in order."""
+        sample: Item = (image, target)
+        for transform in self.callables:
+            sample = transform(*sample)
+        return sample
