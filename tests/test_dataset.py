@@ -214,6 +214,32 @@ def test_truncated_cache_file_is_rebuilt(root, pack, tmp_path, caplog):
     np.testing.assert_array_equal(rebuilt[3][0][0].numpy(), pack.tomogram[3])
 
 
+def test_cached_labels_replaced_by_random_content_are_rebuilt(root, pack, tmp_path, caplog):
+    copy = tmp_path / "cache"
+    shutil.copytree(root, copy)
+    labels = dataset(copy).cache_dir / "pack_0000" / "labels.tif"
+    noise = np.random.default_rng(0).integers(0, 60000, pack.shape).astype(pack.labels.dtype)
+    write_tiff(labels, noise, pack.voxel_size, pack.unit, labels=True)  # same shape and size
+    rebuilt = dataset(copy, split="all")
+    with caplog.at_level(logging.WARNING, logger="synthpack.dataset"):
+        assert len(rebuilt) == pack.shape[0]
+    assert "checksum" in caplog.text
+    np.testing.assert_array_equal(open_pack(labels.parent).labels[:], pack.labels[:])
+
+
+def test_a_cached_pack_folder_that_is_a_symlink_is_replaced_not_followed(root, pack, tmp_path):
+    copy = tmp_path / "cache"
+    shutil.copytree(root, copy)
+    cached = dataset(copy).cache_dir / "pack_0000"
+    elsewhere = tmp_path / "elsewhere"
+    cached.rename(elsewhere)
+    cached.symlink_to(elsewhere, target_is_directory=True)
+    rebuilt = dataset(copy, split="all")
+    assert len(rebuilt) == pack.shape[0]
+    assert cached.is_dir() and not cached.is_symlink()
+    assert (elsewhere / "manifest.json").is_file()  # what the link pointed to is untouched
+
+
 def test_without_postprocessing_gives_the_clean_slices(root, pack):
     clean = dataset(root, split="all", postprocess=False)
     image, _ = clean[30]

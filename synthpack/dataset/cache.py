@@ -9,6 +9,8 @@ Layout under the cache root::
 
     packs-<key>/pack_0000, ...      the packs; <key> hashes source, config, format, version
     packs-<key>/key.json            what <key> covers
+    packs-<key>/verified.json       size and modification time of each pack file when its
+                                    checksums were last verified
     library-<key>/library           the particle library built from a scan source
     library-<key>/key.json          (<key> hashes source, library config, version)
 """
@@ -77,9 +79,32 @@ class PackCache:
         self.paths = [self.directory / pack_name(k) for k in range(n_packs)]
 
     def check(self) -> list[Shape | None]:
-        """Shape of each cached pack; None where it is missing, incomplete, corrupt or stale (logged)."""
+        """Shape of each cached pack; None where it is missing, incomplete, corrupt or stale (logged).
+
+        A pack's checksums and labels are verified (`synthpack.pack.verify_pack`)
+        the first time it is seen and again whenever one of its files changes size
+        or modification time; the stamps of verified packs are kept in
+        ``verified.json``, so an unchanged cache is not read again.
+        """
         config = json.loads(json.dumps(self.config.to_dict()))  # as the manifest stores it
-        return [_usable_pack_shape(path, config) for path in self.paths]
+        stamps_path = self.directory / "verified.json"
+        try:
+            verified = json.loads(stamps_path.read_text())
+        except (OSError, ValueError):
+            verified = {}
+        shapes = []
+        for path in self.paths:
+            stamp = _stamp(path)
+            shape = _usable_pack_shape(path, config, verify=verified.get(path.name) != stamp)
+            if shape is not None:
+                verified[path.name] = stamp
+            else:
+                verified.pop(path.name, None)
+            shapes.append(shape)
+        if self.directory.is_dir():
+            with atomic_file(stamps_path) as tmp:
+                tmp.write_text(json.dumps(verified, indent=1, sort_keys=True))
+        return shapes
 
     def build(self, shapes: Sequence[Shape | None], *, progress: bool = False) -> list[Shape]:
         """Rebuild the packs that `check` found unusable (`shapes` is its result); return every pack's shape.
@@ -88,7 +113,9 @@ class PackCache:
         tasks (`synthpack.generate.generate_packs`), which skips complete ones.
         """
         for path, shape in zip(self.paths, shapes):
-            if shape is None and path.exists():
+            if shape is None and path.is_symlink():
+                path.unlink()  # the link only: what it points to is not the cache's to delete
+            elif shape is None and path.exists():
                 shutil.rmtree(path)
         generate_packs(self._library(progress), self.directory, len(self.paths), self.config, format=self.format,
                        source=self.source.describe(), progress=progress)
@@ -127,16 +154,29 @@ def _write_key(directory: Path, key: dict) -> None:
         tmp.write_text(json.dumps(key, indent=1, sort_keys=True))
 
 
-def _usable_pack_shape(path: Path, config: dict) -> Shape | None:
-    """Shape of the cached pack at `path`, or None when it is missing, incomplete, corrupt or stale."""
+def _stamp(path: Path) -> dict[str, list[int]]:
+    """Size and modification time (ns) of every file of the pack at `path`."""
+    if not path.is_dir():
+        return {}
+    files = sorted(p for p in path.rglob("*") if p.is_file())
+    return {p.relative_to(path).as_posix(): [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
+
+
+def _usable_pack_shape(path: Path, config: dict, *, verify: bool) -> Shape | None:
+    """Shape of the cached pack at `path`, or None when it is missing, incomplete, corrupt or stale.
+
+    With `verify`, the checksums of its files and its labels are checked too.
+    """
     if not path.exists():
         return None
     problem = None
-    if not is_complete_pack(path):
+    if path.is_symlink():
+        problem = "a symbolic link, not a pack the cache wrote"
+    elif not is_complete_pack(path):
         problem = "incomplete"
     else:
         try:
-            pack = open_pack(path)
+            pack = open_pack(path, verify=verify)
         except SynthpackInputError as error:
             problem = str(error)
         else:

@@ -22,11 +22,15 @@ __all__ = ["Tube", "DEFAULT_PACKING_FRACTION"]
 DEFAULT_PACKING_FRACTION = 0.55
 
 
-class _LibraryLike(Protocol):
-    """What :meth:`Tube.for_library` needs from a particle library."""
+class LibraryLike(Protocol):
+    """What the pour needs from a particle library (`synthpack.library.ParticleLibrary` has it).
+
+    Physics sits below the library stage, so it names the interface rather than the class.
+    """
 
     voxel_size: tuple[float, float, float]
     source_shape: tuple[int, int, int]
+    equivalent_diameters: np.ndarray
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Any: ...
@@ -85,7 +89,7 @@ class Tube:
     @classmethod
     def for_library(
         cls,
-        library: _LibraryLike,
+        library: LibraryLike,
         n_particles: int,
         *,
         scale: float = 1.0,

@@ -9,13 +9,13 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SynthpackInputError
-from .container import Tube
+from .container import LibraryLike, Tube
 
 logger = logging.getLogger(__name__)
 
@@ -25,13 +25,6 @@ __all__ = ["PourPlan", "make_plan", "parse_scale", "parse_size_classes", "SPAWN_
 #: of the batch's largest bounding-sphere radius.
 SPAWN_GAP = 0.1
 _SPAWN_CANDIDATES = 16  # random disc points tried per grain when spawning
-
-
-class _LibraryLike(Protocol):
-    equivalent_diameters: np.ndarray
-
-    def __len__(self) -> int: ...
-    def __getitem__(self, index: int) -> Any: ...
 
 
 @dataclass(frozen=True)
@@ -144,7 +137,7 @@ def parse_size_classes(
 
 
 def make_plan(
-    library: _LibraryLike,
+    library: LibraryLike,
     n_particles: int,
     batch_size: int,
     tube: Tube,
@@ -235,7 +228,7 @@ def _positive_float(value: Any, name: str) -> float:
 
 
 def _draw_indices(
-    library: _LibraryLike,
+    library: LibraryLike,
     n: int,
     classes: list[tuple[float, float, float]] | None,
     rng: np.random.Generator,
