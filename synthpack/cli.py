@@ -21,7 +21,7 @@ from . import __version__
 from ._atomic import Output, check_output
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
-from .physics.registry import ENGINES
+from .physics.registry import ENGINES, get_engine
 from .errors import PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
@@ -168,6 +168,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     from .generate import generate_packs
     from .library import ParticleLibrary
 
+    if args.scheduler is None:  # before the library is built; a remote cluster's workers are checked there
+        get_engine(config.pour.engine).check_available()
     if args.library:
         library = ParticleLibrary.load(args.library)
         source = library.source
@@ -176,7 +178,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         source = scan.source
         library = ParticleLibrary.from_scan(scan, **vars(config.library))
     paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source,
-                           workers=args.workers, scheduler=args.scheduler)
+                           workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite)
     if args.preview:
         _write_pack_preview(paths[0], library, paths[0] / "preview.png")
     print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))

@@ -18,14 +18,16 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from ._atomic import check_output
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from .artefacts.blockwise import apply_blockwise
 from .config import PackConfig, ReconstructConfig
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
-from .pack import is_complete_pack, stage_pack
+from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
 from .physics import Placements, Tube, pour
 from .physics.engine import Material
+from .physics.registry import get_engine
 from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
 from .reconstruct import Background, Grid, pose_maps, reconstruct
 from .runner import run_packs
@@ -320,6 +322,7 @@ def generate_packs(
     progress: bool = True,
     workers: int | None = None,
     scheduler: str | None = None,
+    overwrite: bool = False,
 ) -> list[Path]:
     """Build `n_packs` packs into ``out/pack_0000``, ... as Dask tasks (complete packs are skipped).
 
@@ -344,6 +347,9 @@ def generate_packs(
         Where the packs are built; see :func:`synthpack.runner.run_packs`.
         Default: a local Dask cluster sized to the machine, or this process
         when one pack is missing.
+    overwrite : bool
+        Write the packs into an `out` folder that holds something other than
+        packs (its files are kept).
 
     Returns
     -------
@@ -355,13 +361,20 @@ def generate_packs(
     PackBuildError
         If some packs failed (after all the others were built): it lists each
         failed pack with its error. Calling again builds only the missing packs.
+    SynthpackInputError
+        Before any work: for an output path that cannot be used, a post-processing
+        the library's source statistics cannot support, or an engine that cannot
+        run here (checked when the packs are built on this machine).
     """
     if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
         raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
     if format not in ("tiff", "zarr"):
         raise SynthpackInputError(f"pack format must be tiff or zarr, got {format!r}")
     config = config or PackConfig()
-    out = Path(out)
+    out = check_output(out, PACKS_OUTPUT, overwrite=overwrite)
+    check_postprocess(config.postprocess, library.statistics)
+    if scheduler is None:  # a remote cluster's workers may have what this machine lacks
+        get_engine(config.pour.engine).check_available()
     paths = [out / pack_name(index) for index in range(n_packs)]
     missing = [index for index, path in enumerate(paths) if not is_complete_pack(path)]
     if len(missing) < n_packs:

@@ -238,3 +238,14 @@ def test_labels_replaced_by_random_content_are_refused_by_the_export(pack):
     result = run("export-yolo", "--packs", str(pack), "--out", "yolo", cwd=pack.parent.parent)
     assert_refused(result, "corrupt", "labels.tif")
     assert not (pack.parent.parent / "yolo").exists()
+
+
+# 6. an engine that cannot run here is reported once, before any work
+def test_blender_missing_is_one_line_before_any_work(tmp_path, library, monkeypatch):
+    monkeypatch.delenv("SYNTHPACK_BLENDER", raising=False)
+    for args in (("generate", "--sample", "large", "--engine", "blender", "--n-packs", "2", "--out", "packs"),
+                 ("pour", "--library", str(library), "--engine", "blender", "--out", "p.json")):
+        result = run(*args, cwd=tmp_path)
+        assert_refused(result, "Blender")
+        assert result.stderr.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == []
