@@ -36,7 +36,9 @@ class ParticleCrop:
     Attributes
     ----------
     label : int
-        The particle's label in the source scan.
+        The particle's label in the source scan, as given (sparse labels are
+        renumbered inside a `Scan`, see `synthpack.scan.compact_labels`; this is
+        the original value).
     bbox : tuple of 6 int
         ``(z0, y0, x0, z1, y1, x1)``: half-open bounding box in source voxels.
     tomogram : ndarray of float32, shape (nz, ny, nx)
@@ -178,7 +180,7 @@ def extract_particles(
             continue
         clean = np.where(mask, tomogram[box], background).astype(np.float32)
         bbox = tuple(s.start for s in box) + tuple(s.stop for s in box)
-        crops.append(ParticleCrop(label, bbox, clean, mask, scan.voxel_size, touches))
+        crops.append(ParticleCrop(scan.original_label(label), bbox, clean, mask, scan.voxel_size, touches))
     logger.info(
         "extracted %d particles (%d below %d voxels, %d on the border dropped, "
         "%d split labels reduced to their largest piece)",

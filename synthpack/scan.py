@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +17,14 @@ from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Scan", "validate_voxel_size", "validate_labels", "validate_tomogram"]
+__all__ = ["Scan", "validate_voxel_size", "validate_labels", "validate_tomogram", "compact_labels"]
+
+#: Label values up to this are used as they are, however sparse: the tables indexed by
+#: label value (`scipy.ndimage.find_objects`, `numpy.bincount`) then take a few MB at most.
+DIRECT_LABEL_LIMIT = 2**20
+
+#: Voxels per slab when sparse labels are renumbered slab by slab.
+_SLAB_VOXELS = 2**22
 
 
 @dataclass
@@ -36,6 +44,13 @@ class Scan:
         Length unit of `voxel_size`, e.g. ``"um"`` or ``"mm"``.
     source : str
         Where the scan came from (paths or sample name), for manifests.
+
+    Attributes
+    ----------
+    label_values : ndarray of int, shape (N + 1,), or None
+        Set when the labels given were sparse (see :func:`compact_labels`): `labels`
+        then holds ``0..N`` and ``label_values[k]`` is the value label ``k`` had in
+        the volume given. None when the labels are used as given.
     """
 
     tomogram: np.ndarray
@@ -44,11 +59,12 @@ class Scan:
     unit: str = "um"
     source: str = ""
     metadata: dict = field(default_factory=dict)
+    label_values: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.voxel_size = validate_voxel_size(self.voxel_size)
         self.tomogram = validate_tomogram(self.tomogram)
-        self.labels = validate_labels(self.labels)
+        self.labels, self.label_values = compact_labels(validate_labels(self.labels))
         if self.tomogram.shape != self.labels.shape:
             raise SynthpackInputError(
                 f"tomogram shape {self.tomogram.shape} and labels shape "
@@ -66,6 +82,10 @@ class Scan:
     def n_particles(self) -> int:
         """Number of distinct positive labels."""
         return int(np.count_nonzero(np.bincount(self.labels.ravel())[1:]))
+
+    def original_label(self, label: int) -> int:
+        """The value that `label` (a label of `labels`) has in the label volume as given."""
+        return int(label if self.label_values is None else self.label_values[label])
 
     def __repr__(self) -> str:
         return (
@@ -198,3 +218,55 @@ def validate_labels(labels: np.ndarray) -> np.ndarray:
             "passed the label mask, not an empty or background-only image"
         )
     return labels
+
+
+def _slabs(shape: tuple[int, ...]) -> Iterator[slice]:
+    """Slices along axis 0 of about `_SLAB_VOXELS` voxels each."""
+    step = max(1, _SLAB_VOXELS // max(1, int(np.prod(shape[1:]))))
+    return (slice(start, start + step) for start in range(0, shape[0], step))
+
+
+def compact_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Renumber sparse instance labels ``1..N``, keeping their original values.
+
+    Tables indexed by label value grow with the largest label, not with the
+    number of particles: a single label 4,000,000,000 would need tens of GB. So
+    when the largest label exceeds both `DIRECT_LABEL_LIMIT` and twice the
+    number of distinct labels, the labels are renumbered in increasing order of
+    value, slab by slab (peak memory: the renumbered volume, in the smallest
+    unsigned dtype that holds ``N``, plus one slab). Otherwise `labels` is
+    returned as it is: dense labels cost one pass for the maximum and no copy.
+
+    Parameters
+    ----------
+    labels : (Z, Y, X) ndarray of non-negative int
+        Validated instance labels (see :func:`validate_labels`), 0 = background.
+
+    Returns
+    -------
+    labels : (Z, Y, X) ndarray of unsigned int
+        `labels` itself, or its renumbered copy holding ``0..N``.
+    values : ndarray, shape (N + 1,), or None
+        ``values[k]`` is the original value of renumbered label ``k``
+        (``values[0] == 0``); None when `labels` is returned as it is.
+
+    Examples
+    --------
+    >>> labels = np.zeros((2, 2, 2), np.uint32)
+    >>> labels[0, 0, 0], labels[1, 1, 1] = 70_000, 4_000_000_000
+    >>> compact, values = compact_labels(labels)
+    >>> compact[0, 0, 0], compact[1, 1, 1], values.tolist()
+    (np.uint8(1), np.uint8(2), [0, 70000, 4000000000])
+    """
+    top = int(labels.max())
+    if top <= DIRECT_LABEL_LIMIT:
+        return labels, None
+    pieces = [np.unique(labels[s]) for s in _slabs(labels.shape)]
+    values = np.unique(np.concatenate([np.zeros(1, labels.dtype), *pieces]))
+    if top <= 2 * (len(values) - 1):
+        return labels, None
+    logger.info("labels renumbered 1..%d: their values reach %d", len(values) - 1, top)
+    compact = np.empty(labels.shape, dtype=np.min_scalar_type(len(values) - 1))
+    for s in _slabs(labels.shape):
+        compact[s] = np.searchsorted(values, labels[s])
+    return compact, values

@@ -1,7 +1,10 @@
 import subprocess
 import sys
+import tracemalloc
 
 import numpy as np
+import pytest
+import tifffile
 
 from synthpack.cli import main
 from synthpack.io import write_tiff
@@ -86,3 +89,23 @@ def test_pour_and_generate_commands(tmp_path, large_library):
     bad.write_text("pour:\n  n_particle: 8\n")
     assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "x"),
                  "--config", str(bad)]) == 2
+
+
+@pytest.mark.parametrize("values", [(4_000_000_000,), (3, 70_000, 4_000_000_000)])
+def test_library_build_from_huge_sparse_labels_keeps_their_values(tmp_path, blob_scan, values):
+    """Issue 13 case 8: label 4e9 made find_objects allocate for 4e9 labels (MemoryError)."""
+    lookup = np.zeros(5, dtype=np.uint32)
+    lookup[1:1 + len(values)] = values
+    write_tiff(tmp_path / "t.tif", blob_scan.tomogram, (1, 1, 1))
+    tifffile.imwrite(tmp_path / "l.tif", lookup[blob_scan.labels])
+    tracemalloc.start()
+    try:
+        code = main(["-q", "library", "build", "--tomogram", str(tmp_path / "t.tif"), "--labels",
+                     str(tmp_path / "l.tif"), "--min-voxels", "10", "--out", str(tmp_path / "lib"),
+                     "--workers", "1"])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert code == 0
+    assert peak < 64e6
+    assert [p.label for p in ParticleLibrary.load(tmp_path / "lib")] == sorted(values)

@@ -77,3 +77,18 @@ def test_min_voxels_filter_and_empty_result_error(blob_scan):
     assert [c.label for c in extract_particles(blob_scan, min_voxels=1000)] == [1]
     with pytest.raises(SynthpackInputError, match="no particle left"):
         extract_particles(blob_scan, min_voxels=10**6)
+
+
+def test_sparse_labels_are_renumbered_and_keep_their_values(blob_scan):
+    values = np.array([0, 3, 70_000, 4_000_000_000, 5_000_000], dtype=np.uint32)
+    sparse = Scan(blob_scan.tomogram, values[blob_scan.labels])
+    assert sparse.labels.max() == 4 and sparse.n_particles == 4
+    crops = extract_particles(sparse, min_voxels=1, include_border=True)
+    dense = extract_particles(blob_scan, min_voxels=1, include_border=True)
+    assert [c.label for c in crops] == [3, 70_000, 5_000_000, 4_000_000_000]
+    assert sorted(c.bbox for c in crops) == sorted(c.bbox for c in dense)
+
+
+def test_dense_labels_are_used_as_given_without_a_copy(large_scan):
+    assert Scan(large_scan.tomogram, large_scan.labels).labels is large_scan.labels
+    assert large_scan.label_values is None
