@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import struct
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -654,8 +655,86 @@ def _read_npy(path: Path, role: str | None, name: str | None) -> Volume:
     return np.load(path, allow_pickle=False), None, None
 
 
+@contextmanager
+def _open_tiff(path: Path) -> Iterator[tifffile.TiffFile]:
+    """Open `path` with tifffile, refusing a file that looks truncated (see `_check_tiff_complete`).
+
+    tifffile reports a damaged file by logging errors and reading what it can.
+    Its log messages are held back while the file is open: dropped when an error
+    is raised (its message says what is wrong), logged as warnings otherwise.
+    """
+    messages: list[str] = []
+
+    def hold(record: logging.LogRecord) -> bool:
+        messages.append(record.getMessage())
+        return False
+
+    tifffile_logger = logging.getLogger("tifffile")
+    tifffile_logger.addFilter(hold)
+    try:
+        with tifffile.TiffFile(path) as tif:
+            _check_tiff_complete(tif, path)
+            yield tif
+    finally:
+        tifffile_logger.removeFilter(hold)
+    for message in messages:
+        logger.warning("%s: %s", path, message)
+
+
+def _check_tiff_complete(tif: tifffile.TiffFile, path: Path) -> None:
+    """Raise if `tif` refers to bytes past its end: a copy or export cut short.
+
+    A truncated TIFF often still opens, and tifffile reads the pages it finds:
+    a stack cut in half would come back as fewer slices, or a single one. Two
+    references can point past the end: the link from the last page found to the
+    next one, and the image data of the first series.
+    """
+    size = tif.filehandle.size
+    found = len(tif.pages)  # follows the whole chain of pages
+    end = _next_page_link(tif)
+    if end <= size and tif.series:
+        end = max(end, _data_end(tif.series[0]))
+    if end <= size:
+        return
+    announced = _announced_images(tif)
+    pages = f"{announced} images announced, {found} found; " if announced and announced > found else ""
+    raise SynthpackInputError(
+        f"{path} looks truncated (incomplete): {pages}the file is {size:,} bytes but refers to data up "
+        f"to byte {end:,}. Re-export or copy the file again"
+    )
+
+
+def _announced_images(tif: tifffile.TiffFile) -> int | None:
+    """The number of 2D images that the ImageJ or tifffile metadata of `tif` announce, if any."""
+    if tif.imagej_metadata:
+        return int(tif.imagej_metadata.get("images", 1))
+    if tif.shaped_metadata and tif.pages.first.size:
+        return int(np.prod(tif.shaped_metadata[0]["shape"])) // tif.pages.first.size
+    return None
+
+
+def _next_page_link(tif: tifffile.TiffFile) -> int:
+    """Where the last page found says the next page is (0: it is the last), or where that link would end."""
+    position = tif.pages.next_page_offset
+    if position is None:
+        return 0
+    tif.filehandle.seek(position)
+    raw = tif.filehandle.read(tif.tiff.offsetsize)
+    if len(raw) < tif.tiff.offsetsize:
+        return position + tif.tiff.offsetsize
+    return int(struct.unpack(tif.tiff.offsetformat, raw)[0])
+
+
+def _data_end(series: tifffile.TiffPageSeries) -> int:
+    """The byte after the last image data of `series` in its file."""
+    if series.dataoffset is not None:
+        return int(series.dataoffset) + int(series.nbytes)
+    return max((int(offset) + int(count) for page in series.pages if page is not None
+                for offset, count in zip(page.dataoffsets, page.databytecounts)), default=0)
+
+
 def _read_tiff(path: Path, role: str | None, name: str | None) -> Volume:
-    with tifffile.TiffFile(path) as tif:
+    with _open_tiff(path) as tif:
         if len(tif.series) > 1:
             logger.warning("%s holds %d image series of shapes %s; reading the first only",
                            path, len(tif.series), [s.shape for s in tif.series])
@@ -668,7 +747,7 @@ def _read_tiff_folder(path: Path, role: str | None, name: str | None) -> Volume:
     files = _natural_sorted(
         f for f in _visible_files(path) if f.suffix.lower() in _TIFF_SUFFIXES
     )
-    with _reading(files[0], "TIFF"), tifffile.TiffFile(files[0]) as tif:
+    with _reading(files[0], "TIFF"), _open_tiff(files[0]) as tif:
         shape, dtype = tif.series[0].shape, tif.series[0].dtype
         size, unit = _tiff_voxel_size(tif, stack=False)
     if len(shape) != 2:
@@ -678,7 +757,7 @@ def _read_tiff_folder(path: Path, role: str | None, name: str | None) -> Volume:
         )
     volume = np.empty((len(files), *shape), dtype=dtype)
     for k, file in enumerate(files):
-        with _reading(file, "TIFF"), tifffile.TiffFile(file) as tif:
+        with _reading(file, "TIFF"), _open_tiff(file) as tif:
             series = tif.series[0]
             if series.shape != shape or series.dtype != dtype:
                 raise SynthpackInputError(

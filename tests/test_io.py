@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 import os
+import subprocess
+import sys
 
 import netCDF4
 import numpy as np
@@ -291,6 +293,39 @@ def test_corrupt_file(tmp_path, labels, name, fmt):
     (tmp_path / name).write_bytes(b"\x00garbage, not a volume\xff" * 8)
     with pytest.raises(SynthpackInputError, match=f"cannot read .*{name} as {fmt}"):
         read_scan(tmp_path / name, labels)
+
+
+@pytest.mark.parametrize("writer", [
+    lambda path, volume: write_tiff(path, volume, (1, 1, 1)),
+    lambda path, volume: tifffile.imwrite(path, volume),
+    lambda path, volume: tifffile.imwrite(path, volume, metadata=None, compression="zlib"),
+], ids=["imagej", "tifffile", "compressed-without-metadata"])
+@pytest.mark.parametrize("kept", [0.1, 0.5, 0.99])
+def test_truncated_tiff_is_named_as_such(tmp_path, tomogram, writer, kept, caplog):
+    """Issue 13 case 9: a stack cut in half was read as its first slice ("2 dimension(s)")."""
+    writer(tmp_path / "whole.tif", np.tile(tomogram, (4, 1, 1)))
+    data = (tmp_path / "whole.tif").read_bytes()
+    (tmp_path / "cut.tif").write_bytes(data[: int(len(data) * kept)])
+    with pytest.raises(SynthpackInputError, match="cut.tif looks truncated .* Re-export or copy the file again"):
+        read_volume(tmp_path / "cut.tif")
+    assert not [r for r in caplog.records if r.name == "tifffile"]
+
+
+def test_cli_refuses_a_truncated_tiff_in_one_line(tmp_path, tomogram, labels):
+    volume = np.tile(tomogram, (4, 1, 1))
+    write_tiff(tmp_path / "whole.tif", volume, (1, 1, 1))
+    write_tiff(tmp_path / "labels.tif", np.tile(labels, (4, 1, 1)), (1, 1, 1), labels=True)
+    data = (tmp_path / "whole.tif").read_bytes()
+    (tmp_path / "cut.tif").write_bytes(data[: len(data) // 2])
+    run = subprocess.run([sys.executable, "-m", "synthpack.cli", "library", "build", "--tomogram",
+                          str(tmp_path / "cut.tif"), "--labels", str(tmp_path / "labels.tif"),
+                          "--out", str(tmp_path / "x")], capture_output=True, text=True)
+    assert run.returncode == 2
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in run.stderr
+    assert "cut.tif looks truncated" in lines[0] and f"{volume.shape[0]} images announced, 1 found" in lines[0]
+    assert "Re-export or copy the file again" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.tif", "labels.tif", "whole.tif"]
 
 
 def test_corrupt_slice_in_folder_is_named(tmp_path):
