@@ -3,7 +3,9 @@
 Every subcommand turns a :class:`~synthpack.errors.SynthpackInputError` into one
 line on stderr and exit code 2, without a traceback. ``generate`` exits with code
 1 when some packs failed (:class:`~synthpack.errors.PackBuildError`), after
-building all the others.
+building all the others. A Ctrl-C ends any command with exit code 130 and one
+line; for ``generate`` it says which packs are complete (a rerun builds only the
+missing ones), after removing the staging folders of the packs it stopped.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any
 from pathlib import Path
 
 from . import __version__
-from ._atomic import Output, check_output
+from ._atomic import Output, check_output, remove_stale_staging
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
 from .physics.registry import ENGINES, get_engine
@@ -176,12 +178,36 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     else:
         scan = _read_source_scan(args)
         source = scan.source
-        library = ParticleLibrary.from_scan(scan, **vars(config.library))
-    paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source,
-                           workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite)
+        library = ParticleLibrary.from_scan(scan, **vars(config.library), progress=not args.quiet)
+    try:
+        paths = generate_packs(library, args.out, args.n_packs, config, format=args.format, source=source,
+                               workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
+                               progress=not args.quiet)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(_packs_kept(args.out, args.n_packs)) from None
     if args.preview:
         _write_pack_preview(paths[0], library, paths[0] / "preview.png")
     print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
+
+
+def _packs_kept(out: Path, n_packs: int) -> str:
+    """What an interrupted run leaves in `out`, once the staging folders of its stopped packs are removed."""
+    from .generate import pack_name
+    from .pack import is_complete_pack
+
+    complete = []
+    for index in range(n_packs):
+        path = out / pack_name(index)
+        remove_stale_staging(path)  # a pack stopped mid-build, its worker process gone
+        if is_complete_pack(path):
+            complete.append(path.name)
+    if not complete:
+        return f"no pack of {n_packs} is complete in {out}; run the same command again to build them"
+    if len(complete) == n_packs:
+        return f"all {n_packs} packs are complete in {out}"
+    names = ", ".join(complete) if len(complete) <= 4 else f"{complete[0]}, {complete[1]}, ..., {complete[-1]}"
+    return (f"{len(complete)} of {n_packs} packs are complete in {out} ({names}); run the same command again "
+            f"to build only the {n_packs - len(complete)} missing")
 
 
 def _write_pack_preview(pack_path: Path, library, png: Path) -> Path:
@@ -465,8 +491,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except PackBuildError as error:
         print(f"synthpack: error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("synthpack: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as interrupt:  # generate says what it kept
+        detail = f": {interrupt}" if str(interrupt) else ""
+        print(f"synthpack: interrupted{detail}", file=sys.stderr)
         return 130
     except OSError as error:  # disk full, permissions changed mid-run: one line, no traceback
         where = f" ({error.filename})" if error.filename else ""

@@ -17,6 +17,16 @@ reported with its error while the others carry on. Where the tasks run:
 A pack run by a Dask worker renders its chunks with one thread (the worker's
 parallelism is over packs); in this process it uses every core. Neither changes
 a single byte of the pack.
+
+A local cluster is quiet: dask.distributed logs only warnings while it runs (as
+`distributed.LocalCluster`'s ``silence_logs`` intends, also when the calling
+program has configured logging) and nothing while it shuts down, when comms
+closing in any order are expected (unless synthpack logs at DEBUG level). Its
+worker processes ignore Ctrl-C (:func:`dask_setup`): the calling process gets
+the `KeyboardInterrupt`, and closing the cluster stops them (a pack still being
+built is stopped after a few seconds, leaving its staging folder to the caller,
+see `synthpack._atomic.remove_stale_staging`). A Ctrl-C while the cluster starts
+(a few seconds) is ignored.
 """
 
 from __future__ import annotations
@@ -24,18 +34,21 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from tqdm.auto import tqdm
+from tqdm.std import tqdm as std_tqdm
 
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["run_packs", "PackTask"]
+__all__ = ["run_packs", "PackTask", "dask_setup"]
 
 #: ``task(library, index, threads=...) -> Path``: builds and writes pack `index`.
 PackTask = Callable[..., Path]
@@ -60,10 +73,97 @@ def _check(workers: int | None, scheduler: str | None) -> None:
         )
 
 
+def dask_setup(worker: Any) -> None:
+    """Dask preload of the local cluster's worker processes: quiet, and Ctrl-C left to the calling process.
+
+    A Ctrl-C in a terminal reaches every process of the foreground group, where each
+    worker process would print a `KeyboardInterrupt` traceback. Workers ignore SIGINT
+    (those a local cluster starts do so from their start-up, see `_local_client`; this
+    covers a worker restarted later): the calling process stops the run and closes the
+    cluster. Once a worker is closing, its dask.distributed log records are dropped:
+    tasks cancelled and comms closed at shutdown are expected then. tqdm's lock
+    becomes a thread lock: the default one holds a multiprocessing semaphore, which a
+    worker killed mid-pack (an interrupted run) would leave to the resource tracker,
+    which then warns at exit.
+
+    Parameters
+    ----------
+    worker : distributed.Worker
+        The worker starting.
+    """
+    from distributed.core import Status
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    std_tqdm.set_lock(threading.RLock())
+    closing = {Status.closing, Status.closing_gracefully, Status.closed}
+
+    def running(record: logging.LogRecord) -> bool:
+        return worker.status not in closing
+
+    for handler in logging.getLogger("distributed").handlers:
+        handler.addFilter(running)
+
+
+@contextlib.contextmanager
+def _dask_logging_at_least(level: int) -> Iterator[None]:
+    """Raise the level of dask.distributed's loggers to `level` inside the block, unless synthpack logs at DEBUG."""
+    dask_logger = logging.getLogger("distributed")
+    saved = dask_logger.level
+    if not logger.isEnabledFor(logging.DEBUG):
+        dask_logger.setLevel(max(level, dask_logger.getEffectiveLevel()))
+    try:
+        yield
+    finally:
+        dask_logger.setLevel(saved)
+
+
+@contextlib.contextmanager
+def _ctrl_c_ignored() -> Iterator[None]:
+    """Ignore Ctrl-C inside the block (in the main thread, with a handler set from Python; else nothing changes).
+
+    Processes started in the block inherit the setting from their first instruction,
+    so a Ctrl-C cannot interrupt them halfway through their start-up.
+    """
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _local_client(workers: int) -> Iterator[Any]:
+    """A `distributed.Client` of a local cluster of `workers` processes, shut down quietly at the end of the block.
+
+    Its worker processes start with Ctrl-C ignored, so a Ctrl-C while the cluster
+    starts (a few seconds) is ignored; after that it stops the run.
+    """
+    from distributed import Client, LocalCluster
+
+    with _dask_logging_at_least(logging.WARNING):
+        cluster = client = None
+        try:
+            with _ctrl_c_ignored():
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", preload=[__name__])
+            client = Client(cluster)
+            yield client
+        finally:
+            with _dask_logging_at_least(logging.CRITICAL):
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
+
+
 @contextlib.contextmanager
 def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     """A `distributed.Client` of an existing cluster, or of a local cluster that lives as long as the block."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler is not None:
         try:
@@ -76,9 +176,8 @@ def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
         with client:
             yield client
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
-        with Client(cluster) as client:
-            yield client
+    with _local_client(workers) as client:
+        yield client
 
 
 def _run_here(task: PackTask, indices: Sequence[int], library: Any, bar: tqdm) -> dict[int, str]:

@@ -5,6 +5,11 @@ from __future__ import annotations
 import copy
 import dataclasses
 import filecmp
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -101,3 +106,49 @@ def test_bad_cluster_settings_are_rejected(kwargs, message):
 
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}), pytest.raises(SynthpackInputError, match=message):
         run_packs(print, [0], None, progress=False, **kwargs)
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "synthpack.cli", "-q", *args]
+
+
+def _stderr_lines(stderr: str) -> list[str]:
+    # pybullet prints its build-time banner on stderr when a worker imports it (synthpack.physics)
+    return [line for line in stderr.splitlines() if line and not line.startswith("pybullet build time:")]
+
+
+def test_a_local_cluster_run_leaves_stderr_quiet(tmp_path):
+    """Issue 13 case 13: a run succeeded, then printed a CommClosedError traceback while the cluster shut down."""
+    for run in range(3):
+        out = tmp_path / f"run{run}"
+        result = subprocess.run(_cli("generate", "--sample", "large", "--n-packs", "3", "--workers", "2",
+                                     "--n-particles", "8", "--batch-size", "8", "--out", str(out)),
+                                capture_output=True, text=True, timeout=300)
+        assert result.returncode == 0, result.stderr
+        assert "Traceback" not in result.stderr and "CommClosedError" not in result.stderr
+        assert _stderr_lines(result.stderr) == [], result.stderr
+        assert sorted(p.name for p in out.iterdir()) == [pack_name(k) for k in range(3)]
+
+
+def test_ctrl_c_keeps_the_complete_packs_and_says_so_in_one_line(large_library, tmp_path):
+    """Issue 13 case 13: Ctrl-C printed KeyboardInterrupt tracebacks from the worker processes."""
+    large_library.save(tmp_path / "library")
+    out = tmp_path / "packs"
+    command = _cli("generate", "--library", str(tmp_path / "library"), "--n-packs", "6", "--workers", "2",
+                   "--n-particles", "60", "--batch-size", "20", "--out", str(out))
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    deadline = time.monotonic() + 240
+    while not (out / "pack_0000" / "manifest.json").exists() and process.poll() is None:
+        assert time.monotonic() < deadline, "no pack completed in time"
+        time.sleep(0.1)
+    os.killpg(process.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    [line] = _stderr_lines(stderr)
+    complete = sorted(p.name for p in out.iterdir() if is_complete_pack(p))
+    assert "pack_0000" in complete and len(complete) < 6
+    assert line.startswith(f"synthpack: interrupted: {len(complete)} of 6 packs are complete in {out} (")
+    assert "run the same command again to build only the" in line
+    assert sorted(p.name for p in out.iterdir()) == complete  # no staging folder of a stopped pack
