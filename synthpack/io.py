@@ -542,8 +542,9 @@ def read_label_image(path: str | os.PathLike) -> np.ndarray:
                         "(grey or palette), one integer id per instance"
                     )
                 array = np.array(image)
-        elif path.suffix.lower() in (".tif", ".tiff"):
-            array = tifffile.imread(path)
+        elif path.suffix.lower() in _TIFF_SUFFIXES:
+            with _open_tiff(path) as tif:
+                array = tif.asarray()
         elif path.suffix.lower() == ".npy":
             array = np.load(path, allow_pickle=False)
         else:
