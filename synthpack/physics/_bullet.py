@@ -1,8 +1,8 @@
-"""A pybullet physics client, connected without its C-level chatter on stdout.
+"""A pybullet physics client, imported and connected without its C-level chatter.
 
-pybullet prints a "pybullet build time: ..." banner when the first physics server
-starts, and V-HACD prints its progress; both come from C ``printf`` (buffered), which
-would end up in the middle of a command-line tool's output.
+pybullet prints a "pybullet build time: ..." banner on stderr when it is imported
+(once in every Dask worker process), and V-HACD prints its progress on stdout; both
+come from C, which would end up in the middle of a command-line tool's output.
 
 :class:`Client` binds one headless physics server's id to pybullet's functions once,
 as Kubric's pybullet simulator does, so callers write ``client.stepSimulation()``
@@ -19,27 +19,35 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
-import pybullet
-
 __all__ = ["Client", "silenced_stdout"]
 
 _LIBC = ctypes.CDLL(None)
 
 
 @contextlib.contextmanager
-def silenced_stdout() -> Iterator[None]:
-    """Send file descriptor 1 (C-level stdout) to /dev/null inside the block."""
+def _silenced(fd: int) -> Iterator[None]:
+    """Send file descriptor `fd` (1: C-level stdout, 2: stderr) to /dev/null inside the block."""
     sys.stdout.flush()
+    sys.stderr.flush()
     _LIBC.fflush(None)
-    saved = os.dup(1)
+    saved = os.dup(fd)
     try:
         with open(os.devnull, "wb") as devnull:
-            os.dup2(devnull.fileno(), 1)
+            os.dup2(devnull.fileno(), fd)
         yield
     finally:
         _LIBC.fflush(None)  # C's buffered output goes to /dev/null, not to the terminal
-        os.dup2(saved, 1)
+        os.dup2(saved, fd)
         os.close(saved)
+
+
+def silenced_stdout() -> contextlib.AbstractContextManager[None]:
+    """Send file descriptor 1 (C-level stdout) to /dev/null inside the block."""
+    return _silenced(1)
+
+
+with _silenced(2):  # the import-time banner
+    import pybullet
 
 
 class Client:
