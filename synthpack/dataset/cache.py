@@ -118,7 +118,8 @@ class PackCache:
             elif shape is None and path.exists():
                 shutil.rmtree(path)
         generate_packs(self._library(progress), self.directory, len(self.paths), self.config, format=self.format,
-                       source=self.source.describe(), progress=progress)
+                       source=self.source.describe(), progress=progress,
+                       overwrite=True)  # the cache's own folder, even while it holds no pack
         _write_key(self.directory, self._pack_key)
         built = self.check()
         if any(shape is None for shape in built):
