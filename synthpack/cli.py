@@ -353,8 +353,8 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--preview", action="store_true", help="write preview.png into the first pack")
     generate.add_argument("--print-config", action="store_true", help="print the full config and exit")
     generate.add_argument("--calibrate", action="store_true",
-                          help="fit blur and noise to the source scan's edge width and noise level "
-                               "(config postprocess: calibrated)")
+                          help="fit blur and noise to the source scan's edge width and noise level, whatever "
+                               "the config says (config postprocess: calibrated, the default)")
     _add_overwrite_argument(generate)
     generate.set_defaults(run=_cmd_generate)
 

@@ -119,8 +119,9 @@ def build_pack(
     config : PackConfig
         Pour, reconstruction and post-processing settings. The post-processing is
         resolved by `synthpack.postprocess.resolve_postprocessing`; with
-        ``postprocess: calibrated`` the blur and noise are fitted to the source
-        scan and the fit is recorded in the manifest under ``calibration``.
+        ``postprocess: calibrated`` (the default) the blur and noise are fitted to
+        the source scan and the fit is recorded in the manifest under
+        ``calibration``. The mode applied is recorded under ``postprocess_mode``.
     seed : int
         Seed of this pack (pour, pore texture and artefacts).
     progress : bool
@@ -134,7 +135,7 @@ def build_pack(
         (float32), e.g. Zarr arrays (`synthpack.pack.StagedPack.zarr_array`).
         Default: NumPy arrays.
     """
-    check_postprocess(config.postprocess, library.statistics)  # fail before the pour, not after it
+    check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
