@@ -3,7 +3,8 @@
 Every subcommand turns a :class:`~synthpack.errors.SynthpackInputError` into one
 line on stderr and exit code 2, without a traceback. ``generate`` exits with code
 1 when some packs failed (:class:`~synthpack.errors.PackBuildError`), after
-building all the others.
+building all the others, and with code 2 when every failed pack failed on its
+input (:class:`~synthpack.errors.PackInputError`).
 """
 
 from __future__ import annotations
