@@ -3,9 +3,11 @@
 Every subcommand turns a :class:`~synthpack.errors.SynthpackInputError` into one
 line on stderr and exit code 2, without a traceback. ``generate`` exits with code
 1 when some packs failed (:class:`~synthpack.errors.PackBuildError`), after
-building all the others. A Ctrl-C ends any command with exit code 130 and one
-line; for ``generate`` it says which packs are complete (a rerun builds only the
-missing ones), after removing the staging folders of the packs it stopped.
+building all the others, and with code 2 when every failed pack failed on its
+input (:class:`~synthpack.errors.PackInputError`). A Ctrl-C ends any command with
+exit code 130 and one line; for ``generate`` it says which packs are complete (a
+rerun builds only the missing ones), after removing the staging folders of the
+packs it stopped.
 """
 
 from __future__ import annotations
@@ -379,8 +381,8 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--preview", action="store_true", help="write preview.png into the first pack")
     generate.add_argument("--print-config", action="store_true", help="print the full config and exit")
     generate.add_argument("--calibrate", action="store_true",
-                          help="fit blur and noise to the source scan's edge width and noise level "
-                               "(config postprocess: calibrated)")
+                          help="fit blur and noise to the source scan's edge width and noise level, whatever "
+                               "the config says (config postprocess: calibrated, the default)")
     _add_overwrite_argument(generate)
     generate.set_defaults(run=_cmd_generate)
 

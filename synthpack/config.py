@@ -8,21 +8,26 @@ optional and falls back to the default shown by ``synthpack generate
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {sigma: 0.8, tile: 64}}
-    postprocess: default          # or none, match_source, calibrated, or a list of artefact transforms
+    postprocess: calibrated       # or match_source, generic, none, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.LibraryConfig`,
 :class:`~synthpack.physics.PourConfig` and
 :class:`~synthpack.reconstruct.ReconstructConfig` (with its sub-section
 :class:`~synthpack.pore_texture.PoreTexture`). What each ``postprocess`` value
-means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`. Unknown
-keys, wrong types and out-of-range values raise
+means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`; the
+default, ``calibrated``, fits the post-processing to the source scan of the
+particle library, which every pack has. ``postprocess: default`` (the name of
+``generic`` before synthpack 0.3.0) is still read, with a warning, as the
+default. Unknown keys, wrong types and out-of-range values raise
 :class:`~synthpack.errors.SynthpackInputError` naming the key.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,13 +35,15 @@ from typing import Any
 
 import yaml
 
-from ._schema import build, non_negative, setting
+from ._schema import build, default_of, non_negative, setting
 from .artefacts import from_config
 from .errors import SynthpackInputError
 from .library import LibraryConfig
 from .physics.config import PourConfig
 from .postprocess import POSTPROCESS_MODES
 from .reconstruct import ReconstructConfig
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "PackConfig",
@@ -47,12 +54,23 @@ __all__ = [
 ]
 
 
+#: The old name of ``postprocess: generic``, read as the default post-processing, with a warning.
+_DEPRECATED_POSTPROCESS = "default"
+
+
 def _valid_postprocess(value: str | list) -> bool:
-    """'default', 'none', 'match_source', 'calibrated' or a valid list of artefact transforms"""
+    """'calibrated', 'match_source', 'generic', 'none' or a valid list of artefact transforms"""
     if isinstance(value, list):
         from_config(value)  # a bad pipeline raises with the transform's own message
         return True
-    return value in POSTPROCESS_MODES
+    return value in POSTPROCESS_MODES or value == _DEPRECATED_POSTPROCESS
+
+
+@functools.cache
+def _warn_deprecated_postprocess(default: str) -> None:
+    """Warn, once per process, that ``postprocess: default`` now means `default`."""
+    logger.warning("postprocess: default is deprecated and now means the default, %s (fitted to the source "
+                   "scan); the recipe it named before synthpack 0.3.0 is postprocess: generic", default)
 
 
 @dataclass(frozen=True)
@@ -64,11 +82,18 @@ class PackConfig:
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
     postprocess: str | list = setting(
-        "default", _valid_postprocess,
-        "'default', 'none', 'match_source' (Gaussian noise up to the source scan's noise level), "
-        "'calibrated' (blur and noise fitted to the source's edge width and noise level) "
-        "or a list of artefact transforms",
+        "calibrated", _valid_postprocess,
+        "'calibrated' (blur and noise fitted to the source scan's edge width and noise level; where that "
+        "cannot be fitted, match_source with a warning), 'match_source' (Gaussian noise up to the source's "
+        "noise level), 'generic' (light blur, weak rings and noise of 3-8% of the contrast, fitted to nothing), "
+        "'none', or a list of artefact transforms",
     )
+
+    def __post_init__(self) -> None:
+        if self.postprocess == _DEPRECATED_POSTPROCESS:
+            default = default_of(PackConfig, "postprocess")
+            _warn_deprecated_postprocess(default)
+            object.__setattr__(self, "postprocess", default)
 
     def to_dict(self) -> dict:
         """A plain, YAML/JSON-able dict of every value."""

@@ -1,5 +1,9 @@
 """Exception types raised by synthpack: bad input, and packs that failed to build."""
 
+from __future__ import annotations
+
+from collections.abc import Mapping
+
 
 class SynthpackInputError(ValueError):
     """Input that synthpack cannot use: the message says what is wrong and what to do.
@@ -27,7 +31,7 @@ class PackBuildError(RuntimeError):
         Packs in the run.
     """
 
-    def __init__(self, failures: dict[str, str], out, n_packs: int) -> None:
+    def __init__(self, failures: Mapping[str, str], out, n_packs: int) -> None:
         self.failures = dict(sorted(failures.items()))
         self.out = out
         self.n_packs = n_packs
@@ -36,3 +40,21 @@ class PackBuildError(RuntimeError):
             f"{len(self.failures)} of {n_packs} packs failed ({listed}); the others are in {out}. "
             "Fix the cause and run the same command again: only the missing packs are built"
         )
+
+    @staticmethod
+    def of(errors: Mapping[str, BaseException], out, n_packs: int) -> PackBuildError:
+        """The error of a run whose packs `errors` (name -> exception) failed.
+
+        A `PackInputError` when every one failed on its input (a
+        `SynthpackInputError`), else a `PackBuildError`.
+        """
+        kind = PackInputError if all(isinstance(e, SynthpackInputError) for e in errors.values()) else PackBuildError
+        return kind({name: f"{type(error).__name__}: {error}" for name, error in errors.items()}, out, n_packs)
+
+
+class PackInputError(PackBuildError, SynthpackInputError):
+    """Packs of a run failed, every one on its input: a `PackBuildError` that is also a `SynthpackInputError`.
+
+    The command-line interface reports it as input errors are: one line on
+    stderr, exit code 2.
+    """

@@ -119,8 +119,9 @@ def build_pack(
     config : PackConfig
         Pour, reconstruction and post-processing settings. The post-processing is
         resolved by `synthpack.postprocess.resolve_postprocessing`; with
-        ``postprocess: calibrated`` the blur and noise are fitted to the source
-        scan and the fit is recorded in the manifest under ``calibration``.
+        ``postprocess: calibrated`` (the default) the blur and noise are fitted to
+        the source scan and the fit is recorded in the manifest under
+        ``calibration``. The mode applied is recorded under ``postprocess_mode``.
     seed : int
         Seed of this pack (pour, pore texture and artefacts).
     progress : bool
@@ -134,7 +135,7 @@ def build_pack(
         (float32), e.g. Zarr arrays (`synthpack.pack.StagedPack.zarr_array`).
         Default: NumPy arrays.
     """
-    check_postprocess(config.postprocess, library.statistics)  # fail before the pour, not after it
+    check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
@@ -362,9 +363,11 @@ def generate_packs(
         If some packs failed (after all the others were built): it lists each
         failed pack with its error. Calling again builds only the missing packs.
     SynthpackInputError
-        Before any work: for an output path that cannot be used, a post-processing
-        the library's source statistics cannot support, or an engine that cannot
-        run here (checked when the packs are built on this machine).
+        Before any work: for an output path that cannot be used, an unknown
+        post-processing, or an engine that cannot run here (checked when the packs
+        are built on this machine). After the other packs were built: when every
+        failed pack failed on its input (a `~synthpack.errors.PackInputError`,
+        which is both a `PackBuildError` and a `SynthpackInputError`).
     """
     if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
         raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
@@ -384,5 +387,5 @@ def generate_packs(
     failures = run_packs(build, missing, library, n_packs=n_packs, workers=workers, scheduler=scheduler,
                          progress=progress)
     if failures:
-        raise PackBuildError({pack_name(i): error for i, error in failures.items()}, out, n_packs)
+        raise PackBuildError.of({pack_name(i): error for i, error in failures.items()}, out, n_packs)
     return paths

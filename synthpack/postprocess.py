@@ -6,34 +6,48 @@ pipeline to apply to the clean pack, and the values to record in the pack's
 manifest:
 
 ================  ===========================================================================
-``default``       `~synthpack.artefacts.default_postprocessing` scaled to the source's
-                  grain-pore contrast: light blur, weak rings half the time, Gaussian noise
-``none``          nothing (an empty pipeline)
+``calibrated``    the default (`~synthpack.config.PackConfig`): blur and Gaussian noise fitted
+                  in the pack's bulk region (`bulk_region`) to the source's edge width and
+                  noise level (`~synthpack.artefacts.calibrate`); the fit is recorded under
+                  ``calibration``. Where it cannot be fitted (the source's edge width was not
+                  measured, the pack has no bulk region, or its bulk no edges), ``match_source``
+                  instead, with a warning, and the reason recorded under ``postprocess_fallback``
 ``match_source``  Gaussian noise that brings the clean pack to the source's noise level
                   (measured on the pack's central slices, at most `NOISE_SAMPLE_VOXELS` voxels;
-                  variances add, `~synthpack.artefacts.noise_to_add`)
-``calibrated``    blur and Gaussian noise fitted in the pack's bulk region (`bulk_region`) to
-                  the source's edge width and noise level (`~synthpack.artefacts.calibrate`);
-                  the fit is recorded under ``calibration``
+                  variances add, `~synthpack.artefacts.noise_to_add`); recorded under
+                  ``noise_match``
+``generic``       `~synthpack.artefacts.generic_postprocessing` scaled to the magnitude of the
+                  source's grain-pore contrast: light blur, weak rings half the time, Gaussian
+                  noise of 3-8 % of the contrast; fitted to nothing
+``none``          nothing (an empty pipeline)
 a list            artefact transforms (`~synthpack.artefacts.from_config`)
 ================  ===========================================================================
+
+The mode a pack got is recorded under ``postprocess_mode`` (``custom`` for a list).
+Grains may be brighter or darker than pores: every mode works with the signed
+contrast. (``default``, the name of ``generic`` before synthpack 0.3.0, is read
+by the config as the default, with a warning.)
 
 It comes after the render and the artefacts, and before the pack writers.
 """
 
 from __future__ import annotations
 
+import functools
+import logging
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .artefacts import Compose, calibrate, default_postprocessing, from_config, noise_to_add
+from .artefacts import Compose, calibrate, from_config, generic_postprocessing, noise_to_add
 from .errors import SynthpackInputError
 from .reconstruct import Grid
 from .source.noise import estimate_noise
 from .source.statistics import SourceStatistics
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "MIN_REGION_VOXELS",
@@ -46,7 +60,7 @@ __all__ = [
 ]
 
 #: The named post-processing modes; a list of artefact transforms is the alternative.
-POSTPROCESS_MODES = ("default", "none", "match_source", "calibrated")
+POSTPROCESS_MODES = ("calibrated", "match_source", "generic", "none")
 #: ``match_source`` measures the clean pack's noise on at most about this many central voxels.
 NOISE_SAMPLE_VOXELS = 1 << 24
 #: A bulk region needs at least this many voxels to be measured.
@@ -62,35 +76,62 @@ class Postprocessing:
     pipeline : Compose
         The transforms to apply to the clean pack (seeded at application).
     record : dict
-        Entries for the pack manifest: ``{"calibration": ...}`` (every fitted and
-        matched value) for ``calibrated``, empty otherwise.
+        Entries for the pack manifest: ``postprocess_mode`` (the mode applied:
+        one of `POSTPROCESS_MODES`, or ``custom``), and every fitted or matched
+        value: ``calibration`` for ``calibrated``, ``noise_match`` for
+        ``match_source``; ``postprocess_fallback`` (why) where ``calibrated``
+        fell back to ``match_source``.
     """
 
     pipeline: Compose
     record: dict[str, Any] = field(default_factory=dict)
 
 
-def _calibration_targets(statistics: SourceStatistics) -> dict[str, float]:
-    """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics."""
+@functools.cache
+def _warn_once(message: str) -> None:
+    """Log `message` as a warning, once per process (a run checks before its packs, then each pack)."""
+    logger.warning(message)
+
+
+def _fallback(reason: str) -> None:
+    """Warn, once, that ``calibrated`` falls back to ``match_source`` because of `reason`."""
+    _warn_once(f"postprocess: calibrated cannot be fitted ({reason}): using match_source, Gaussian noise "
+               "up to the source's noise level, without fitted blur")
+
+
+def _uncalibratable(statistics: SourceStatistics) -> str | None:
+    """Why no pack of a source with `statistics` can be calibrated, or None."""
     if statistics.edge_width is None:
+        return ("the source scan's edge width could not be measured when the particle library was built: it "
+                "needs grain and pore interiors of different levels; rebuild the library from such a scan")
+    return None
+
+
+def _check_mode(postprocess: str | list) -> None:
+    """Refuse a value that is neither one of `POSTPROCESS_MODES` nor a list."""
+    if not (isinstance(postprocess, list) or postprocess in POSTPROCESS_MODES):
         raise SynthpackInputError(
-            "postprocess: calibrated needs the source scan's edge width, which could not be measured when "
-            "the particle library was built (it needs grain and pore interiors, grains brighter than pores): "
-            "rebuild it from such a scan with `synthpack library build`, or choose another postprocess"
+            f"postprocess must be one of {', '.join(POSTPROCESS_MODES)} or a list of artefact transforms, "
+            f"got {postprocess!r}"
         )
-    return {"target_edge_width": float(statistics.edge_width), "target_noise": float(statistics.noise_std)}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:
-    """Refuse, before any work, a post-processing that `statistics` cannot support.
+    """Check, before any work, a post-processing against the source statistics.
+
+    Warns (once) when ``calibrated`` will fall back to ``match_source`` for every
+    pack because the source's edge width was not measured.
 
     Raises
     ------
     SynthpackInputError
-        For ``calibrated`` when the source's edge width was not measured.
+        For a value that is neither one of `POSTPROCESS_MODES` nor a list.
     """
+    _check_mode(postprocess)
     if postprocess == "calibrated":
-        _calibration_targets(statistics)
+        reason = _uncalibratable(statistics)
+        if reason is not None:
+            _fallback(reason)
 
 
 def resolve_postprocessing(
@@ -127,27 +168,37 @@ def resolve_postprocessing(
     Raises
     ------
     SynthpackInputError
-        For ``calibrated`` without the source's edge width, or a pack without a bulk region.
+        For a value that is neither one of `POSTPROCESS_MODES` nor a list.
     """
-    if postprocess == "default":
-        return Postprocessing(default_postprocessing(contrast=statistics.contrast))
-    if postprocess == "none":
-        return Postprocessing(Compose([]))
-    if postprocess == "match_source":
-        window = _central_slab(labels.shape)
-        clean_noise = estimate_noise(clean[window], labels[window]).std
-        return Postprocessing(Compose([noise_to_add(statistics.noise_std, clean_noise)]))
-    if postprocess == "calibrated":
-        targets = _calibration_targets(statistics)
-        region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
-        calibration = calibrate(clean, labels, region, **targets)
-        return Postprocessing(calibration.pipeline(), {"calibration": calibration.to_dict()})
+    _check_mode(postprocess)
     if isinstance(postprocess, list):
-        return Postprocessing(from_config(postprocess))
-    raise SynthpackInputError(
-        f"postprocess must be one of {', '.join(POSTPROCESS_MODES)} or a list of artefact transforms, "
-        f"got {postprocess!r}"
-    )
+        return Postprocessing(from_config(postprocess), {"postprocess_mode": "custom"})
+    if postprocess == "generic":
+        return Postprocessing(generic_postprocessing(contrast=statistics.contrast), {"postprocess_mode": "generic"})
+    if postprocess == "none":
+        return Postprocessing(Compose([]), {"postprocess_mode": "none"})
+    fallback = None
+    if postprocess == "calibrated":
+        fallback = _uncalibratable(statistics)
+        if fallback is None:
+            try:
+                region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
+                calibration = calibrate(clean, labels, region, target_edge_width=float(statistics.edge_width),
+                                        target_noise=float(statistics.noise_std))
+            except SynthpackInputError as error:
+                fallback = f"this pack: {error}"
+            else:
+                return Postprocessing(calibration.pipeline(),
+                                      {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()})
+        _fallback(fallback)
+    window = _central_slab(labels.shape)
+    clean_noise = estimate_noise(clean[window], labels[window]).std
+    noise = noise_to_add(statistics.noise_std, clean_noise)
+    record: dict[str, Any] = {"postprocess_mode": "match_source", "noise_match": {
+        "target_noise": float(statistics.noise_std), "clean_noise": float(clean_noise), "noise_std": float(noise.std)}}
+    if fallback is not None:
+        record["postprocess_fallback"] = fallback
+    return Postprocessing(Compose([noise]), record)
 
 
 def _central_slab(shape: tuple[int, ...], max_voxels: int = NOISE_SAMPLE_VOXELS) -> tuple[slice, ...]:

@@ -54,8 +54,17 @@ __all__ = ["run_packs", "PackTask", "dask_setup"]
 PackTask = Callable[..., Path]
 
 
-def _error_text(error: BaseException) -> str:
-    return f"{type(error).__name__}: {error}"
+def _log_failure(index: int, error: BaseException, trace: str) -> None:
+    """Log a failed pack: an error with its `trace`; an input error, whose message says what to do, as info.
+
+    Every failure is reported again, in one line, by the run's error
+    (`~synthpack.errors.PackBuildError`), so an input error shows as that one line.
+    """
+    text = f"{type(error).__name__}: {error}"
+    if isinstance(error, SynthpackInputError):
+        logger.info("pack %d failed: %s", index, text)
+    else:
+        logger.error("pack %d failed: %s\n%s", index, text, trace)
 
 
 def _check(workers: int | None, scheduler: str | None) -> None:
@@ -180,19 +189,21 @@ def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
         yield client
 
 
-def _run_here(task: PackTask, indices: Sequence[int], library: Any, bar: tqdm) -> dict[int, str]:
+def _run_here(task: PackTask, indices: Sequence[int], library: Any, bar: tqdm) -> dict[int, BaseException]:
     failures = {}
     for index in indices:
         try:
             task(library, index, threads=None)
         except Exception as error:  # one failing pack must not stop the others
-            failures[index] = _error_text(error)
-            logger.error("pack %d failed: %s\n%s", index, failures[index], traceback.format_exc())
+            failures[index] = error
+            _log_failure(index, error, traceback.format_exc())
         bar.update()
     return failures
 
 
-def _run_on_dask(task: PackTask, indices: Sequence[int], library: Any, client: Any, bar: tqdm) -> dict[int, str]:
+def _run_on_dask(
+    task: PackTask, indices: Sequence[int], library: Any, client: Any, bar: tqdm,
+) -> dict[int, BaseException]:
     from distributed import as_completed
 
     shared = client.scatter(library, broadcast=True, hash=False)
@@ -203,9 +214,8 @@ def _run_on_dask(task: PackTask, indices: Sequence[int], library: Any, client: A
         index = futures[future]
         if future.status == "error":
             error = future.exception()
-            failures[index] = _error_text(error)
-            logger.error("pack %d failed: %s\n%s", index, failures[index],
-                         "".join(traceback.format_tb(future.traceback())))
+            failures[index] = error
+            _log_failure(index, error, "".join(traceback.format_tb(future.traceback())))
         bar.update()
         future.release()
     return failures
@@ -220,7 +230,7 @@ def run_packs(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool = True,
-) -> dict[int, str]:
+) -> dict[int, BaseException]:
     """Run ``task(library, index, threads=...)`` for every index, each pack a Dask task.
 
     Parameters
@@ -245,9 +255,11 @@ def run_packs(
 
     Returns
     -------
-    dict of int to str
-        Index of each failed pack -> ``"ExceptionType: message"`` (empty when all
-        succeeded). Each failure is also logged with its traceback.
+    dict of int to BaseException
+        Index of each failed pack -> its exception (empty when all succeeded).
+        Each failure is also logged: an input error
+        (`~synthpack.errors.SynthpackInputError`) as one line of info, any other
+        as an error with its traceback.
 
     Raises
     ------

@@ -22,7 +22,7 @@ from synthpack.artefacts import (
     RingArtefacts,
     SpeckleNoise,
     available_transforms,
-    default_postprocessing,
+    generic_postprocessing,
     from_config,
     line_kernel,
     noise_to_add,
@@ -295,17 +295,19 @@ def test_config_round_trip_through_json_and_yaml() -> None:
     assert from_config({"name": "gaussian_blur", "sigma": [0.5, 1.0]}) == GaussianBlur(sigma=(0.5, 1.0))
 
 
-def test_default_postprocessing_runs_on_volumes_and_slices(textured: np.ndarray) -> None:
-    pipeline = default_postprocessing()
+def test_generic_postprocessing_runs_on_volumes_and_slices(textured: np.ndarray) -> None:
+    pipeline = generic_postprocessing()
     assert [t.name for t in pipeline] == ["gaussian_blur", "ring_artefacts", "gaussian_noise"]
     out, record = pipeline.apply(textured, 0)
     assert out.dtype == np.float32 and out.shape == SHAPE
     assert 0.03 <= record[-1]["std"] <= 0.08
     assert pipeline(textured[0], 0).shape == (64, 64)
     assert from_config(pipeline.to_config()) == pipeline
-    assert default_postprocessing(contrast=0.5)[2].std == pytest.approx((0.015, 0.04))
-    with pytest.raises(SynthpackInputError, match="contrast"):
-        default_postprocessing(contrast=-1)
+    assert generic_postprocessing(contrast=0.5)[2].std == pytest.approx((0.015, 0.04))
+    assert generic_postprocessing(contrast=-0.5) == generic_postprocessing(contrast=0.5)  # darker grains
+    for contrast in (0, float("nan"), True):
+        with pytest.raises(SynthpackInputError, match="contrast"):
+            generic_postprocessing(contrast=contrast)
 
 
 @pytest.mark.parametrize(

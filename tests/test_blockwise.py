@@ -14,7 +14,7 @@ from synthpack.artefacts import (
     GaussianNoise,
     MotionBlur,
     RingArtefacts,
-    default_postprocessing,
+    generic_postprocessing,
 )
 from synthpack.artefacts.blockwise import apply_blockwise
 from synthpack.errors import SynthpackInputError
@@ -68,7 +68,7 @@ def test_rings_and_cupping_are_centred_on_the_whole_slice(volume):
 
 def test_result_depends_on_seed_and_blocks_not_on_threads(volume):
     pipeline = Compose([GaussianNoise(std=0.1), GaussianBlur(sigma=1.0), GaussianBlur(sigma=0.5),
-                        default_postprocessing(contrast=1.0)])
+                        generic_postprocessing(contrast=1.0)])
     one, record = _blockwise(pipeline, volume, threads=1)
     two, again = _blockwise(pipeline, volume, threads=2)
     np.testing.assert_array_equal(one, two)

@@ -1,5 +1,8 @@
+import logging
+
 import pytest
 
+from synthpack import config as config_module
 from synthpack.config import PackConfig, load_config
 from synthpack.errors import SynthpackInputError
 
@@ -75,6 +78,21 @@ def test_postprocess_pipeline_is_validated_when_read():
         PackConfig.from_dict({"postprocess": [{"name": "gaussian_nois", "std": 0.05}]})
     with pytest.raises(SynthpackInputError, match="'postprocess' is out of range"):
         PackConfig.from_dict({"postprocess": "fancy"})
+
+
+def test_the_default_post_processing_is_calibrated_and_default_is_a_deprecated_alias(tmp_path, caplog):
+    assert PackConfig().postprocess == "calibrated"
+    path = tmp_path / "old.yaml"
+    path.write_text("postprocess: default\n")
+    config_module._warn_deprecated_postprocess.cache_clear()
+    with caplog.at_level(logging.WARNING, logger="synthpack.config"):
+        old = load_config(path)
+        again = PackConfig.from_dict({"postprocess": "default"}).replace(seed=2)
+    assert old == PackConfig() and again.postprocess == "calibrated"
+    (warning,) = caplog.records  # once per process
+    assert "postprocess: default is deprecated" in warning.getMessage() and "generic" in warning.getMessage()
+    for mode in ("calibrated", "match_source", "generic", "none"):
+        assert PackConfig.from_dict({"postprocess": mode}).postprocess == mode
 
 
 def test_engine_options_are_read_from_yaml_and_checked_against_the_engine(tmp_path):

@@ -1,7 +1,9 @@
 """Same config and seed, same bytes: digests of a small run recorded before a refactor.
 
 The digests in ``tests/data/digests.json`` were recorded with synthpack 0.2.0 before the
-architecture refactor (issue 12). A refactor that does not mean to change behaviour must
+architecture refactor (issue 12), and re-recorded for 0.3.0, where the post-processing
+recipe ``default`` became ``generic`` (the same volumes) and the manifests gained the
+resolved post-processing mode. A refactor that does not mean to change behaviour must
 keep them; a change that must change the bytes re-records them with
 ``SYNTHPACK_RECORD_DIGESTS=1 pytest tests/test_digests.py`` and says why in its commit.
 
@@ -36,7 +38,7 @@ RECORD = os.environ.get("SYNTHPACK_RECORD_DIGESTS") == "1"
 _RUN_KEYS = {"timings", "seconds", "versions", "files"}
 
 CONFIG = PackConfig().replace(pour={"n_particles": 48, "batch_size": 24}, reconstruct={"chunks": [32, 64, 64]})
-MODES = ("default", "none", "match_source", "calibrated")
+MODES = ("generic", "none", "match_source", "calibrated")
 
 
 def _json_digest(value):
@@ -91,9 +93,9 @@ def run_digests(large_library: ParticleLibrary, tmp_path_factory) -> dict[str, d
         out = root / f"packs-{mode}"
         generate_pack(large_library, index, CONFIG.replace(postprocess=mode), out)
         digests[f"pack-{mode}"] = tree_digest(out)
-    generate_pack(large_library, 0, CONFIG, root / "packs-zarr", format="zarr")
+    generate_pack(large_library, 0, CONFIG.replace(postprocess="generic"), root / "packs-zarr", format="zarr")
     digests["pack-zarr"] = tree_digest(root / "packs-zarr")
-    export_yolo(root / "yolo", packs=[root / "packs-default"], progress=False)
+    export_yolo(root / "yolo", packs=[root / "packs-generic"], progress=False)
     digests["yolo"] = tree_digest(root / "yolo")
     if RECORD:
         RECORDED.parent.mkdir(exist_ok=True)

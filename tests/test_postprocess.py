@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 import pytest
 
-from synthpack.artefacts import GaussianNoise, default_postprocessing
+from synthpack import postprocess as postprocess_module
+from synthpack.artefacts import GaussianNoise, generic_postprocessing
 from synthpack.errors import SynthpackInputError
 from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.reconstruct import Grid
@@ -32,16 +34,27 @@ def _resolve(postprocess, rendered, statistics=STATISTICS):
                                   packing_region=EVERYWHERE)
 
 
-def test_default_is_the_default_pipeline_scaled_to_the_source_contrast(rendered):
-    resolved = _resolve("default", rendered)
-    assert resolved.pipeline.to_config() == default_postprocessing(contrast=STATISTICS.contrast).to_config()
-    assert resolved.record == {}
+@pytest.fixture
+def fresh_warnings():
+    """Forget which warnings were logged (each is logged once per process)."""
+    postprocess_module._warn_once.cache_clear()
+    yield
+    postprocess_module._warn_once.cache_clear()
+
+
+@pytest.mark.parametrize("contrast", [0.6, -0.6])
+def test_generic_is_the_generic_pipeline_scaled_to_the_source_contrast_of_either_sign(rendered, contrast):
+    statistics = dataclasses.replace(STATISTICS, grain_mean=STATISTICS.pore_mean + contrast)
+    resolved = _resolve("generic", rendered, statistics)
+    assert resolved.pipeline.to_config() == generic_postprocessing(contrast=abs(statistics.contrast)).to_config()
+    assert resolved.record == {"postprocess_mode": "generic"}
 
 
 @pytest.mark.parametrize("postprocess", ["none", []])
 def test_none_and_an_empty_list_do_nothing(rendered, postprocess):
     resolved = _resolve(postprocess, rendered)
-    assert len(resolved.pipeline) == 0 and resolved.record == {}
+    assert len(resolved.pipeline) == 0
+    assert resolved.record == {"postprocess_mode": "none" if postprocess == "none" else "custom"}
     np.testing.assert_array_equal(resolved.pipeline(rendered[0], 0), rendered[0])
 
 
@@ -50,23 +63,28 @@ def test_a_list_is_built_as_given(rendered):
     resolved = _resolve(steps, rendered)
     assert [step["name"] for step in resolved.pipeline.to_config()] == ["gaussian_blur", "gaussian_noise"]
     assert resolved.pipeline[0].sigma == pytest.approx((0.5, 1.0)) and resolved.pipeline[1].std == 0.02
-    assert resolved.record == {}
+    assert resolved.record == {"postprocess_mode": "custom"}
 
 
-def test_match_source_reaches_the_source_noise_level(rendered):
+def test_match_source_reaches_the_source_noise_level_and_records_it(rendered):
     clean, labels, _ = rendered
     resolved = _resolve("match_source", rendered)
     (noise,) = resolved.pipeline
     assert isinstance(noise, GaussianNoise)
     assert noise.std == pytest.approx(np.sqrt(0.05**2 - 0.01**2), rel=0.05)  # variances add
     assert estimate_noise(resolved.pipeline(clean, 1), labels).std == pytest.approx(0.05, rel=0.05)
-    assert resolved.record == {}
+    assert resolved.record["postprocess_mode"] == "match_source"
+    match = resolved.record["noise_match"]
+    assert match["target_noise"] == 0.05 and match["noise_std"] == noise.std
+    assert match["clean_noise"] == pytest.approx(0.01, rel=0.1)
+    assert "postprocess_fallback" not in resolved.record
 
 
 def test_calibrated_fits_blur_and_noise_to_the_source_and_records_the_fit(rendered):
     clean, labels, _ = rendered
     target = volume_edge_width(clean, labels) + 0.5  # softer edges than the clean pack's
     resolved = _resolve("calibrated", rendered, dataclasses.replace(STATISTICS, edge_width=target))
+    assert resolved.record["postprocess_mode"] == "calibrated"
     fit = resolved.record["calibration"]
     assert fit["target_edge_width"] == target and fit["target_noise"] == 0.05
     assert fit["blur_sigma"] > 0 and fit["edge_width"] == pytest.approx(target, abs=0.05)
@@ -75,20 +93,49 @@ def test_calibrated_fits_blur_and_noise_to_the_source_and_records_the_fit(render
     assert estimate_noise(resolved.pipeline(clean, 1), labels).std == pytest.approx(0.05, rel=0.1)
 
 
-def test_calibrated_needs_the_source_edge_width(rendered):
+def test_calibrated_fits_darker_grains_as_it_fits_brighter_ones(rendered):
+    clean, labels, _ = rendered
+    target = volume_edge_width(clean, labels) + 0.5
+    inverted = (1.0 - clean).astype(np.float32)  # grains 0.2, pores 0.8
+    statistics = dataclasses.replace(STATISTICS, edge_width=target)
+    brighter = _resolve("calibrated", rendered, statistics).record["calibration"]
+    darker_statistics = dataclasses.replace(statistics, pore_mean=0.8, grain_mean=0.2)
+    darker = _resolve("calibrated", (inverted, *rendered[1:]), darker_statistics).record["calibration"]
+    assert darker["blur_sigma"] == pytest.approx(brighter["blur_sigma"], abs=1e-3)
+    assert darker["edge_width"] == pytest.approx(brighter["edge_width"], abs=1e-3)
+    assert darker["noise_std"] == pytest.approx(brighter["noise_std"], rel=1e-3)
+
+
+def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_fitted(
+        rendered, fresh_warnings, caplog):
     unmeasured = dataclasses.replace(STATISTICS, edge_width=None)
-    for postprocess in [*POSTPROCESS_MODES, []]:
-        if postprocess != "calibrated":
-            check_postprocess(postprocess, unmeasured)
-    with pytest.raises(SynthpackInputError, match="edge width"):
-        check_postprocess("calibrated", unmeasured)
-    with pytest.raises(SynthpackInputError, match="edge width"):
-        _resolve("calibrated", rendered, unmeasured)
+    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+        for postprocess in [*POSTPROCESS_MODES, []]:
+            check_postprocess(postprocess, unmeasured)  # nothing refused
+        resolved = _resolve("calibrated", rendered, unmeasured)
+    (warning,) = [r.getMessage() for r in caplog.records]  # once, though checked and resolved
+    assert "calibrated cannot be fitted" in warning and "edge width" in warning and "match_source" in warning
+    assert resolved.record["postprocess_mode"] == "match_source"
+    assert "edge width" in resolved.record["postprocess_fallback"]
+    assert [t.name for t in resolved.pipeline] == ["gaussian_noise"]
+    assert resolved.pipeline.to_config() == _resolve("match_source", rendered, unmeasured).pipeline.to_config()
+
+    clean, labels, grid = rendered  # a pack without a bulk region to fit in
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+        shallow = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
+                                         packing_region={"radius": 1.0, "z_min": 0.0, "z_max": 1.0})
+    assert shallow.record["postprocess_mode"] == "match_source"
+    assert "no bulk" in shallow.record["postprocess_fallback"]
+    assert "no bulk" in caplog.records[0].getMessage()
 
 
 def test_an_unknown_mode_is_refused(rendered):
-    with pytest.raises(SynthpackInputError, match="postprocess must be one of default, none"):
-        _resolve("fancy", rendered)
+    for check in (lambda: _resolve("fancy", rendered), lambda: check_postprocess("fancy", STATISTICS)):
+        with pytest.raises(SynthpackInputError, match="postprocess must be one of calibrated, match_source, generic"):
+            check()
+    with pytest.raises(SynthpackInputError, match="must be one of"):
+        _resolve("default", rendered)  # the deprecated name is the config's to read, not a mode
 
 
 def test_bulk_region_is_the_pour_sub_cylinder():

@@ -1,10 +1,12 @@
 import dataclasses
 import json
+import logging
 
 import numpy as np
 import pytest
+import yaml
 
-from synthpack import generate
+from synthpack import postprocess
 from synthpack.artefacts import calibrate
 from synthpack.cli import main
 from synthpack.config import PackConfig
@@ -106,28 +108,29 @@ def test_classifier_auc_near_half_for_one_distribution_and_near_one_for_two():
 
 @pytest.fixture(scope="module")
 def packs(large_library, tmp_path_factory):
-    """A default and a calibrated pack of the same pour (the latter through `generate --calibrate`)."""
+    """A generic and a default (calibrated) pack of the same pour, the latter by `generate` without options."""
     root = tmp_path_factory.mktemp("realism")
-    (default,) = generate_packs(large_library, root / "default", 1, PACK, progress=False)
+    (generic,) = generate_packs(large_library, root / "generic", 1, PACK.replace(postprocess="generic"),
+                                progress=False)
     library_dir = large_library.save(root / "library")
     config = root / "pack.yaml"
     config.write_text("pour: {n_particles: 60, batch_size: 30, tube_radius: 400.0}\n")
-    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(root / "calibrated"),
-                 "--config", str(config), "--seed", "1", "--calibrate"]) == 0
-    return default, root / "calibrated" / "pack_0000"
+    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(root / "default"),
+                 "--config", str(config), "--seed", "1"]) == 0
+    return generic, root / "default" / "pack_0000"
 
 
-def test_calibration_brings_noise_and_edges_to_the_source(packs, large_scan, large_library):
-    default, calibrated = packs
+def test_calibration_is_the_default_and_brings_noise_and_edges_to_the_source(packs, large_scan, large_library):
+    generic, calibrated = packs
     manifest = json.loads((calibrated / "manifest.json").read_text())
     fit = manifest["calibration"]
-    assert manifest["config"]["postprocess"] == "calibrated"
+    assert manifest["config"]["postprocess"] == "calibrated" and manifest["postprocess_mode"] == "calibrated"
     assert fit["target_edge_width"] == pytest.approx(volume_edge_width(large_scan.tomogram, large_scan.labels))
     assert fit["target_edge_width"] == large_library.statistics.edge_width
     assert 0 < fit["blur_sigma"] < 2 and fit["noise_std"] > 0
     assert [step["name"] for step in manifest["postprocessing"]] == ["gaussian_blur", "gaussian_noise"]
     source = measure_appearance(Specimen.from_scan(large_scan))
-    before = measure_appearance(Specimen.from_pack(default))
+    before = measure_appearance(Specimen.from_pack(generic))
     after = measure_appearance(Specimen.from_pack(calibrated))
     for key in ("grain_std", "pore_std"):
         after_noise, before_noise, source_noise = (getattr(m.noise, key) for m in (after, before, source))
@@ -142,14 +145,28 @@ def test_calibration_brings_noise_and_edges_to_the_source(packs, large_scan, lar
     assert again.blur_sigma == pytest.approx(fit["blur_sigma"]) and again.noise_std == pytest.approx(fit["noise_std"])
 
 
-def test_calibrated_needs_a_library_with_the_source_edge_width(large_library, monkeypatch):
+def test_calibrate_option_is_accepted_and_overrides_the_config(tmp_path, capsys):
+    config = tmp_path / "pack.yaml"
+    config.write_text("postprocess: generic\n")
+    for extra, expected in (([], "generic"), (["--calibrate"], "calibrated")):
+        assert main(["-q", "generate", "--sample", "large", "--out", str(tmp_path / "packs"), "--config",
+                     str(config), "--print-config", *extra]) == 0
+        assert yaml.safe_load(capsys.readouterr().out)["postprocess"] == expected
+
+
+def test_without_the_source_edge_width_packs_get_match_source_with_a_warning(large_library, caplog):
     statistics = dataclasses.replace(large_library.statistics, edge_width=None)
     unmeasured = ParticleLibrary(large_library.particles, voxel_size=large_library.voxel_size,
                                  unit=large_library.unit, density=large_library.density, statistics=statistics,
                                  source_shape=large_library.source_shape)
-    monkeypatch.setattr(generate, "pour", None)  # refused before the pour
-    with pytest.raises(SynthpackInputError, match="needs the source scan's edge width.*rebuild it"):
-        build_pack(unmeasured, PACK.replace(postprocess="calibrated"), seed=0, progress=False)
+    postprocess._warn_once.cache_clear()
+    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+        pack = build_pack(unmeasured, PACK.replace(pour={"n_particles": 12, "batch_size": 12}), seed=0,
+                          progress=False)
+    assert "calibrated cannot be fitted" in caplog.text and "rebuild the library" in caplog.text
+    assert pack.manifest["postprocess_mode"] == "match_source" and "calibration" not in pack.manifest
+    assert "edge width" in pack.manifest["postprocess_fallback"]
+    assert pack.manifest["noise_match"]["target_noise"] == statistics.noise_std
 
 
 def test_compare_command_writes_the_report(packs, tmp_path, capsys):
@@ -159,7 +176,8 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == [
         "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
     report = json.loads((out / "realism.json").read_text())
-    assert [p["name"] for p in report["packs"]] == ["default/pack_0000", "calibrated/pack_0000"]
+    assert [p["name"] for p in report["packs"]] == ["generic/pack_0000", "default/pack_0000"]
+    assert [p["mode"] for p in report["settings"]["packs"]] == ["generic", "calibrated"]
     figures = report["packs"][0]["figures"]
     # the labels' solid fraction of the bulk agrees with the pour's Monte-Carlo estimate from the meshes
     assert figures["solid_fraction"] == pytest.approx(figures["pour_packing_fraction"], abs=0.03)

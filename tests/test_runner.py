@@ -82,7 +82,8 @@ def test_a_failing_pack_is_reported_the_others_complete_and_a_rerun_builds_it(
     assert _same_pack(serial_run / "pack_0001", tmp_path / "pack_0001")
 
 
-def test_cli_reports_failed_packs_with_exit_code_1(large_library, serial_run, tmp_path, capsys):
+def test_cli_reports_packs_failed_on_their_input_in_one_line_with_exit_code_2(
+        large_library, serial_run, tmp_path, capsys):
     used = set(Placements.load(serial_run / "pack_0000" / "placements.json").indices.tolist())
     corrupt = copy.copy(large_library)
     corrupt.particles = [dataclasses.replace(p, mask=np.zeros_like(p.mask)) if i in used else p
@@ -91,9 +92,21 @@ def test_cli_reports_failed_packs_with_exit_code_1(large_library, serial_run, tm
     code = main(["-q", "generate", "--library", str(tmp_path / "library"), "--out", str(tmp_path / "out"),
                  "--seed", "3", "--n-particles", "6", "--batch-size", "6", "--workers", "0"])
     error = capsys.readouterr().err
-    assert code == 1
+    assert code == 2
     assert "1 of 1 packs failed (pack_0000: SynthpackInputError: library particle" in error
     assert "run the same command again" in error and error.count("\n") == 1
+    assert "Traceback" not in error
+
+
+def test_a_run_fails_on_its_input_only_when_every_failed_pack_did():
+    from synthpack.errors import PackInputError
+
+    bad_input = SynthpackInputError("empty mask")
+    only_input = PackBuildError.of({"pack_0001": bad_input}, "out", 3)
+    assert isinstance(only_input, PackInputError) and isinstance(only_input, SynthpackInputError)
+    assert only_input.failures == {"pack_0001": "SynthpackInputError: empty mask"}
+    mixed = PackBuildError.of({"pack_0001": bad_input, "pack_0002": OSError("disk full")}, "out", 3)
+    assert type(mixed) is PackBuildError and "pack_0002: OSError: disk full" in str(mixed)
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [

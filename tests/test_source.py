@@ -57,10 +57,11 @@ def test_estimate_noise_input_errors(phantom):
 
 
 @pytest.mark.parametrize("sigma", [1.0, 2.0])
-def test_edge_width_of_a_gaussian_blurred_step(sigma):
+@pytest.mark.parametrize("step", [1.0, -1.0])
+def test_edge_width_of_a_gaussian_blurred_step(sigma, step):
     z = np.arange(64, dtype=float)[:, None, None] * np.ones((1, 16, 16))
     labels = (z < 32).astype(np.int32)  # boundary at z = 31.5
-    tomogram = 0.5 * (1 + special.erf((31.5 - z) / (sigma * np.sqrt(2))))
+    tomogram = 0.5 * step * (1 + special.erf((31.5 - z) / (sigma * np.sqrt(2))))  # grains brighter or darker
     assert volume_edge_width(tomogram.astype(np.float32), labels) == pytest.approx(2.5631 * sigma, rel=0.08)
 
 
@@ -78,10 +79,21 @@ def test_measure_source_measures_every_field_once(phantom):
         statistics.noise_std = 0.0  # type: ignore[misc]
 
 
-def test_edge_width_is_none_when_it_cannot_be_measured(phantom, caplog):
+def test_darker_grains_have_a_negative_contrast_and_the_same_edge_width(phantom):
     clean, labels = phantom
-    inverted = GaussianNoise(std=0.02)(1.0 - clean, 0)  # grains darker than pores: no edge profile
-    statistics = measure_source(Scan(inverted, labels))
+    noisy = GaussianNoise(std=0.02)(clean, 0)
+    brighter = measure_source(Scan(noisy, labels))
+    darker = measure_source(Scan((1.0 - noisy).astype(np.float32), labels))  # grains 0.2, pores 0.8
+    assert darker.contrast == pytest.approx(-brighter.contrast, abs=1e-6) and darker.contrast < -0.5
+    assert darker.edge_width == pytest.approx(brighter.edge_width, rel=1e-4)
+    assert darker.noise_std == pytest.approx(brighter.noise_std, rel=1e-4)
+    assert darker.pore_std == pytest.approx(brighter.pore_std, rel=1e-4)
+
+
+def test_edge_width_is_none_when_it_cannot_be_measured(phantom, caplog):
+    _, labels = phantom
+    flat = np.full(labels.shape, 0.5, dtype=np.float32)  # grains and pores of one level: no edge
+    statistics = measure_source(Scan(flat, labels))
     assert statistics.edge_width is None
     assert "edge width cannot be measured" in caplog.text
 

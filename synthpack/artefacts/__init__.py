@@ -27,8 +27,8 @@ Transforms, by config name:
 Every transform also has ``p``, the probability that it is applied at a call.
 `from_config` builds a pipeline from a list of dicts such as
 ``[{"name": "gaussian_blur", "sigma": [0.5, 1.0]}, {"name": "gaussian_noise", "std": 0.05}]``
-and ``to_dict`` / ``Compose.to_config`` write it back. `default_postprocessing` is
-the default pipeline; `noise_to_add` matches a source scan's noise level and
+and ``to_dict`` / ``Compose.to_config`` write it back. `generic_postprocessing` is
+a recipe scaled to the contrast alone; `noise_to_add` matches a source scan's noise level and
 `calibrate` fits blur and noise to its edge width and noise level (the noise is
 measured by `synthpack.source.estimate_noise`).
 """
@@ -39,7 +39,7 @@ from .blur import GaussianBlur, MotionBlur, line_kernel
 from .calibrate import Calibration, calibrate, noise_to_add
 from .ct import CTSimulation
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
-from .presets import default_postprocessing
+from .presets import generic_postprocessing
 from .radial import BeamHardening, RingArtefacts
 
 __all__ = [
@@ -57,8 +57,8 @@ __all__ = [
     "Transform",
     "available_transforms",
     "calibrate",
-    "default_postprocessing",
     "from_config",
+    "generic_postprocessing",
     "line_kernel",
     "noise_to_add",
 ]

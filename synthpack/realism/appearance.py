@@ -26,10 +26,12 @@ Figures:
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import SynthpackInputError
 from ..source.edges import INTERIOR, EdgeProfile, edge_profile, edge_width, signed_distance
 from ..source.noise import NoiseEstimate, estimate_noise
 from .patches import patch_corners, take_patches
@@ -120,9 +122,21 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
 
 
 def noise_levels(specimen: Specimen) -> NoiseEstimate:
-    """`~synthpack.source.estimate_noise` of the specimen's region (voxels outside it are ignored)."""
+    """`~synthpack.source.estimate_noise` of the specimen's region (voxels outside it are ignored).
+
+    Returns
+    -------
+    NoiseEstimate
+        Where neither phase has enough interior voxels to measure (e.g. grains a
+        few voxels across in a shallow pack), ``std`` is NaN and both phases None
+        (the report shows n/a), with a warning.
+    """
     labels = np.where(specimen.region, specimen.labels, -1)
-    return estimate_noise(specimen.tomogram, labels)
+    try:
+        return estimate_noise(specimen.tomogram, labels)
+    except SynthpackInputError as error:
+        logger.warning("%s: the noise cannot be measured (%s)", specimen.name, error)
+        return NoiseEstimate(math.nan, None, None, 0, 0)
 
 
 @dataclass
@@ -150,8 +164,8 @@ class Appearance:
 
     @property
     def contrast(self) -> float:
-        """Grain minus pore interior level, intensity units."""
-        return self.profile.grain_level - self.profile.pore_level
+        """Grain minus pore interior level, intensity units; negative for grains darker than pores."""
+        return self.profile.contrast
 
 
 def measure_appearance(specimen: Specimen, *, max_samples: int = 200_000) -> Appearance:

@@ -14,8 +14,9 @@ folder::
 
 Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
 same distribution, 1 = disjoint); W = Wasserstein (earth mover's) distance of the
-intensity histograms divided by the source's grain-pore contrast (0.05 = the
-histograms are 5 % of the contrast apart on average).
+intensity histograms divided by the magnitude of the source's grain-pore contrast
+(0.05 = the histograms are 5 % of the contrast apart on average), for grains
+brighter or darker than pores.
 """
 
 from __future__ import annotations
@@ -123,7 +124,7 @@ def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
 def distances(source: Measurements, pack: Measurements, *, seed: int = 0) -> dict:
     """Distances of `pack` from `source` (see the module docstring), and the classifier AUC."""
     sg, pg = source.grains, pack.grains
-    contrast = source.appearance.contrast
+    contrast = abs(source.appearance.contrast)
     result = {
         f"ks_{name}": _ks(getattr(sg, name), getattr(pg, name))
         for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine")
@@ -238,7 +239,8 @@ def compare(
         measured.append(measure(specimen, window, patch=patch))
         manifest = json.loads((Path(directory) / "manifest.json").read_text())
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
-                          "applied": manifest.get("postprocessing"), "calibration": manifest.get("calibration")})
+                          "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
+                          "calibration": manifest.get("calibration")})
     settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "packs": manifests}
     return RealismReport(reference, measured, [distances(reference, m, seed=seed) for m in measured], settings)
 

@@ -9,6 +9,11 @@ boundary; scaled so that the pore interior is 0 and the grain interior is 1, its
 *10-90 width* is the distance over which it rises from 0.1 to 0.9 (about
 ``2.56 sigma`` for an edge blurred by a Gaussian of ``sigma`` voxels, more for
 a scan with partial-volume voxels on top). Grain-grain contacts are not edges.
+
+Grains may be brighter or darker than the pore phase (X-ray CT of sand against
+neutron CT or aggregates in cement paste): the profile is scaled by the signed
+step ``grain_level - pore_level``, so an edge and its negative have the same
+normalised profile and the same width.
 """
 
 from __future__ import annotations
@@ -68,7 +73,8 @@ class EdgeProfile:
     intensity : ndarray of float64, shape (K,)
         Mean intensity at each distance.
     pore_level, grain_level : float
-        Median intensity of the pore and grain interiors (at least `INTERIOR` voxels deep).
+        Median intensity of the pore and grain interiors (at least `INTERIOR` voxels deep);
+        they differ, in either order.
     """
 
     distance: np.ndarray
@@ -77,9 +83,14 @@ class EdgeProfile:
     grain_level: float
 
     @property
+    def contrast(self) -> float:
+        """The signed step across the edge, ``grain_level - pore_level``, intensity units (< 0: darker grains)."""
+        return self.grain_level - self.pore_level
+
+    @property
     def normalised(self) -> np.ndarray:
-        """The profile scaled to 0 in the pore interior and 1 in the grain interior, shape (K,)."""
-        return (self.intensity - self.pore_level) / (self.grain_level - self.pore_level)
+        """The profile scaled to 0 in the pore interior and 1 in the grain interior, shape (K,), for either sign."""
+        return (self.intensity - self.pore_level) / self.contrast
 
 
 def edge_profile(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray | None = None) -> EdgeProfile:
@@ -101,7 +112,7 @@ def edge_profile(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray 
     Raises
     ------
     SynthpackInputError
-        If the region has no grain or pore interior, or grains as dark as pores.
+        If the region has no grain or pore interior, or grains and pores of the same level (no edge).
     """
     region = np.ones(distance.shape, dtype=bool) if region is None else region
     d = distance[region]
@@ -117,10 +128,10 @@ def edge_profile(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray 
     means = np.bincount(inverse, weights=values[near]) / counts
     keep = counts >= _MIN_COUNT
     pore_level, grain_level = float(np.median(pore)), float(np.median(grain))
-    if not grain_level > pore_level:
+    if grain_level == pore_level:
         raise SynthpackInputError(
-            f"grains ({grain_level:.4g}) are not brighter than pores ({pore_level:.4g}): "
-            "the edge profile needs grains brighter than pores"
+            f"grains and pores have the same level ({grain_level:.4g}): there is no edge to measure; "
+            "check that the labels belong to this tomogram"
         )
     return EdgeProfile(keys[keep].astype(np.float64), means[keep], pore_level, grain_level)
 

@@ -41,14 +41,16 @@ class SourceStatistics:
         Pore spread: robust standard deviation (1.4826 x MAD) of the pore interior;
         the amplitude of the pack's pore texture.
     grain_mean : float
-        Grain level: median intensity of the grain voxels.
+        Grain level: median intensity of the grain voxels. Above or below the
+        pore level: grains are darker than the phase around them in neutron CT,
+        with doped brine, or for aggregates in cement paste (see `contrast`).
     noise_std : float
         Noise level, pooled over grains and pores (`~synthpack.source.noise.estimate_noise`).
     edge_width : float or None
         10-90 % rise distance (voxels) of the mean intensity profile across the
-        grain-pore boundaries (`~synthpack.source.edges.volume_edge_width`); None
-        when it cannot be measured (e.g. no grain or pore interior, or grains
-        not brighter than pores).
+        grain-pore boundaries (`~synthpack.source.edges.volume_edge_width`), the
+        same for grains brighter or darker than pores; None when it cannot be
+        measured (no grain or pore interior, or grains and pores of one level).
     """
 
     pore_mean: float
@@ -59,7 +61,12 @@ class SourceStatistics:
 
     @property
     def contrast(self) -> float:
-        """Grain level minus pore level, intensity units."""
+        """Grain level minus pore level, intensity units: signed, negative for grains darker than pores.
+
+        Amplitudes given as fractions of the contrast (noise, rings, histogram
+        distances) use its magnitude; levels between the phases (the tube wall)
+        use it signed.
+        """
         return self.grain_mean - self.pore_mean
 
     def to_dict(self) -> dict[str, float]:
@@ -95,8 +102,8 @@ def measure_source(scan: Scan) -> SourceStatistics:
     try:
         edge_width: float | None = volume_edge_width(scan.tomogram, scan.labels)
     except SynthpackInputError as error:
-        logger.warning("the source's edge width cannot be measured (%s): 'postprocess: calibrated' "
-                       "will not be available", error)
+        logger.warning("the source's edge width cannot be measured (%s): packs of 'postprocess: calibrated' "
+                       "(the default) will get noise matched to the source's level and no fitted blur", error)
         edge_width = None
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, edge_width=edge_width)

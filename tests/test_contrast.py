@@ -1,0 +1,100 @@
+"""Grains darker than the phase around them: every stage, the calibration and the realism report.
+
+Neutron CT, doped brine and aggregates in cement paste show grains darker than
+their surroundings: `SourceStatistics.contrast` is then negative. The `large`
+sample inverted (same labels) must give the same edge width, calibrated packs
+with the source's noise, and a realism report; so must the real concrete scan
+(a neutron CT, read from ``../shared/data/concrete``, skipped where absent).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from synthpack.cli import main
+from synthpack.config import PackConfig, ReconstructConfig
+from synthpack.generate import generate_packs
+from synthpack.io import write_tiff
+from synthpack.library import ParticleLibrary
+from synthpack.realism import Specimen
+from synthpack.realism.appearance import noise_levels
+from synthpack.reconstruct import Background
+from synthpack.scan import Scan
+from synthpack.source import estimate_noise
+
+#: A pack narrow and deep enough to have a bulk region to calibrate in; post-processing left at its default.
+PACK = PackConfig().replace(seed=1, pour={"n_particles": 60, "batch_size": 30, "tube_radius": 400.0})
+CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
+
+
+@pytest.fixture(scope="module")
+def dark_scan(large_scan: Scan, large_library: ParticleLibrary) -> Scan:
+    """The `large` sample with grain and pore levels swapped (``grain + pore - tomogram``), same labels."""
+    levels = large_library.statistics
+    inverted = np.float32(levels.grain_mean + levels.pore_mean) - large_scan.tomogram
+    return dataclasses.replace(large_scan, tomogram=inverted, source="large, inverted")
+
+
+@pytest.fixture(scope="module")
+def dark_library(dark_scan: Scan) -> ParticleLibrary:
+    return ParticleLibrary.from_scan(dark_scan, workers=1, progress=False)
+
+
+@pytest.fixture(scope="module")
+def dark_pack(dark_library: ParticleLibrary, tmp_path_factory) -> Path:
+    (path,) = generate_packs(dark_library, tmp_path_factory.mktemp("dark"), 1, PACK, progress=False)
+    return path
+
+
+def test_darker_grains_give_a_negative_contrast_and_the_same_edge_width(dark_library, large_library):
+    dark, bright = dark_library.statistics, large_library.statistics
+    assert dark.contrast < 0 < bright.contrast
+    assert dark.contrast == pytest.approx(-bright.contrast, rel=0.05)
+    assert dark.edge_width == pytest.approx(bright.edge_width, rel=0.02)
+    assert dark.noise_std == pytest.approx(bright.noise_std, rel=0.02)
+    wall = Background.from_source(dark, ReconstructConfig()).wall
+    assert dark.grain_mean < wall < dark.pore_mean  # the tube wall between the phases, for either sign
+
+
+def test_default_post_processing_calibrates_a_dark_grain_pack_to_the_source(dark_pack, dark_scan):
+    manifest = json.loads((dark_pack / "manifest.json").read_text())
+    assert manifest["config"]["postprocess"] == "calibrated" and manifest["postprocess_mode"] == "calibrated"
+    assert 0 < manifest["calibration"]["blur_sigma"] < 2
+    source = estimate_noise(dark_scan.tomogram, dark_scan.labels)
+    pack = noise_levels(Specimen.from_pack(dark_pack))
+    assert pack.grain_std == pytest.approx(source.grain_std, rel=0.1)
+    assert pack.pore_std == pytest.approx(source.pore_std, rel=0.1)
+
+
+def test_compare_reports_a_dark_grain_pack(dark_pack, dark_scan, tmp_path):
+    write_tiff(tmp_path / "tomogram.tif", dark_scan.tomogram, dark_scan.voxel_size, dark_scan.unit)
+    write_tiff(tmp_path / "labels.tif", dark_scan.labels, dark_scan.voxel_size, dark_scan.unit, labels=True)
+    assert main(["-q", "compare", "--source", str(tmp_path / "tomogram.tif"), str(tmp_path / "labels.tif"),
+                 "--packs", str(dark_pack), "--out", str(tmp_path / "report"), "--patch", "12"]) == 0
+    report = json.loads((tmp_path / "report" / "realism.json").read_text())
+    source, (pack,) = report["source"]["figures"], report["packs"]
+    assert source["grain_level"] < source["pore_level"]
+    assert pack["figures"]["edge_width"] == pytest.approx(source["edge_width"], abs=0.15)
+    for phase in ("grains", "pores", "edges"):
+        assert 0 <= pack["distances"][f"wasserstein_{phase}"] < 0.2  # fractions of the contrast's magnitude
+    assert 0.5 <= pack["distances"]["classifier"]["auc"] <= 1.0
+
+
+@pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
+def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
+    scan = ["--tomogram", str(CONCRETE / "concrete_neutron.tif"),
+            "--labels", str(CONCRETE / "concrete_neutron_labels_watershed.tif"), "--voxel-size", "1", "--unit", "px"]
+    assert main(["-q", "generate", *scan, "--n-particles", "150", "--batch-size", "50",
+                 "--out", str(tmp_path / "packs")]) == 0
+    manifest = json.loads((tmp_path / "packs" / "pack_0000" / "manifest.json").read_text())
+    assert manifest["postprocess_mode"] in ("calibrated", "match_source")
+    assert ("calibration" in manifest) != ("postprocess_fallback" in manifest)  # fitted, or why not
+    assert main(["-q", "compare", *scan, "--packs", str(tmp_path / "packs"), "--out", str(tmp_path / "report")]) == 0
+    report = json.loads((tmp_path / "report" / "realism.json").read_text())
+    assert report["source"]["figures"]["grain_level"] < report["source"]["figures"]["pore_level"]
+    assert 0.5 <= report["packs"][0]["distances"]["classifier"]["auc"] <= 1.0
