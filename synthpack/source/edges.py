@@ -69,12 +69,15 @@ class EdgeProfile:
         Mean intensity at each distance.
     pore_level, grain_level : float
         Median intensity of the pore and grain interiors (at least `INTERIOR` voxels deep).
+    count : ndarray of int64, shape (K,)
+        Voxels averaged at each distance (the weights of a least-squares fit to the profile).
     """
 
     distance: np.ndarray
     intensity: np.ndarray
     pore_level: float
     grain_level: float
+    count: np.ndarray
 
     @property
     def normalised(self) -> np.ndarray:
@@ -122,7 +125,8 @@ def edge_profile(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray 
             f"grains ({grain_level:.4g}) are not brighter than pores ({pore_level:.4g}): "
             "the edge profile needs grains brighter than pores"
         )
-    return EdgeProfile(keys[keep].astype(np.float64), means[keep], pore_level, grain_level)
+    return EdgeProfile(keys[keep].astype(np.float64), means[keep], pore_level, grain_level,
+                       counts[keep].astype(np.int64))
 
 
 def _crossing(distance: np.ndarray, profile: np.ndarray, level: float) -> float:
