@@ -12,9 +12,12 @@ manifest:
 ``match_source``  Gaussian noise that brings the clean pack to the source's noise level
                   (measured on the pack's central slices, at most `NOISE_SAMPLE_VOXELS` voxels;
                   variances add, `~synthpack.artefacts.noise_to_add`)
-``calibrated``    blur and Gaussian noise fitted in the pack's bulk region (`bulk_region`) to
-                  the source's edge width and noise level (`~synthpack.artefacts.calibrate`);
-                  the fit is recorded under ``calibration``
+``calibrated``    the source's image formation, fitted in the pack's bulk region
+                  (`bulk_region`; `~synthpack.artefacts.calibrate`): a Gaussian PSF that gives
+                  the source's edge width, then noise with the source's noise power spectrum
+                  in grains and pores, less what the clean pack already holds; the fit is
+                  recorded under ``calibration`` (the render's partial volume, also fitted
+                  to the source, under ``partial_volume``)
 a list            artefact transforms (`~synthpack.artefacts.from_config`)
 ================  ===========================================================================
 
@@ -70,15 +73,23 @@ class Postprocessing:
     record: dict[str, Any] = field(default_factory=dict)
 
 
-def _calibration_targets(statistics: SourceStatistics) -> dict[str, float]:
-    """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics."""
-    if statistics.edge_width is None:
+def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
+    """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics.
+
+    A phase without a measured spectrum (too thin for a patch) takes the other phase's.
+    """
+    spectra = {"grains": statistics.nps_grains or statistics.nps_pores,
+               "pores": statistics.nps_pores or statistics.nps_grains}
+    edges = (statistics.edge_width, statistics.edge_sigma, statistics.edge_shift)
+    if any(value is None for value in edges) or spectra["pores"] is None:
         raise SynthpackInputError(
-            "postprocess: calibrated needs the source scan's edge width, which could not be measured when "
-            "the particle library was built (it needs grain and pore interiors, grains brighter than pores): "
+            "postprocess: calibrated needs the source scan's edge width, blur and noise spectrum, which could not "
+            "be measured "
+            "when the particle library was built (it needs grain and pore interiors, grains brighter than pores): "
             "rebuild it from such a scan with `synthpack library build`, or choose another postprocess"
         )
-    return {"target_edge_width": float(statistics.edge_width), "target_noise": float(statistics.noise_std)}
+    return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
+            "target_power": spectra, "pore_level": statistics.pore_mean, "grain_level": statistics.grain_mean}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:
@@ -87,7 +98,7 @@ def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> 
     Raises
     ------
     SynthpackInputError
-        For ``calibrated`` when the source's edge width was not measured.
+        For ``calibrated`` when the source's edge or noise spectrum was not measured.
     """
     if postprocess == "calibrated":
         _calibration_targets(statistics)

@@ -124,7 +124,7 @@ def measure_source(scan: Scan) -> SourceStatistics:
         spread = fit_edge_spread(profile)
         edges = {"edge_width": edge_width(profile), "edge_shift": spread.shift, "edge_sigma": spread.sigma}
     except SynthpackInputError as error:
-        logger.warning("the source's edges cannot be measured (%s): 'postprocess: calibrated' "
+        logger.warning("the source's edge width cannot be measured (%s): 'postprocess: calibrated' "
                        "will not be available", error)
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
                for phase, spectrum in phase_spectra(scan.tomogram, distance).items() if spectrum is not None}
