@@ -328,8 +328,10 @@ class RenderCrop(NamedTuple):
 
 
 def prepare_crops(
-    crops: Sequence[tuple[np.ndarray, np.ndarray]], partial_volume: PartialVolume | None = None,
-) -> list[RenderCrop]:
+    crops: Sequence[tuple[np.ndarray, np.ndarray]],
+    partial_volume: PartialVolume | None = None,
+    used: Sequence[int] | None = None,
+) -> list[RenderCrop | None]:
     """Crops as :func:`render_chunk` takes them (see `RenderCrop`).
 
     Parameters
@@ -340,9 +342,15 @@ def prepare_crops(
     partial_volume : PartialVolume, optional
         Prepare the crops for the partial-volume render (`PartialVolume.prepare`);
         None: whole voxels.
+    used : sequence of int, optional
+        Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
     """
-    prepared = []
-    for tomogram, mask in crops:
+    wanted = set(range(len(crops)) if used is None else (int(i) for i in used))
+    prepared: list[RenderCrop | None] = []
+    for index, (tomogram, mask) in enumerate(crops):
+        if index not in wanted:
+            prepared.append(None)
+            continue
         padded_mask = np.pad(mask.astype(np.float32), 1)
         if partial_volume is None:
             prepared.append(RenderCrop(padded_mask, tomogram, None))
@@ -352,7 +360,7 @@ def prepare_crops(
 
 
 def render_chunk(
-    crops: Sequence[RenderCrop],
+    crops: Sequence[RenderCrop | None],
     maps: PoseMaps,
     grid: Grid,
     lo: np.ndarray,
@@ -369,7 +377,8 @@ def render_chunk(
     Parameters
     ----------
     crops : sequence of RenderCrop
-        Every library particle's crop, from :func:`prepare_crops` (with the same `partial_volume`).
+        Every library particle's crop, from :func:`prepare_crops` (with the same `partial_volume`;
+        those `maps` places are not None).
     maps : PoseMaps
         From :func:`pose_maps`.
     grid : Grid
@@ -525,7 +534,7 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    prepared = prepare_crops(crops, partial_volume)
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index))
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box

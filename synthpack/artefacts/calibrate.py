@@ -6,16 +6,16 @@ thinned by resampling, between pores that hold the pore texture. `calibrate`
 fits the rest of the scanner's image formation to the source
 (`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk):
 
-1. **Point-spread function.** The clean volume is blurred with
-   `~synthpack.artefacts.GaussianBlur` of every sigma on a grid (default 0 to 2
-   voxels in steps of 0.1) and the width of its edge-spread function fitted each
-   time (`~synthpack.source.psf.fit_edge_spread`, on the mean edge profile of
-   `synthpack.source.edges`). The sigma whose fitted edge width equals the
-   source's ``edge_sigma`` is interpolated between grid points (0 if the clean
-   volume is already as blurred, the grid's top if it cannot get there): the
-   source's PSF less what the render's partial volume and interpolation already
-   blur. The edge's position (the render's occupancy shift) is not changed by a
-   symmetric blur.
+1. **Point-spread function.** The width of the clean volume's edge-spread function
+   is fitted (`~synthpack.source.psf.fit_edge_spread`, on the mean edge profile
+   of `synthpack.source.edges`), and the Gaussian PSF that brings it to the
+   source's ``edge_sigma`` found by `PSF_STEPS` fixed-point steps on the law
+   that Gaussian widths add in quadrature, ``sigma_psf^2 <- sigma_psf^2 +
+   target^2 - fitted(sigma_psf)^2`` from ``sigma_psf = 0`` (each step blurs with
+   `~synthpack.artefacts.GaussianBlur` and fits again; none if the clean volume
+   is already as blurred): the source's PSF less what the render's partial volume
+   and interpolation already blur. The edge's position (the render's occupancy
+   shift) is not changed by a symmetric blur.
 2. **Noise.** The noise power spectrum of the grain and pore interiors of the
    blurred volume (`~synthpack.source.spectrum`) is measured, and
    `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
@@ -46,10 +46,10 @@ from .noise import GaussianNoise
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Calibration", "SIGMA_GRID", "calibrate", "noise_to_add"]
+__all__ = ["Calibration", "PSF_STEPS", "calibrate", "noise_to_add"]
 
-#: Blur sigmas (voxels) tried by the edge-width search.
-SIGMA_GRID = tuple(round(0.1 * k, 1) for k in range(21))
+#: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
+PSF_STEPS = 3
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -96,7 +96,7 @@ class Calibration:
         blurred clean volume's, and the noise added (their clipped difference),
         intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
     sigmas, fitted_sigmas : list of float
-        The search: edge width fitted on the clean volume blurred by each sigma, voxels.
+        The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
     """
 
     blur_sigma: float
@@ -132,22 +132,6 @@ def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
     return tuple(slice(max(0, int(lo)), min(n, int(hi))) for lo, hi, n in zip(low, high, region.shape))
 
 
-def _blur_for(sigmas: np.ndarray, fitted: np.ndarray, target: float) -> float:
-    """The blur sigma whose fitted edge width is `target`, interpolated on the (running-maximum) widths."""
-    rising = np.maximum.accumulate(fitted)
-    if target <= rising[0]:
-        logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's "
-                       "(%.3f): no blur", rising[0], target)
-        return 0.0
-    if target >= rising[-1]:
-        logger.warning("blurring by sigma %.2f gives edges of %.3f voxels, still sharper than the source's "
-                       "(%.3f): using that sigma", sigmas[-1], rising[-1], target)
-        return float(sigmas[-1])
-    i = int(np.searchsorted(rising, target))
-    t = (target - rising[i - 1]) / (rising[i] - rising[i - 1])
-    return float(sigmas[i - 1] + t * (sigmas[i] - sigmas[i - 1]))
-
-
 def _ring_powers(spectrum: NoiseSpectrum | None, n_rings: int) -> np.ndarray:
     """Rings 1 to `n_rings` of a measured spectrum; zeros where none was measured (no patch fits)."""
     return np.zeros(n_rings) if spectrum is None else spectrum.power[1 : n_rings + 1]
@@ -163,7 +147,7 @@ def calibrate(
     target_power: dict[str, Sequence[float]],
     pore_level: float,
     grain_level: float,
-    sigmas: tuple[float, ...] = SIGMA_GRID,
+    steps: int = PSF_STEPS,
 ) -> Calibration:
     """Fit the PSF and the noise so the pack's edges and noise spectrum match the source's.
 
@@ -183,8 +167,8 @@ def calibrate(
         intensity units squared (`~synthpack.source.SourceStatistics.nps_grains`).
     pore_level, grain_level : float
         The source's phase levels, intensity units.
-    sigmas : tuple of float
-        Increasing blur sigmas (voxels) to search, starting at 0.
+    steps : int
+        Fixed-point steps of the PSF fit (see the module docstring).
 
     Returns
     -------
@@ -195,8 +179,7 @@ def calibrate(
             f"calibration targets must be a positive edge width and a finite shift, got {target_sigma!r} and "
             f"{target_shift!r}"
         )
-    grid = np.asarray(sigmas, dtype=np.float64)
-    box = _crop(region, int(math.ceil(4 * grid.max())) + 2)
+    box = _crop(region, int(math.ceil(4 * target_sigma)) + 2)
     volume, box_labels, box_region = clean[box], np.asarray(labels[box]), region[box]
     distance = signed_distance(box_labels)
 
@@ -204,9 +187,17 @@ def calibrate(
         blurred = GaussianBlur(sigma=float(sigma))(volume, 0)
         return blurred, fit_edge_spread(edge_profile(blurred, distance, box_region))
 
-    fitted = np.array([edge(s)[1].sigma for s in grid])
-    sigma = _blur_for(grid, fitted, target_sigma)
-    blurred, spread = edge(sigma)
+    sigmas, fitted = [0.0], []
+    blurred, spread = edge(0.0)
+    for _ in range(steps):
+        fitted.append(spread.sigma)
+        sigmas.append(math.sqrt(max(sigmas[-1] ** 2 + target_sigma**2 - spread.sigma**2, 0.0)))
+        blurred, spread = edge(sigmas[-1])
+    fitted.append(spread.sigma)
+    sigma = sigmas[-1]
+    if sigma == 0.0:
+        logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
+                       "no blur", fitted[0], target_sigma)
     measured = phase_spectra(blurred, distance, box_region)
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
     cleans = {phase: _ring_powers(measured[phase], len(targets[phase])) for phase in targets}
@@ -216,7 +207,7 @@ def calibrate(
         edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
         grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
         clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
-        sigmas=grid.tolist(), fitted_sigmas=fitted.tolist(),
+        sigmas=sigmas, fitted_sigmas=fitted,
     )
     logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "
                 "noise added %s", sigma, spread.sigma, spread.shift, target_sigma, target_shift,
