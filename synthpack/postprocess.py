@@ -76,10 +76,13 @@ class Postprocessing:
 def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
     """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics.
 
-    A phase without a measured spectrum (too thin for a patch) takes the other phase's.
+    A phase without a measured spectrum or noise level (too thin for a patch) takes the other phase's.
     """
     spectra = {"grains": statistics.nps_grains or statistics.nps_pores,
                "pores": statistics.nps_pores or statistics.nps_grains}
+    grain_std, pore_std = statistics.noise_grain_std, statistics.noise_pore_std
+    levels = {"grains": grain_std if grain_std is not None else pore_std,
+              "pores": pore_std if pore_std is not None else grain_std}
     edges = (statistics.edge_width, statistics.edge_sigma, statistics.edge_shift)
     if any(value is None for value in edges) or spectra["pores"] is None:
         raise SynthpackInputError(
@@ -89,7 +92,8 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "rebuild it from such a scan with `synthpack library build`, or choose another postprocess"
         )
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
-            "target_power": spectra, "pore_level": statistics.pore_mean, "grain_level": statistics.grain_mean}
+            "target_power": spectra, "target_noise": levels, "pore_level": statistics.pore_mean,
+            "grain_level": statistics.grain_mean}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:

@@ -20,7 +20,10 @@ fits the rest of the scanner's image formation to the source
    blurred volume (`~synthpack.source.spectrum`) is measured, and
    `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
    power the source has beyond it (the deficit; none where the pack already has
-   as much): the noise the crops and the pore texture carry is accounted for.
+   as much): the noise the crops and the pore texture carry is accounted for. The
+   same is done for the noise level `~synthpack.source.noise.estimate_noise`
+   measures (3D second differences; variances add), which pins the noise's 3D high
+   frequencies that the in-slice spectrum says little of.
 
 The fit has no random part; with the pack's seed the noise realisation is
 reproducible too. It records the grid search and every value it matched.
@@ -37,6 +40,7 @@ import numpy as np
 
 from ..errors import SynthpackInputError
 from ..source.edges import edge_profile, signed_distance
+from ..source.noise import estimate_noise
 from ..source.psf import EdgeSpread, fit_edge_spread
 from ..source.spectrum import NoiseSpectrum, phase_spectra
 from ._base import Compose
@@ -95,6 +99,9 @@ class Calibration:
         Per phase (``"grains"``, ``"pores"``): the source's noise power per ring, the
         blurred clean volume's, and the noise added (their clipped difference),
         intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
+    target_noise, clean_noise, added_noise : dict of str to float or None
+        The same for the noise level (`~synthpack.source.noise.estimate_noise`), intensity
+        units (``added = sqrt(max(target^2 - clean^2, 0))``); None where not measured.
     sigmas, fitted_sigmas : list of float
         The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
     """
@@ -109,6 +116,9 @@ class Calibration:
     target_power: dict[str, list[float]]
     clean_power: dict[str, list[float]]
     added_power: dict[str, list[float]]
+    target_noise: dict[str, float | None]
+    clean_noise: dict[str, float | None]
+    added_noise: dict[str, float | None]
     sigmas: list[float]
     fitted_sigmas: list[float]
 
@@ -117,7 +127,8 @@ class Calibration:
         return Compose([
             GaussianBlur(sigma=self.blur_sigma),
             ColouredNoise(pore_power=self.added_power["pores"], grain_power=self.added_power["grains"],
-                          pore_level=self.pore_level, grain_level=self.grain_level),
+                          pore_level=self.pore_level, grain_level=self.grain_level,
+                          pore_std=self.added_noise["pores"], grain_std=self.added_noise["grains"]),
         ])
 
     def to_dict(self) -> dict:
@@ -145,6 +156,7 @@ def calibrate(
     target_sigma: float,
     target_shift: float,
     target_power: dict[str, Sequence[float]],
+    target_noise: dict[str, float | None],
     pore_level: float,
     grain_level: float,
     steps: int = PSF_STEPS,
@@ -165,6 +177,9 @@ def calibrate(
     target_power : dict
         ``"grains"`` and ``"pores"``: the source's noise power per ring (rings 1, 2, ...),
         intensity units squared (`~synthpack.source.SourceStatistics.nps_grains`).
+    target_noise : dict
+        ``"grains"`` and ``"pores"``: the source's noise level, intensity units
+        (`~synthpack.source.SourceStatistics.noise_grain_std`), or None (not matched).
     pore_level, grain_level : float
         The source's phase levels, intensity units.
     steps : int
@@ -202,11 +217,17 @@ def calibrate(
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
     cleans = {phase: _ring_powers(measured[phase], len(targets[phase])) for phase in targets}
     added = {phase: np.maximum(targets[phase] - cleans[phase], 0.0) for phase in targets}
+    noise = estimate_noise(blurred, np.where(box_region, box_labels, -1))
+    clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
+    added_noise = {phase: None if target is None or clean_noise[phase] is None
+                   else math.sqrt(max(target**2 - clean_noise[phase] ** 2, 0.0))
+                   for phase, target in target_noise.items()}
     calibration = Calibration(
         blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
         edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
         grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
         clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
+        target_noise=dict(target_noise), clean_noise=clean_noise, added_noise=added_noise,
         sigmas=sigmas, fitted_sigmas=fitted,
     )
     logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "

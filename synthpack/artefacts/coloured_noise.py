@@ -10,7 +10,8 @@ detector shape its noise power spectrum (NPS), and grains and pores may differ.
 **Synthesis.** Each phase's noise is white Gaussian noise filtered in Fourier space
 by ``sqrt(S(|f|))`` on a periodic cube of `TILE` voxels: an isotropic 3D spectrum
 ``S``, piecewise linear in ``|f|`` between knots at the ring frequencies (flat
-below the first ring and beyond the last). The knot values are the non-negative
+below the first ring, falling to 0 one ring beyond the last: the in-slice rings
+say little of the 3D corners of the spectrum, and a scanner's noise falls there). The knot values are the non-negative
 least-squares solution of the linear map from ``S`` to the expected ring powers of
 ``NPS_PATCH``-voxel in-slice patches, computed exactly from the in-slice
 autocovariance (patch mean removed, as the measurement does), so the synthesized
@@ -38,7 +39,7 @@ from ..source.spectrum import NPS_PATCH, ring_of
 from ._base import Transform
 from ._param import Param
 
-__all__ = ["ColouredNoise", "TILE", "ring_powers_of_spectrum", "spectrum_for_rings"]
+__all__ = ["ColouredNoise", "TILE", "highpass_variance_of_spectrum", "ring_powers_of_spectrum", "spectrum_for_rings"]
 
 #: Period (voxels) of the noise cubes along each axis.
 TILE = 64
@@ -48,11 +49,11 @@ def _hats(n_knots: int, tile: int) -> np.ndarray:
     """Piecewise-linear basis in ``|f|`` on the ``tile^3`` FFT grid: knot ``j`` at ``(j + 1) / NPS_PATCH``.
 
     Returns float64, shape (n_knots, tile, tile, tile); the first is flat below its
-    knot, the last flat beyond its knot, so any non-negative combination is defined everywhere.
+    knot, the last falls to 0 one ring beyond it.
     """
     f = np.fft.fftfreq(tile)
     radius = np.sqrt(f[:, None, None] ** 2 + f[None, :, None] ** 2 + f[None, None, :] ** 2) * NPS_PATCH - 1.0
-    radius = np.clip(radius, 0.0, n_knots - 1.0)
+    radius = np.maximum(radius, 0.0)
     return np.stack([np.clip(1.0 - np.abs(radius - j), 0.0, 1.0) for j in range(n_knots)])
 
 
@@ -83,14 +84,30 @@ def ring_powers_of_spectrum(spectrum: np.ndarray, n_rings: int) -> np.ndarray:
     return rings[1 : n_rings + 1]
 
 
+def highpass_variance_of_spectrum(spectrum: np.ndarray) -> float:
+    """Variance that `~synthpack.source.estimate_noise`'s 3D second difference sees in noise of `spectrum`.
+
+    The filter ``[1, -2, 1]`` along every axis, divided by ``6^(3/2)``, has the gain
+    ``prod_a (2 - 2 cos 2 pi f_a)^2 / 6^3`` (1 on average, so white noise keeps its variance).
+    """
+    f = np.fft.fftfreq(spectrum.shape[0])
+    gain = (2.0 - 2.0 * np.cos(2.0 * np.pi * f)) ** 2 / 6.0
+    return float(np.mean(spectrum * gain[:, None, None] * gain[None, :, None] * gain[None, None, :]))
+
+
 @functools.lru_cache(maxsize=16)
-def spectrum_for_rings(powers: tuple[float, ...], tile: int = TILE) -> np.ndarray:
+def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None, tile: int = TILE) -> np.ndarray:
     """The isotropic 3D spectrum whose expected ring powers are `powers` (see the module docstring).
 
     Parameters
     ----------
     powers : tuple of float
         Ring powers ``k = 1, 2, ...``, intensity units squared (>= 0).
+    highpass : float, optional
+        Also the variance `highpass_variance_of_spectrum` (intensity units squared), which
+        pins the 3D high frequencies the in-slice rings say little of; the spectrum then
+        gets one more knot, a ring beyond the last. Every equation is fitted to its
+        relative error.
     tile : int
         Side of the cube, voxels.
 
@@ -99,24 +116,35 @@ def spectrum_for_rings(powers: tuple[float, ...], tile: int = TILE) -> np.ndarra
     ndarray of float64, shape (tile, tile, tile)
         ``S(f) >= 0`` with ``mean(S)`` the noise variance; read-only.
     """
-    hats = _hats(len(powers), tile)
-    response = np.stack([ring_powers_of_spectrum(h, len(powers)) for h in hats], axis=1)
-    knots, _ = optimize.nnls(response, np.asarray(powers, dtype=np.float64))
+    n_rings = len(powers)
+    hats = _hats(n_rings + (highpass is not None), tile)
+    response = np.stack([ring_powers_of_spectrum(h, n_rings) for h in hats], axis=1)
+    target = np.asarray(powers, dtype=np.float64)
+    if highpass is not None:
+        response = np.vstack([response, [highpass_variance_of_spectrum(h) for h in hats]])
+        target = np.append(target, highpass)
+    weight = 1.0 / (target + 0.05 * max(target.max(), np.finfo(float).tiny))
+    knots, _ = optimize.nnls(response * weight[:, None], target * weight)
     spectrum = np.tensordot(knots, hats, axes=1)
     spectrum.flags.writeable = False
     return spectrum
 
 
 @functools.lru_cache(maxsize=8)
-def _field(powers: tuple[float, ...], tile: int, key: tuple[int, ...]) -> np.ndarray:
-    """A periodic cube of noise with the ring powers `powers`, from the white noise of `key`; float32, read-only."""
-    if not any(powers):
+def _field(powers: tuple[float, ...], highpass: float | None, tile: int, key: tuple[int, ...]) -> np.ndarray:
+    """A periodic cube of noise of `spectrum_for_rings`, from the white noise of `key`; float32, read-only."""
+    if not any(powers) and not highpass:
         field = np.zeros((tile,) * 3, dtype=np.float32)
     else:
         white = np.random.default_rng(list(key)).standard_normal((tile,) * 3)
-        field = np.fft.ifftn(np.fft.fftn(white) * np.sqrt(spectrum_for_rings(powers, tile))).real.astype(np.float32)
+        filter_ = np.sqrt(spectrum_for_rings(powers, highpass, tile))
+        field = np.fft.ifftn(np.fft.fftn(white) * filter_).real.astype(np.float32)
     field.flags.writeable = False
     return field
+
+
+def _square(value: float | None) -> float | None:
+    return None if value is None else float(value) ** 2
 
 
 class ColouredNoise(Transform):
@@ -129,6 +157,10 @@ class ColouredNoise(Transform):
         cycles per voxel), intensity units squared, in the pore and in the grain phase.
     pore_level, grain_level : float
         Intensities of the two phases (either order): a voxel's phase fraction.
+    pore_std, grain_std : float or None
+        Also the noise level as `~synthpack.source.estimate_noise` measures it (3D second
+        differences), intensity units, in each phase: it pins the spectrum's 3D high
+        frequencies (`spectrum_for_rings`). Default None.
     p : float
         Probability of applying the transform at a call. Default 1.
     """
@@ -139,14 +171,16 @@ class ColouredNoise(Transform):
         Param("grain_power", kind="floats", minimum=0.0, rangeable=False),
         Param("pore_level", rangeable=False),
         Param("grain_level", rangeable=False),
+        Param("pore_std", minimum=0.0, optional=True, rangeable=False),
+        Param("grain_std", minimum=0.0, optional=True, rangeable=False),
     )
 
     def __init__(
         self, pore_power: Sequence[float], grain_power: Sequence[float], pore_level: float, grain_level: float,
-        *, p: float = 1.0,
+        pore_std: float | None = None, grain_std: float | None = None, *, p: float = 1.0,
     ) -> None:
         super().__init__(pore_power=pore_power, grain_power=grain_power, pore_level=pore_level,
-                         grain_level=grain_level, p=p)
+                         grain_level=grain_level, pore_std=pore_std, grain_std=grain_std, p=p)
 
     def _noise(self, block: np.ndarray, key: tuple[int, ...], origin: tuple[int, ...], **params: Any) -> np.ndarray:
         """The noise over `block` (whose first voxel is the global index `origin`), float32."""
@@ -154,8 +188,9 @@ class ColouredNoise(Transform):
         grain = (block - np.float32(params["pore_level"])) / np.float32(contrast if contrast else 1.0)
         grain = np.clip(grain, 0.0, 1.0, out=grain)
         wrapped = np.ix_(*((np.arange(o, o + n) % TILE) for o, n in zip(origin, block.shape)))
-        pore_field = _field(tuple(params["pore_power"]), TILE, key + (0,))[wrapped]
-        grain_field = _field(tuple(params["grain_power"]), TILE, key + (1,))[wrapped]
+        fields = [_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,))[wrapped]
+                  for k, phase in enumerate(("pore", "grain"))]
+        pore_field, grain_field = fields
         return np.sqrt(1.0 - grain) * pore_field + np.sqrt(grain) * grain_field
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:

@@ -56,6 +56,9 @@ class SourceStatistics:
         (voxels, > 0 inside the grains) and Gaussian width (voxels) of the
         edge-spread function fitted to the same profile
         (`~synthpack.source.psf.fit_edge_spread`); None with `edge_width`.
+    noise_grain_std, noise_pore_std : float or None
+        The noise level of each phase (`~synthpack.source.noise.estimate_noise`), intensity
+        units; None where the phase has too few interior voxels.
     nps_grains, nps_pores : tuple of float or None
         Noise power spectrum of the grain and of the pore interior
         (`~synthpack.source.spectrum.noise_power_spectrum`): the power in rings
@@ -72,6 +75,8 @@ class SourceStatistics:
     edge_width: float | None = None
     edge_shift: float | None = None
     edge_sigma: float | None = None
+    noise_grain_std: float | None = None
+    noise_pore_std: float | None = None
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
 
@@ -129,6 +134,7 @@ def measure_source(scan: Scan) -> SourceStatistics:
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
                for phase, spectrum in phase_spectra(scan.tomogram, distance).items() if spectrum is not None}
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
-                                  grain_mean=levels.grain_mean, noise_std=noise.std, **edges, **spectra)
+                                  grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
+                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics
