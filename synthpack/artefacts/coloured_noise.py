@@ -106,8 +106,9 @@ def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None,
     highpass : float, optional
         Also the variance `highpass_variance_of_spectrum` (intensity units squared), which
         pins the 3D high frequencies the in-slice rings say little of; the spectrum then
-        gets one more knot, a ring beyond the last. Every equation is fitted to its
-        relative error.
+        gets one more knot, a ring beyond the last. Each equation's error is weighed
+        relative to its target plus the largest target (so small targets are not
+        forced at the others' cost).
     tile : int
         Side of the cube, voxels.
 
@@ -123,7 +124,7 @@ def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None,
     if highpass is not None:
         response = np.vstack([response, [highpass_variance_of_spectrum(h) for h in hats]])
         target = np.append(target, highpass)
-    weight = 1.0 / (target + 0.05 * max(target.max(), np.finfo(float).tiny))
+    weight = 1.0 / (target + max(target.max(), np.finfo(float).tiny))
     knots, _ = optimize.nnls(response * weight[:, None], target * weight)
     spectrum = np.tensordot(knots, hats, axes=1)
     spectrum.flags.writeable = False
