@@ -92,7 +92,8 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "rebuild it from such a scan with `synthpack library build`, or choose another postprocess"
         )
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
-            "target_power": spectra, "target_noise": levels, "pore_level": statistics.pore_mean,
+            "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
+            "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
             "grain_level": statistics.grain_mean}
 
 

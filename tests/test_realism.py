@@ -143,8 +143,10 @@ def test_calibration_brings_noise_and_edges_to_the_source(packs, large_scan, lar
     clean = Specimen.from_pack(calibrated, clean=True)
     targets = {"grains": fit["target_power"]["grains"], "pores": fit["target_power"]["pores"]}
     again = calibrate(clean.tomogram, clean.labels, clean.region, target_sigma=fit["target_sigma"],
-                      target_shift=fit["target_shift"], target_power=targets, pore_level=fit["pore_level"],
-                      grain_level=fit["grain_level"])
+                      target_shift=fit["target_shift"], target_power=targets,
+                      target_phase_noise=fit["target_phase_noise"], target_edge_width=fit["target_edge_width"],
+                      target_noise=fit["target_noise"],
+                      pore_level=fit["pore_level"], grain_level=fit["grain_level"])
     assert again.blur_sigma == pytest.approx(fit["blur_sigma"]) and again.added_power == fit["added_power"]
 
 

@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..source.edges import edge_profile, signed_distance
+from ..source.edges import edge_profile, edge_width, signed_distance
 from ..source.noise import estimate_noise
 from ..source.psf import EdgeSpread, fit_edge_spread
 from ..source.spectrum import NoiseSpectrum, phase_spectra
@@ -99,9 +99,14 @@ class Calibration:
         Per phase (``"grains"``, ``"pores"``): the source's noise power per ring, the
         blurred clean volume's, and the noise added (their clipped difference),
         intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
-    target_noise, clean_noise, added_noise : dict of str to float or None
+    target_phase_noise, clean_phase_noise, added_phase_noise : dict of str to float or None
         The same for the noise level (`~synthpack.source.noise.estimate_noise`), intensity
         units (``added = sqrt(max(target^2 - clean^2, 0))``); None where not measured.
+    target_edge_width, edge_width : float
+        The source's 10-90 edge width and that of the blurred clean volume, voxels (a check).
+    target_noise, noise_std : float
+        The source's pooled noise level and the root mean square of `added_phase_noise`,
+        intensity units (the figures the realism report prints).
     sigmas, fitted_sigmas : list of float
         The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
     """
@@ -116,9 +121,13 @@ class Calibration:
     target_power: dict[str, list[float]]
     clean_power: dict[str, list[float]]
     added_power: dict[str, list[float]]
-    target_noise: dict[str, float | None]
-    clean_noise: dict[str, float | None]
-    added_noise: dict[str, float | None]
+    target_phase_noise: dict[str, float | None]
+    clean_phase_noise: dict[str, float | None]
+    added_phase_noise: dict[str, float | None]
+    target_edge_width: float
+    edge_width: float
+    target_noise: float
+    noise_std: float
     sigmas: list[float]
     fitted_sigmas: list[float]
 
@@ -128,7 +137,7 @@ class Calibration:
             GaussianBlur(sigma=self.blur_sigma),
             ColouredNoise(pore_power=self.added_power["pores"], grain_power=self.added_power["grains"],
                           pore_level=self.pore_level, grain_level=self.grain_level,
-                          pore_std=self.added_noise["pores"], grain_std=self.added_noise["grains"]),
+                          pore_std=self.added_phase_noise["pores"], grain_std=self.added_phase_noise["grains"]),
         ])
 
     def to_dict(self) -> dict:
@@ -156,7 +165,9 @@ def calibrate(
     target_sigma: float,
     target_shift: float,
     target_power: dict[str, Sequence[float]],
-    target_noise: dict[str, float | None],
+    target_phase_noise: dict[str, float | None],
+    target_edge_width: float,
+    target_noise: float,
     pore_level: float,
     grain_level: float,
     steps: int = PSF_STEPS,
@@ -177,9 +188,12 @@ def calibrate(
     target_power : dict
         ``"grains"`` and ``"pores"``: the source's noise power per ring (rings 1, 2, ...),
         intensity units squared (`~synthpack.source.SourceStatistics.nps_grains`).
-    target_noise : dict
+    target_phase_noise : dict
         ``"grains"`` and ``"pores"``: the source's noise level, intensity units
         (`~synthpack.source.SourceStatistics.noise_grain_std`), or None (not matched).
+    target_edge_width, target_noise : float
+        The source's 10-90 edge width (voxels) and pooled noise level (intensity units),
+        recorded next to the pack's for the report.
     pore_level, grain_level : float
         The source's phase levels, intensity units.
     steps : int
@@ -221,13 +235,17 @@ def calibrate(
     clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
     added_noise = {phase: None if target is None or clean_noise[phase] is None
                    else math.sqrt(max(target**2 - clean_noise[phase] ** 2, 0.0))
-                   for phase, target in target_noise.items()}
+                   for phase, target in target_phase_noise.items()}
+    added_levels = [v for v in added_noise.values() if v is not None]
     calibration = Calibration(
         blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
         edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
         grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
         clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
-        target_noise=dict(target_noise), clean_noise=clean_noise, added_noise=added_noise,
+        target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
+        target_edge_width=float(target_edge_width), edge_width=edge_width(edge_profile(blurred, distance, box_region)),
+        target_noise=float(target_noise),
+        noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
         sigmas=sigmas, fitted_sigmas=fitted,
     )
     logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "
