@@ -167,16 +167,18 @@ def _background(library: ParticleLibrary, wall: bool = True) -> Background:
 
 
 def ours(library: ParticleLibrary, placements: Placements, grid: Grid, order: int,
-         texture_and_wall: bool = True, seed: int = 0):
+         texture_and_wall: bool = True, seed: int = 0, partial_volume: bool = True):
     """pose_maps + reconstruct exactly as generate.build_pack calls them."""
     tube = placements.tube
+    fitted = ReconstructConfig(partial_volume=partial_volume).partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in library], placements.indices,
-                     placements.rotation_matrices(), placements.positions, placements.scales, grid)
+                     placements.rotation_matrices(), placements.positions, placements.scales, grid,
+                     reach=fitted.reach if fitted else 1.0)
     background = _background(library) if texture_and_wall else Background(library.statistics.pore_mean)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness), order=order, seed=seed,
-        chunks=(64, 256, 256),
+        chunks=(64, 256, 256), partial_volume=fitted,
     )
     return maps, clean, labels, contested
 
@@ -247,10 +249,13 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
 
     timings = {}
     results = {}
-    for name, order, full in (("ours, linear (default config)", 1, True), ("ours, cubic (order 3)", 3, True),
-                              ("ours, linear, no pore texture / wall", 1, False)):
+    whole_voxels = "ours, linear, whole voxels (partial_volume: false)"
+    for name, order, full, partial in (("ours, linear (default config)", 1, True, True),
+                                       ("ours, cubic (order 3)", 3, True, True),
+                                       ("ours, linear, no pore texture / wall", 1, False, True),
+                                       (whole_voxels, 1, True, False)):
         start = time.perf_counter()
-        maps, _, labels, contested = ours(library, placements, grid, order, full)
+        maps, _, labels, contested = ours(library, placements, grid, order, full, partial_volume=partial)
         timings[name] = time.perf_counter() - start
         results[name] = (labels, contested)
     box_voxels = np.prod(maps.box_hi - maps.box_lo, axis=1).mean()
@@ -292,7 +297,9 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
               f"(part of its Dice loss); ours places it at its exact position. Load average after: {_load()}.", "",
               f"Each grain's mask is resampled over the box of its rotated mask: {box_voxels:,.0f} voxels on "
               f"average for grains of {grain_voxels:,.0f} voxels; intensities only at the grain's own voxels.",
-              ""]
+              "", f"The partial-volume render (default) costs {timings[main_name] / timings[whole_voxels]:.2f}x the "
+              f"whole-voxel render (the renderer before partial volume) in this run; both give the same labels "
+              f"({'yes' if np.array_equal(results[main_name][0], results[whole_voxels][0]) else 'NO'}).", ""]
     lines += convention_check(library, placements, maps, grid)
     lines.append("")
     return lines, pour_rate

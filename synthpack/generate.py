@@ -25,6 +25,7 @@ from .config import PackConfig, ReconstructConfig
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
+from .partial_volume import PartialVolume
 from .physics import Placements, Tube, pour
 from .physics.engine import Material
 from .physics.registry import get_engine
@@ -155,6 +156,7 @@ def build_pack(
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
     )
     return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
@@ -170,13 +172,15 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 
 @dataclass(frozen=True)
 class _Render:
-    """What the render made: clean volume and labels on their grid, the background drawn, contested voxels."""
+    """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
+    the partial volume (None: whole voxels)."""
 
     grid: Grid
     clean: Any
     labels: Any
     background: Background
     contested: int
+    partial_volume: PartialVolume | None
 
 
 def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: bool) -> Placements:
@@ -201,16 +205,19 @@ def _render(
     chunks = tuple(config.chunks)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=config.margin)
+    partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in library], placements.indices,
-                     placements.rotation_matrices(), placements.positions, placements.scales, grid)
+                     placements.rotation_matrices(), placements.positions, placements.scales, grid,
+                     reach=partial_volume.reach if partial_volume else 1.0)
     background = Background.from_source(library.statistics, config)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
+        partial_volume=partial_volume,
     )
-    return _Render(grid, clean, labels, background, contested)
+    return _Render(grid, clean, labels, background, contested, partial_volume)
 
 
 def _postprocess(

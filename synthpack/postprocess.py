@@ -6,12 +6,15 @@ pipeline to apply to the clean pack, and the values to record in the pack's
 manifest:
 
 ================  ===========================================================================
-``calibrated``    the default (`~synthpack.config.PackConfig`): blur and Gaussian noise fitted
-                  in the pack's bulk region (`bulk_region`) to the source's edge width and
-                  noise level (`~synthpack.artefacts.calibrate`); the fit is recorded under
-                  ``calibration``. Where it cannot be fitted (the source's edge width was not
-                  measured, the pack has no bulk region, or its bulk no edges), ``match_source``
-                  instead, with a warning, and the reason recorded under ``postprocess_fallback``
+``calibrated``    the default (`~synthpack.config.PackConfig`): the source's image formation,
+                  fitted in the pack's bulk region (`bulk_region`; `~synthpack.artefacts.calibrate`):
+                  a Gaussian PSF that gives the source's edge spread, then noise with the
+                  source's noise power spectrum in grains and pores, less what the clean pack
+                  already holds; the fit is recorded under ``calibration`` (the render's
+                  partial volume, also fitted to the source, under ``partial_volume``). Where
+                  it cannot be fitted (the source's edges or noise spectrum were not measured,
+                  the pack has no bulk region, or its bulk no edges), ``match_source`` instead,
+                  with a warning, and the reason recorded under ``postprocess_fallback``
 ``match_source``  Gaussian noise that brings the clean pack to the source's noise level
                   (measured on the pack's central slices, at most `NOISE_SAMPLE_VOXELS` voxels;
                   variances add, `~synthpack.artefacts.noise_to_add`); recorded under
@@ -45,6 +48,7 @@ from .artefacts import Compose, calibrate, from_config, generic_postprocessing, 
 from .errors import SynthpackInputError
 from .reconstruct import Grid
 from .source.noise import estimate_noise
+from .source.spectrum import NPS_PATCH
 from .source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)
@@ -101,9 +105,13 @@ def _fallback(reason: str) -> None:
 
 def _uncalibratable(statistics: SourceStatistics) -> str | None:
     """Why no pack of a source with `statistics` can be calibrated, or None."""
-    if statistics.edge_width is None:
+    edges = (statistics.edge_width, statistics.edge_sigma, statistics.edge_shift)
+    if any(value is None for value in edges):
         return ("the source scan's edge width could not be measured when the particle library was built: it "
                 "needs grain and pore interiors of different levels; rebuild the library from such a scan")
+    if statistics.nps_pores is None and statistics.nps_grains is None:
+        return ("the source scan's noise spectrum could not be measured when the particle library was built: "
+                f"no phase holds a {NPS_PATCH} x {NPS_PATCH} patch of interior")
     return None
 
 
@@ -114,6 +122,22 @@ def _check_mode(postprocess: str | list) -> None:
             f"postprocess must be one of {', '.join(POSTPROCESS_MODES)} or a list of artefact transforms, "
             f"got {postprocess!r}"
         )
+
+
+def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
+    """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics.
+
+    A phase without a measured spectrum or noise level (too thin for a patch) takes the other phase's.
+    """
+    spectra = {"grains": statistics.nps_grains or statistics.nps_pores,
+               "pores": statistics.nps_pores or statistics.nps_grains}
+    grain_std, pore_std = statistics.noise_grain_std, statistics.noise_pore_std
+    levels = {"grains": grain_std if grain_std is not None else pore_std,
+              "pores": pore_std if pore_std is not None else grain_std}
+    return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
+            "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
+            "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
+            "grain_level": statistics.grain_mean}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:
@@ -183,8 +207,7 @@ def resolve_postprocessing(
         if fallback is None:
             try:
                 region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
-                calibration = calibrate(clean, labels, region, target_edge_width=float(statistics.edge_width),
-                                        target_noise=float(statistics.noise_std))
+                calibration = calibrate(clean, labels, region, **_calibration_targets(statistics))
             except SynthpackInputError as error:
                 fallback = f"this pack: {error}"
             else:

@@ -8,6 +8,11 @@ of its rotated crop: the rotated corners of the crop (paper eq. 5) give the box
 extent (eqs. 6-8), which is the crop plus the padding of eqs. 9-11, so no voxel of
 the particle is cut.
 
+Each grain is composited over the background by the fraction of every voxel it
+fills (`synthpack.partial_volume`), so boundary voxels mix grain and pore as a
+scanner's do; ``partial_volume: false`` pastes whole voxels instead (a hard step).
+Labels are the same either way.
+
 The output is rendered chunk by chunk: each chunk renders the particles whose
 boxes intersect it, so memory stays bounded by the output arrays plus one chunk's
 work, no two workers write the same voxel, and nothing copies the whole volume per
@@ -21,6 +26,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -28,6 +34,7 @@ from scipy import ndimage
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from ._schema import finite, non_negative, one_of, setting
 from .errors import SynthpackInputError
+from .partial_volume import FAR, PAD, PartialVolume
 from .pore_texture import PoreTexture
 from .source.statistics import SourceStatistics
 
@@ -38,6 +45,7 @@ __all__ = [
     "Grid",
     "ReconstructConfig",
     "PoseMaps",
+    "RenderCrop",
     "pose_maps",
     "reconstruct",
     "prepare_crops",
@@ -70,7 +78,19 @@ class ReconstructConfig:
     chunks: list = setting([64, 256, 256], _chunk_shape,
                            "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
                            "(and the shards of Zarr packs)")
+    partial_volume: bool = setting(True, None, "composite each grain by the fraction of every voxel it fills "
+                                   "(false: paste whole voxels, a hard step)")
+    edge_shift: float | None = setting(None, finite, "partial volume: the grain's intensity edge relative to its "
+                                       "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
+    rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
+                                "replaced by its interior; default: from the source's fitted edge")
     pore_texture: PoreTexture = field(default_factory=PoreTexture)
+
+    def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:
+        """The partial volume to render grains of a source scan with; None for whole voxels."""
+        if not self.partial_volume:
+            return None
+        return PartialVolume.from_source(statistics, self.edge_shift, self.rim)
 
 
 @dataclass(frozen=True)
@@ -188,6 +208,8 @@ def pose_maps(
     positions: np.ndarray,
     scales: np.ndarray,
     grid: Grid,
+    *,
+    reach: float = 1.0,
 ) -> PoseMaps:
     """Affine maps and reachable boxes of placed particles.
 
@@ -205,6 +227,10 @@ def pose_maps(
         Scale factor of each placement.
     grid : Grid
         Output grid (same voxel size as the crops).
+    reach : float
+        The boxes hold every output voxel within this many crop voxels (per axis) of a
+        mask voxel: 1 for the resampled mask, more for a partial volume drawn outside
+        it (`PartialVolume.reach`).
 
     Returns
     -------
@@ -235,7 +261,7 @@ def pose_maps(
     # such a voxel maps to within one crop voxel (per axis) of a mask voxel, which
     # the forward map stretches by at most the row sums of |forward|.
     forward = np.linalg.inv(matrix) if n else np.zeros((0, 3, 3))
-    reach = np.abs(forward).sum(axis=2)
+    extent = reach * np.abs(forward).sum(axis=2)
     surfaces = {int(i): _surface_voxels(masks[int(i)]) for i in np.unique(library_index)}
     empty = sorted(i for i, surface in surfaces.items() if not len(surface))
     if empty:
@@ -247,8 +273,8 @@ def pose_maps(
     box_hi = np.empty((n, 3), dtype=np.int64)
     for k in range(n):
         mapped = (surfaces[int(library_index[k])] - offset[k]) @ forward[k].T
-        box_lo[k] = np.floor(mapped.min(axis=0) - reach[k])
-        box_hi[k] = np.ceil(mapped.max(axis=0) + reach[k]) + 1
+        box_lo[k] = np.floor(mapped.min(axis=0) - extent[k])
+        box_hi[k] = np.ceil(mapped.max(axis=0) + extent[k]) + 1
     box_lo = np.clip(box_lo, 0, grid.shape)
     box_hi = np.clip(box_hi, 0, grid.shape)
     return PoseMaps(library_index, matrix, offset, box_lo, box_hi)
@@ -278,23 +304,63 @@ def _background(
     return values
 
 
-def prepare_crops(crops: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Crops as :func:`render_chunk` takes them: masks as float32, padded by one empty voxel.
+class RenderCrop(NamedTuple):
+    """One library particle as :func:`render_chunk` takes it (from :func:`prepare_crops`).
 
-    With the pad, SciPy's fast ``"constant"`` boundary mode interpolates the mask
-    towards 0 beyond its edge exactly as the slower ``"grid-constant"`` would.
+    Attributes
+    ----------
+    mask : ndarray of float32, shape (nz + 2, ny + 2, nx + 2)
+        The mask, padded by one empty voxel: with the pad, SciPy's fast
+        ``"constant"`` boundary mode interpolates it towards 0 beyond its edge
+        exactly as the slower ``"grid-constant"`` would.
+    intensity : ndarray of float32
+        The clean crop: as it is for whole voxels, or prepared and padded by
+        `~synthpack.partial_volume.PAD` for the partial volume
+        (`~synthpack.partial_volume.PreparedCrop`).
+    distance : ndarray of float32 or None
+        Signed distance from the mask's boundary (voxels, padded like `intensity`)
+        for the partial volume; None for whole voxels.
+    """
+
+    mask: np.ndarray
+    intensity: np.ndarray
+    distance: np.ndarray | None
+
+
+def prepare_crops(
+    crops: Sequence[tuple[np.ndarray, np.ndarray]],
+    partial_volume: PartialVolume | None = None,
+    used: Sequence[int] | None = None,
+) -> list[RenderCrop | None]:
+    """Crops as :func:`render_chunk` takes them (see `RenderCrop`).
 
     Parameters
     ----------
     crops : sequence of (tomogram, mask)
         Clean crop (float32, shape (nz, ny, nx)) and mask (bool, same shape) of every
         library particle.
+    partial_volume : PartialVolume, optional
+        Prepare the crops for the partial-volume render (`PartialVolume.prepare`);
+        None: whole voxels.
+    used : sequence of int, optional
+        Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
     """
-    return [(tomogram, np.pad(mask.astype(np.float32), 1)) for tomogram, mask in crops]
+    wanted = set(range(len(crops)) if used is None else (int(i) for i in used))
+    prepared: list[RenderCrop | None] = []
+    for index, (tomogram, mask) in enumerate(crops):
+        if index not in wanted:
+            prepared.append(None)
+            continue
+        padded_mask = np.pad(mask.astype(np.float32), 1)
+        if partial_volume is None:
+            prepared.append(RenderCrop(padded_mask, tomogram, None))
+        else:
+            prepared.append(RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask)))
+    return prepared
 
 
 def render_chunk(
-    crops: Sequence[tuple[np.ndarray, np.ndarray]],
+    crops: Sequence[RenderCrop | None],
     maps: PoseMaps,
     grid: Grid,
     lo: np.ndarray,
@@ -304,13 +370,15 @@ def render_chunk(
     tube: tuple[float, float, float] | None = None,
     order: int = 1,
     seed: int = 0,
+    partial_volume: PartialVolume | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the output box ``[lo, hi)``.
 
     Parameters
     ----------
-    crops : sequence of (tomogram, padded_mask)
-        Every library particle's clean crop and mask, from :func:`prepare_crops`.
+    crops : sequence of RenderCrop
+        Every library particle's crop, from :func:`prepare_crops` (with the same `partial_volume`;
+        those `maps` places are not None).
     maps : PoseMaps
         From :func:`pose_maps`.
     grid : Grid
@@ -322,18 +390,22 @@ def render_chunk(
     tube : (inner_radius, outer_radius, base_z) or None
         Tube wall geometry in physical units (None: no wall).
     order : int
-        Spline order for intensities (1 linear, 3 cubic). Masks are always
-        resampled linearly and kept above 0.5.
+        Spline order for intensities (1 linear, 3 cubic). Masks and signed
+        distances are always resampled linearly.
     seed : int
         Seed of the pore texture.
+    partial_volume : PartialVolume, optional
+        Composite grains by their occupancy of each voxel (`synthpack.partial_volume`);
+        None: each grain's label voxels take its intensity (a hard step).
 
     Returns
     -------
     tomogram : ndarray of float32, shape hi - lo
     labels : ndarray of int32, shape hi - lo
-        Placement ``i`` gets label ``i + 1``. A voxel claimed by two particles goes
-        to the one whose resampled mask value is larger (the earlier placement on
-        a tie), a deterministic rule independent of the chunking.
+        Placement ``i`` gets label ``i + 1`` where its resampled mask exceeds 0.5.
+        A voxel claimed by two particles goes to the one whose resampled mask
+        value is larger (the earlier placement on a tie), a deterministic rule
+        independent of the chunking.
     contested : int
         Number of voxels claimed by more than one particle.
     """
@@ -341,33 +413,74 @@ def render_chunk(
     tomogram = _background(grid, lo, hi, background, tube, seed)
     labels = np.zeros(shape, dtype=np.int32)
     claim = np.zeros(shape, dtype=np.float32)
+    composite = None if partial_volume is None else _Composite(shape)
     contested = 0
     hit = np.all((maps.box_lo < hi) & (maps.box_hi > lo), axis=1)
     for i in np.flatnonzero(hit):
         sub_lo = np.maximum(maps.box_lo[i], lo)
         sub_hi = np.minimum(maps.box_hi[i], hi)
         out_shape = tuple(int(n) for n in sub_hi - sub_lo)
-        crop_tomogram, crop_mask = crops[maps.library_index[i]]
+        crop = crops[maps.library_index[i]]
         offset = maps.offset[i] + maps.matrix[i] @ sub_lo
+        window = tuple(slice(a - b, c - b) for a, b, c in zip(sub_lo, lo, sub_hi))
         weight = ndimage.affine_transform(
-            crop_mask, maps.matrix[i], offset=offset + 1.0,  # the mask is padded by one voxel
+            crop.mask, maps.matrix[i], offset=offset + 1.0,  # the mask is padded by one voxel
             output_shape=out_shape, order=1, mode="constant", cval=0.0,
         )
         inside = weight > 0.5
-        if not inside.any():
-            continue
-        window = tuple(slice(a - b, c - b) for a, b, c in zip(sub_lo, lo, sub_hi))
         region_claim = claim[window]
         contested += int(np.count_nonzero(inside & (region_claim > 0.5)))
         wins = inside & (weight > region_claim)
-        where = np.nonzero(wins)
-        coordinates = maps.matrix[i] @ np.array(where, dtype=float) + offset[:, None]
-        tomogram[window][where] = ndimage.map_coordinates(
-            crop_tomogram, coordinates, order=order, mode="nearest", prefilter=order > 1,
-        )
         labels[window][wins] = i + 1
         region_claim[wins] = weight[wins]
+        if composite is None:
+            where = np.nonzero(wins)
+            tomogram[window][where] = _sample(crop.intensity, maps.matrix[i], offset, where, order)
+        else:
+            composite.add(window, crop, maps.matrix[i], offset, out_shape, partial_volume, order)
+    if composite is not None:
+        composite.over(tomogram)
     return tomogram, labels, contested
+
+
+def _sample(
+    intensity: np.ndarray, matrix: np.ndarray, offset: np.ndarray, where: tuple[np.ndarray, ...], order: int,
+) -> np.ndarray:
+    """`intensity` interpolated at the crop positions ``matrix @ o + offset`` of the box indices `where`."""
+    coordinates = matrix @ np.array(where, dtype=float) + offset[:, None]
+    return ndimage.map_coordinates(intensity, coordinates, order=order, mode="nearest", prefilter=order > 1)
+
+
+class _Composite:
+    """The grains of one chunk by occupancy: ``O = sum o_i`` and ``V = sum o_i g_i``, then over the background."""
+
+    def __init__(self, shape: tuple[int, int, int]) -> None:
+        self.occupancy = np.zeros(shape, dtype=np.float32)
+        self.value = np.zeros(shape, dtype=np.float32)
+
+    def add(
+        self, window: tuple[slice, ...], crop: RenderCrop, matrix: np.ndarray, offset: np.ndarray,
+        out_shape: tuple[int, ...], partial_volume: PartialVolume, order: int,
+    ) -> None:
+        """Add one grain over its box `window` of the chunk (`offset`: crop position of the box's first voxel)."""
+        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
+        distance = ndimage.affine_transform(
+            crop.distance, matrix, offset=offset + PAD, output_shape=out_shape, order=1, mode="constant", cval=FAR,
+        )
+        occupancy = partial_volume.occupancy(distance * np.float32(scale))
+        where = np.nonzero(occupancy)
+        if not len(where[0]):
+            return
+        fraction = occupancy[where]
+        self.occupancy[window][where] += fraction
+        self.value[window][where] += fraction * _sample(crop.intensity, matrix, offset + PAD, where, order)
+
+    def over(self, background: np.ndarray) -> None:
+        """Composite onto `background` in place: ``(1 - O) b + V``, or ``V / O`` where grains overlap (``O > 1``)."""
+        covered = np.minimum(self.occupancy, 1.0)
+        normalise = np.where(self.occupancy > 1.0, 1.0 / np.maximum(self.occupancy, 1.0), 1.0).astype(np.float32)
+        background *= 1.0 - covered
+        background += self.value * normalise
 
 
 def reconstruct(
@@ -382,6 +495,7 @@ def reconstruct(
     chunks: tuple[int, int, int] = (64, 256, 256),
     workers: int | None = None,
     out: tuple[np.ndarray, np.ndarray] | None = None,
+    partial_volume: PartialVolume | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see :func:`render_chunk`).
 
@@ -393,8 +507,8 @@ def reconstruct(
     ----------
     crops : sequence of (tomogram, mask)
         Clean crop (float32) and mask (bool) of every library particle.
-    maps, grid, background, tube, order, seed
-        As in :func:`render_chunk`.
+    maps, grid, background, tube, order, seed, partial_volume
+        As in :func:`render_chunk` (`maps` with ``reach=partial_volume.reach``).
     chunks : tuple of 3 int
         Chunk shape in voxels.
     workers : int, optional
@@ -420,11 +534,12 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    prepared = prepare_crops(crops)
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index))
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
-        return render_chunk(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed)
+        return render_chunk(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed,
+                            partial_volume=partial_volume)
 
     for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
         render, chunk_boxes(grid.shape, chunks), workers

@@ -13,6 +13,7 @@ from scipy import ndimage
 
 from synthpack.artefacts import (
     BeamHardening,
+    ColouredNoise,
     Compose,
     CTSimulation,
     GaussianBlur,
@@ -27,7 +28,9 @@ from synthpack.artefacts import (
     line_kernel,
     noise_to_add,
 )
+from synthpack.artefacts.blockwise import apply_blockwise
 from synthpack.errors import SynthpackInputError
+from synthpack.source import noise_power_spectrum
 from synthpack.source import estimate_noise
 
 SHAPE = (16, 64, 64)
@@ -359,3 +362,23 @@ def test_constructor_and_image_errors() -> None:
         GaussianNoise()(np.zeros((4, 4), dtype=complex), 0)
     out = GaussianNoise()(np.zeros((4, 4), dtype=np.uint16), 0)
     assert out.dtype == np.float32
+
+
+def test_coloured_noise_has_the_asked_spectrum_per_phase_whatever_the_blocks() -> None:
+    pore_power = [4e-4, 3e-4, 2e-4, 1e-4, 1e-5, 2e-6]  # smooth: falls with frequency
+    grain_power = [1e-4] * 4 + [2e-5, 5e-6]
+    image = np.zeros((64, 64, 96), dtype=np.float32)
+    image[..., 48:] = 1.0  # pores at 0, grains at 1
+    noise = ColouredNoise(pore_power=pore_power, grain_power=grain_power, pore_level=0.0, grain_level=1.0)
+    whole = np.empty_like(image)
+    apply_blockwise(noise, image, whole, seed=3, chunks=image.shape)
+    for chunks in ((16, 32, 40), (64, 13, 7)):
+        blocks = np.empty_like(image)
+        apply_blockwise(noise, image, blocks, seed=3, chunks=chunks)
+        np.testing.assert_array_equal(blocks, whole)
+    for power, phase in ((pore_power, whole[..., 4:44] - 0.0), (grain_power, whole[..., 52:92] - 1.0)):
+        measured = noise_power_spectrum(phase, np.ones(phase.shape, dtype=bool), max_patches=20000).power[1:]
+        np.testing.assert_allclose(measured[:4], power[:4], rtol=0.15)
+    again = np.empty_like(image)
+    apply_blockwise(noise, image, again, seed=4, chunks=image.shape)
+    assert not np.array_equal(again, whole)

@@ -7,6 +7,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.library import ParticleLibrary
 from synthpack.scan import Scan
 from synthpack.source import estimate_phases
+from synthpack.source.specimen import specimen_mask
 from synthpack.split import central_block
 
 
@@ -96,18 +97,18 @@ def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
         ParticleLibrary.load(out)
 
 
-@pytest.mark.parametrize("version", [None, 0, 2, "1"])
+@pytest.mark.parametrize("version", [None, 0, 1, 3, "2"])
 def test_library_of_another_format_version_says_to_rebuild(large_library, tmp_path, version):
     out = large_library[:3].save(tmp_path / "lib")
     meta = json.loads((out / "library.json").read_text())
-    assert meta["version"] == 1
+    assert meta["version"] == 2
     if version is None:
         del meta["version"]
     else:
         meta["version"] = version
     (out / "library.json").write_text(json.dumps(meta))
     with pytest.raises(SynthpackInputError, match=f"format version {version!r}, but this synthpack reads "
-                                                  "version 1: rebuild it with `synthpack library build`"):
+                                                  "version 2: rebuild it with `synthpack library build`"):
         ParticleLibrary.load(out)
 
 
@@ -115,7 +116,8 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
     out = large_library.save(tmp_path / "lib")
     meta = json.loads((out / "library.json").read_text())
     assert meta["phases"] == large_library.statistics.to_dict()
-    assert list(meta["phases"]) == ["pore_mean", "pore_std", "grain_mean", "noise_std", "edge_width"]
+    assert list(meta["phases"]) == ["pore_mean", "pore_std", "grain_mean", "noise_std", "edge_width", "edge_shift",
+                                    "edge_sigma", "noise_grain_std", "noise_pore_std", "nps_grains", "nps_pores"]
     assert large_library[:2].statistics is large_library.statistics
 
 
@@ -142,7 +144,7 @@ def test_exclude_slices_keeps_the_test_block_out_of_the_library(large_scan, axis
     kept = np.ones(large_scan.shape[axis], bool)
     kept[start:stop] = False
     training = Scan(np.compress(kept, large_scan.tomogram, axis=axis), np.compress(kept, large_scan.labels, axis=axis))
-    assert library.statistics.pore_mean == estimate_phases(training).pore_mean
+    assert library.statistics.pore_mean == estimate_phases(training, region=specimen_mask(training.labels)).pore_mean
     assert library.settings["exclude_slices"] == [start, stop]
 
 

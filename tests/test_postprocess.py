@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from synthpack import postprocess as postprocess_module
-from synthpack.artefacts import GaussianNoise, generic_postprocessing
+from synthpack.artefacts import ColouredNoise, GaussianNoise, generic_postprocessing
 from synthpack.errors import SynthpackInputError
 from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.reconstruct import Grid
-from synthpack.source import SourceStatistics, estimate_noise, volume_edge_width
+from synthpack.source import SourceStatistics, estimate_noise, fit_edge_spread, phase_spectra
+from synthpack.source.edges import edge_profile, signed_distance
 
-STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0)
+STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0,
+                              edge_shift=0.0, edge_sigma=1.2, nps_grains=(1e-4,) * 6, nps_pores=(1e-4,) * 6)
 #: A bulk sub-cylinder holding the whole phantom.
 EVERYWHERE = {"radius": 1e3, "z_min": -1e3, "z_max": 1e3}
 
@@ -80,30 +82,44 @@ def test_match_source_reaches_the_source_noise_level_and_records_it(rendered):
     assert "postprocess_fallback" not in resolved.record
 
 
-def test_calibrated_fits_blur_and_noise_to_the_source_and_records_the_fit(rendered):
+def test_calibrated_fits_the_psf_and_the_noise_spectrum_to_the_source_and_records_the_fit(rendered):
     clean, labels, _ = rendered
-    target = volume_edge_width(clean, labels) + 0.5  # softer edges than the clean pack's
-    resolved = _resolve("calibrated", rendered, dataclasses.replace(STATISTICS, edge_width=target))
+    distance = signed_distance(labels)
+    spread = fit_edge_spread(edge_profile(clean, distance))
+    spectra = phase_spectra(clean, distance)
+    # softer edges, 4x the noise power of the clean pack in every ring, twice its noise level
+    level = 2 * estimate_noise(clean, labels).std
+    target = dataclasses.replace(STATISTICS, edge_sigma=spread.sigma + 0.4, edge_shift=spread.shift,
+                                 nps_grains=tuple(4 * spectra["grains"].power[1:]),
+                                 nps_pores=tuple(4 * spectra["pores"].power[1:]),
+                                 noise_grain_std=level, noise_pore_std=level)
+    resolved = _resolve("calibrated", rendered, target)
     assert resolved.record["postprocess_mode"] == "calibrated"
     fit = resolved.record["calibration"]
-    assert fit["target_edge_width"] == target and fit["target_noise"] == 0.05
-    assert fit["blur_sigma"] > 0 and fit["edge_width"] == pytest.approx(target, abs=0.05)
+    assert fit["target_sigma"] == target.edge_sigma and fit["target_shift"] == target.edge_shift
+    assert fit["blur_sigma"] > 0 and fit["edge_sigma"] == pytest.approx(target.edge_sigma, abs=0.05)
     blur, noise = resolved.pipeline
-    assert (blur.sigma, noise.std) == (fit["blur_sigma"], fit["noise_std"])
-    assert estimate_noise(resolved.pipeline(clean, 1), labels).std == pytest.approx(0.05, rel=0.1)
+    assert isinstance(noise, ColouredNoise) and blur.sigma == fit["blur_sigma"]
+    assert list(noise.pore_power) == fit["added_power"]["pores"]
+    out = resolved.pipeline(clean, 1)
+    for phase, spectrum in phase_spectra(out, distance).items():  # rings 0.125 to 0.5 cycles/voxel
+        ratio = spectrum.power[1:5] / np.asarray(fit["target_power"][phase])[:4]
+        assert np.all((ratio > 0.7) & (ratio < 1.4)), (phase, ratio)
+    assert fit_edge_spread(edge_profile(out, distance)).sigma == pytest.approx(target.edge_sigma, abs=0.1)
+    noise = estimate_noise(out, labels)
+    assert (noise.grain_std, noise.pore_std) == (pytest.approx(level, rel=0.1), pytest.approx(level, rel=0.1))
 
 
 def test_calibrated_fits_darker_grains_as_it_fits_brighter_ones(rendered):
     clean, labels, _ = rendered
-    target = volume_edge_width(clean, labels) + 0.5
+    spread = fit_edge_spread(edge_profile(clean, signed_distance(labels)))
     inverted = (1.0 - clean).astype(np.float32)  # grains 0.2, pores 0.8
-    statistics = dataclasses.replace(STATISTICS, edge_width=target)
+    statistics = dataclasses.replace(STATISTICS, edge_sigma=spread.sigma + 0.4, edge_shift=spread.shift)
     brighter = _resolve("calibrated", rendered, statistics).record["calibration"]
     darker_statistics = dataclasses.replace(statistics, pore_mean=0.8, grain_mean=0.2)
     darker = _resolve("calibrated", (inverted, *rendered[1:]), darker_statistics).record["calibration"]
     assert darker["blur_sigma"] == pytest.approx(brighter["blur_sigma"], abs=1e-3)
-    assert darker["edge_width"] == pytest.approx(brighter["edge_width"], abs=1e-3)
-    assert darker["noise_std"] == pytest.approx(brighter["noise_std"], rel=1e-3)
+    assert darker["edge_sigma"] == pytest.approx(brighter["edge_sigma"], abs=1e-3)
 
 
 def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_fitted(

@@ -1,11 +1,14 @@
 import numpy as np
 import pytest
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
+from synthpack.partial_volume import PAD, PartialVolume
 from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
-from synthpack.source import SourceStatistics
+from synthpack.source import SourceStatistics, fit_edge_spread
+from synthpack.source.edges import edge_profile, signed_distance
 
 
 def _tight(volume):
@@ -168,3 +171,68 @@ def test_background_from_source_statistics():
     assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9
     assert Background.from_source(statistics, ReconstructConfig(wall=False)).wall is None
     assert background.texture_record(seed=5) == {"sigma": 1.2, "tile": 32, "amplitude": 0.03, "seed": 5}
+
+
+def _ball_scene(large_library, n=12):
+    rng = np.random.default_rng(1)
+    crops = [(p.tomogram, p.mask) for p in large_library]
+    index = rng.integers(0, len(crops), n)
+    rotations = Rotation.random(n, random_state=2).as_matrix()
+    positions = rng.uniform(-200, 200, size=(n, 3))
+    grid = Grid.covering(400.0, -300.0, 300.0, large_library.voxel_size)
+    return crops, index, rotations, positions, grid
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.3, -0.4])
+def test_partial_volume_keeps_the_labels_and_mixes_boundary_voxels(large_library, shift):
+    crops, index, rotations, positions, grid = _ball_scene(large_library)
+    background = Background(0.2, 0.05, 0.5)
+    tube = (300.0, 330.0, -30.0)
+    hard_maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(len(index)), grid)
+    hard = reconstruct(crops, hard_maps, grid, background, tube=tube, seed=4)
+    partial_volume = PartialVolume(shift=shift, rim=1.5)
+    maps = pose_maps([c[1] for c in crops], index, rotations, positions, np.ones(len(index)), grid,
+                     reach=partial_volume.reach)
+    whole = reconstruct(crops, maps, grid, background, tube=tube, seed=4, chunks=grid.shape,
+                        partial_volume=partial_volume)
+    # labels and contested voxels are the hard render's, byte for byte
+    np.testing.assert_array_equal(whole[1], hard[1])
+    assert whole[2] == hard[2]
+    # chunks and threads change nothing
+    for workers in (1, 2):
+        chunked = reconstruct(crops, maps, grid, background, tube=tube, seed=4, chunks=(13, 17, 29),
+                              workers=workers, partial_volume=partial_volume)
+        np.testing.assert_array_equal(chunked[0], whole[0])
+        np.testing.assert_array_equal(chunked[1], whole[1])
+    # boundary voxels mix grain and pore: the mean profile across the label boundary is
+    # half-way at the shifted iso-surface, and the pore voxels next to a grain hold some of
+    # it (in the hard render they are pore)
+    distance = signed_distance(whole[1])
+    profile = edge_profile(whole[0], distance)
+    assert fit_edge_spread(profile).shift == pytest.approx(shift, abs=0.15)
+    hard_profile = edge_profile(hard[0], distance)
+    pore_side = profile.normalised[profile.distance == -0.5][0]
+    assert abs(hard_profile.normalised[hard_profile.distance == -0.5][0]) < 0.05
+    assert pore_side > 0.1 if shift <= 0 else pore_side > 0.0
+
+
+def test_prepared_crop_replaces_the_rim_by_the_interior():
+    mask = np.zeros((12, 12, 12), dtype=bool)
+    mask[2:10, 2:10, 2:10] = True
+    tomogram = np.where(mask, 0.8, 0.2).astype(np.float32)
+    tomogram[mask & ~ndimage.binary_erosion(mask)] = 0.5  # a darkened (blurred) rim
+    prepared = PartialVolume(shift=0.0, rim=1.0).prepare(tomogram, mask)
+    assert prepared.intensity.shape == prepared.distance.shape == tuple(n + 2 * PAD for n in mask.shape)
+    np.testing.assert_array_equal(prepared.intensity, np.float32(0.8))  # rim and outside: the interior
+    assert prepared.distance[PAD + 2, PAD + 5, PAD + 5] == 0.5 and prepared.distance[PAD + 1, PAD + 5, PAD + 5] == -0.5
+    occupancy = PartialVolume(shift=0.25).occupancy(np.array([-1.0, -0.5, 0.0, 0.25, 0.5, 1.0]))
+    np.testing.assert_allclose(occupancy, [0, 0, 0.25, 0.5, 0.75, 1])
+
+
+def test_partial_volume_from_source_statistics():
+    statistics = SourceStatistics(0.2, 0.01, 0.8, 0.02, edge_width=2.0, edge_shift=-0.1, edge_sigma=0.9)
+    fitted = ReconstructConfig().partial_volume_of(statistics)
+    assert fitted.shift == -0.1 and fitted.rim == pytest.approx(-0.1 + 1.645 * 0.9)
+    assert ReconstructConfig(edge_shift=0.2, rim=2.0).partial_volume_of(statistics) == PartialVolume(0.2, 2.0)
+    assert ReconstructConfig(partial_volume=False).partial_volume_of(statistics) is None
+    assert PartialVolume.from_source(SourceStatistics(0.2, 0.01, 0.8, 0.02)) == PartialVolume(0.0, 1.0)

@@ -1,4 +1,4 @@
-"""Tests of synthpack.source: phase levels, the noise estimator, edge width and SourceStatistics."""
+"""Tests of synthpack.source: phase levels, the noise estimator, edge width and spread, NPS, SourceStatistics."""
 
 from __future__ import annotations
 
@@ -9,9 +9,14 @@ import pytest
 from scipy import ndimage, special
 
 from synthpack.artefacts import GaussianNoise
+from synthpack.artefacts.coloured_noise import ring_powers_of_spectrum
 from synthpack.errors import SynthpackInputError
 from synthpack.scan import Scan
-from synthpack.source import SourceStatistics, estimate_noise, estimate_phases, measure_source, volume_edge_width
+from synthpack.source import (SourceStatistics, estimate_noise, estimate_phases, fit_edge_spread, measure_source,
+                              noise_power_spectrum, volume_edge_width)
+from synthpack.source.edges import edge_profile, signed_distance
+from synthpack.source.specimen import specimen_mask
+from synthpack.source.spectrum import ring_of
 
 
 def test_pore_statistics_leave_out_the_blurred_rim_along_grains():
@@ -69,11 +74,12 @@ def test_measure_source_measures_every_field_once(phantom):
     clean, labels = phantom
     noisy = GaussianNoise(std=0.02)(clean, 0)
     statistics = measure_source(Scan(noisy, labels))
-    levels = estimate_phases(Scan(noisy, labels))
+    specimen = specimen_mask(labels)  # what the statistics describe: no container, no air around it
+    levels = estimate_phases(Scan(noisy, labels), region=specimen)
     assert (statistics.pore_mean, statistics.pore_std, statistics.grain_mean) == (
         levels.pore_mean, levels.pore_std, levels.grain_mean)
-    assert statistics.noise_std == estimate_noise(noisy, labels).std
-    assert statistics.edge_width == volume_edge_width(noisy, labels)
+    assert statistics.noise_std == estimate_noise(noisy, labels, region=specimen).std
+    assert statistics.edge_width == volume_edge_width(noisy, labels, region=specimen)
     assert statistics.contrast == levels.grain_mean - levels.pore_mean > 0.5
     with pytest.raises(dataclasses.FrozenInstanceError):
         statistics.noise_std = 0.0  # type: ignore[misc]
@@ -105,3 +111,61 @@ def test_to_dict_is_the_field_order_without_missing_values():
     partial = dataclasses.replace(full, edge_width=None)
     assert "edge_width" not in partial.to_dict()
     assert SourceStatistics.from_dict(partial.to_dict()) == partial
+
+
+def test_edge_spread_fit_recovers_the_shift_and_blur_of_a_step():
+    z = np.arange(64, dtype=float)[:, None, None] * np.ones((1, 16, 16))
+    labels = (z < 32).astype(np.int32)  # grain below z = 31.5
+    # the intensity edge 0.3 voxel inside the grain, blurred by sigma 0.9
+    tomogram = 0.2 + 0.5 * special.ndtr((31.5 - 0.3 - z) / 0.9)
+    spread = fit_edge_spread(edge_profile(tomogram.astype(np.float32), signed_distance(labels)))
+    assert spread.shift == pytest.approx(0.3, abs=0.01) and spread.sigma == pytest.approx(0.9, rel=0.01)
+    assert (spread.pore, spread.grain) == (pytest.approx(0.2, abs=1e-3), pytest.approx(0.7, abs=1e-3))
+
+
+@pytest.mark.parametrize(("shift", "sigma"), [(0.0, 0.8), (0.4, 1.2), (-0.3, 1.0)])
+def test_edge_spread_fit_recovers_a_blurred_shifted_ball(shift, sigma):
+    # a ball of radius 14 (label: voxel centres inside), its intensity edge `shift` voxels
+    # inside, made by a Gaussian blur of `sigma` of the 4x supersampled ball, with noise
+    fine = (np.indices((160, 160, 160)).astype(float) + 0.5) / 4.0
+    radius = np.sqrt(((fine - 20.0) ** 2).sum(axis=0))
+    sharp = (radius <= 14.0 - shift).astype(float).reshape(40, 4, 40, 4, 40, 4).mean(axis=(1, 3, 5))
+    box_sigma = np.sqrt(1.0 / 12.0 - 1.0 / (12.0 * 16.0))  # what averaging the supersamples adds
+    tomogram = 0.2 + 0.5 * ndimage.gaussian_filter(sharp, np.sqrt(sigma**2 - box_sigma**2))
+    tomogram = GaussianNoise(std=0.01)(tomogram, 0)
+    centre = np.sqrt(((np.indices((40, 40, 40)) + 0.5 - 20.0) ** 2).sum(axis=0))
+    labels = (centre <= 14.0).astype(np.int32)
+    spread = fit_edge_spread(edge_profile(tomogram, signed_distance(labels)))
+    # blurring a ball also moves its half-height inwards by its curvature, about sigma^2 / radius
+    assert spread.shift == pytest.approx(shift + sigma**2 / 14.0, abs=0.1)
+    assert spread.sigma == pytest.approx(sigma, rel=0.1)
+
+
+def test_measure_source_fits_the_edge_and_the_noise_spectra(phantom):
+    clean, labels = phantom
+    noisy = GaussianNoise(std=0.02)(clean, 0)
+    statistics = measure_source(Scan(noisy, labels))
+    spread = fit_edge_spread(edge_profile(noisy, signed_distance(labels), region=specimen_mask(labels)))
+    assert (statistics.edge_shift, statistics.edge_sigma) == (spread.shift, spread.sigma)
+    assert abs(statistics.edge_shift) < 0.2 and statistics.edge_sigma == pytest.approx(1.0, rel=0.15)  # balls: curved
+    # white noise: each ring's power is the variance x its share of the frequencies (the
+    # phantom's smooth ripple adds to the lowest rings only; few patches fit between the
+    # three balls inside the specimen, hence the tolerance)
+    share = np.bincount(ring_of().ravel())[1:] / 64
+    for power in (statistics.nps_grains, statistics.nps_pores):
+        assert len(power) == len(statistics.nps_frequencies) == 6
+        np.testing.assert_allclose(np.array(power)[2:5], 0.02**2 * share[2:5], rtol=0.5)
+    assert SourceStatistics.from_dict(statistics.to_dict()) == statistics
+
+
+def test_noise_power_spectrum_of_known_coloured_noise():
+    # white noise smoothed by a Gaussian of 1 voxel: its spectrum is exp(-(2 pi f)^2), known exactly
+    white = np.random.default_rng(0).standard_normal((64, 64, 64))
+    coloured = ndimage.gaussian_filter(white, 1.0, mode="wrap")
+    f = np.fft.fftfreq(64)
+    radius = np.sqrt(f[:, None, None] ** 2 + f[None, :, None] ** 2 + f[None, None, :] ** 2)
+    expected = ring_powers_of_spectrum(np.exp(-((2 * np.pi * radius) ** 2)), 4)
+    measured = noise_power_spectrum(coloured.astype(np.float32), np.ones(coloured.shape, dtype=bool),
+                                    max_patches=20000).power[1:5]
+    np.testing.assert_allclose(measured, expected, rtol=0.1)
+    assert np.all(np.diff(measured) < 0)  # smooth noise: power falls with frequency

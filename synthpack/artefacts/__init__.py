@@ -13,6 +13,8 @@ Transforms, by config name:
 
 ========================  =============================================================
 ``gaussian_noise``        `GaussianNoise` (std): additive white noise
+``coloured_noise``        `ColouredNoise` (pore_power, grain_power, pore_level, grain_level):
+                          noise with a given spectrum in pores and grains
 ``speckle_noise``         `SpeckleNoise` (std): ``x * (1 + n)``
 ``poisson_noise``         `PoissonNoise` (photons): counting noise, variance ~ intensity
 ``gaussian_blur``         `GaussianBlur` (sigma): detector / focal-spot blur
@@ -29,14 +31,14 @@ Every transform also has ``p``, the probability that it is applied at a call.
 ``[{"name": "gaussian_blur", "sigma": [0.5, 1.0]}, {"name": "gaussian_noise", "std": 0.05}]``
 and ``to_dict`` / ``Compose.to_config`` write it back. `generic_postprocessing` is
 a recipe scaled to the contrast alone; `noise_to_add` matches a source scan's noise level and
-`calibrate` fits blur and noise to its edge width and noise level (the noise is
-measured by `synthpack.source.estimate_noise`).
+`calibrate` fits the PSF and the noise spectrum to its edges and noise power spectrum.
 """
 
 from ._base import Compose, Transform, available_transforms, from_config
 from ._param import Param
 from .blur import GaussianBlur, MotionBlur, line_kernel
 from .calibrate import Calibration, calibrate, noise_to_add
+from .coloured_noise import ColouredNoise
 from .ct import CTSimulation
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
 from .presets import generic_postprocessing
@@ -46,6 +48,7 @@ __all__ = [
     "BeamHardening",
     "CTSimulation",
     "Calibration",
+    "ColouredNoise",
     "Compose",
     "GaussianBlur",
     "GaussianNoise",

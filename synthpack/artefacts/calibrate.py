@@ -1,29 +1,39 @@
-"""Post-processing fitted to a source scan: noise that matches its level, blur and noise that match its edges.
+"""Post-processing fitted to a source scan: noise that matches its level; blur and noise that match its image formation.
 
-The clean synthetic volume is rebuilt from the source's masked grain crops: each
-grain keeps its own partial-volume rim but the pore side of every edge is flat
-background, so its edges are sharper than the source's, and its noise is the
-source's noise thinned by resampling. Two measured figures of the source scan
-(`~synthpack.source.SourceStatistics` ``edge_width`` and ``noise_std``) are
-matched in turn, inside a region of the pack (its bulk):
+The clean synthetic volume is rendered with partial-volume edges
+(`synthpack.partial_volume`) from grain crops that hold the source's noise
+thinned by resampling, between pores that hold the pore texture. `calibrate`
+fits the rest of the scanner's image formation to the source
+(`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk):
 
-1. **Blur.** The clean volume is blurred with `~synthpack.artefacts.GaussianBlur`
-   of every sigma on a grid (default 0 to 2 voxels in steps of 0.1) and the 10-90
-   edge width (`synthpack.source.edges`) measured each time. The sigma whose width
-   equals the source's is interpolated linearly between grid points (0 if the
-   clean volume is already as blurred, the grid's top if it cannot get there).
-2. **Noise.** The noise of the volume blurred with that sigma is measured
-   (`~synthpack.source.noise.estimate_noise`) and the white Gaussian noise that
-   brings it to the source's level is added (`noise_to_add`: variances add).
+1. **Point-spread function.** The width of the clean volume's edge-spread function
+   is fitted (`~synthpack.source.psf.fit_edge_spread`, on the mean edge profile
+   of `synthpack.source.edges`), and the Gaussian PSF that brings it to the
+   source's ``edge_sigma`` found by `PSF_STEPS` fixed-point steps on the law
+   that Gaussian widths add in quadrature, ``sigma_psf^2 <- sigma_psf^2 +
+   target^2 - fitted(sigma_psf)^2`` from ``sigma_psf = 0`` (each step blurs with
+   `~synthpack.artefacts.GaussianBlur` and fits again; none if the clean volume
+   is already as blurred): the source's PSF less what the render's partial volume
+   and interpolation already blur. The edge's position (the render's occupancy
+   shift) is not changed by a symmetric blur.
+2. **Noise.** The noise power spectrum of the grain and pore interiors of the
+   blurred volume (`~synthpack.source.spectrum`) is measured, and
+   `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
+   power the source has beyond it (the deficit; none where the pack already has
+   as much): the noise the crops and the pore texture carry is accounted for. The
+   same is done for the noise level `~synthpack.source.noise.estimate_noise`
+   measures (3D second differences; variances add), which pins the noise's 3D high
+   frequencies that the in-slice spectrum says little of.
 
 The fit has no random part; with the pack's seed the noise realisation is
-reproducible too. It records the grid search and the values it matched.
+reproducible too. It records the grid search and every value it matched.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -31,16 +41,19 @@ import numpy as np
 from ..errors import SynthpackInputError
 from ..source.edges import edge_profile, edge_width, signed_distance
 from ..source.noise import estimate_noise
+from ..source.psf import EdgeSpread, fit_edge_spread
+from ..source.spectrum import NoiseSpectrum, phase_spectra
 from ._base import Compose
 from .blur import GaussianBlur
+from .coloured_noise import ColouredNoise
 from .noise import GaussianNoise
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Calibration", "SIGMA_GRID", "calibrate", "noise_to_add"]
+__all__ = ["Calibration", "PSF_STEPS", "calibrate", "noise_to_add"]
 
-#: Blur sigmas (voxels) tried by the edge-width search.
-SIGMA_GRID = tuple(round(0.1 * k, 1) for k in range(21))
+#: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
+PSF_STEPS = 3
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -75,31 +88,57 @@ class Calibration:
     Attributes
     ----------
     blur_sigma : float
-        Gaussian blur, voxels.
-    noise_std : float
-        Gaussian noise added after the blur, intensity units.
-    target_edge_width, target_noise : float
-        The source's 10-90 edge width (voxels) and noise level (intensity units).
-    edge_width : float
-        Edge width of the clean volume blurred by `blur_sigma`, voxels.
-    blurred_noise : float
-        Noise level of that blurred volume, before the added noise.
-    sigmas, widths : list of float
-        The search: edge width of the clean volume blurred by each sigma.
+        Gaussian PSF applied to the clean volume, voxels.
+    target_sigma, target_shift : float
+        The source's fitted edge width and shift, voxels (`SourceStatistics.edge_sigma`, ``edge_shift``).
+    edge_sigma, edge_shift : float
+        The same fitted on the clean volume blurred by `blur_sigma`, voxels.
+    pore_level, grain_level : float
+        The source's phase levels, intensity units (the noise's phase fractions).
+    target_power, clean_power, added_power : dict of str to list of float
+        Per phase (``"grains"``, ``"pores"``): the source's noise power per ring, the
+        blurred clean volume's, and the noise added (their clipped difference),
+        intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
+    target_phase_noise, clean_phase_noise, added_phase_noise : dict of str to float or None
+        The same for the noise level (`~synthpack.source.noise.estimate_noise`), intensity
+        units (``added = sqrt(max(target^2 - clean^2, 0))``); None where not measured.
+    target_edge_width, edge_width : float
+        The source's 10-90 edge width and that of the blurred clean volume, voxels (a check).
+    target_noise, noise_std : float
+        The source's pooled noise level and the root mean square of `added_phase_noise`,
+        intensity units (the figures the realism report prints).
+    sigmas, fitted_sigmas : list of float
+        The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
     """
 
     blur_sigma: float
-    noise_std: float
+    target_sigma: float
+    target_shift: float
+    edge_sigma: float
+    edge_shift: float
+    pore_level: float
+    grain_level: float
+    target_power: dict[str, list[float]]
+    clean_power: dict[str, list[float]]
+    added_power: dict[str, list[float]]
+    target_phase_noise: dict[str, float | None]
+    clean_phase_noise: dict[str, float | None]
+    added_phase_noise: dict[str, float | None]
     target_edge_width: float
-    target_noise: float
     edge_width: float
-    blurred_noise: float
+    target_noise: float
+    noise_std: float
     sigmas: list[float]
-    widths: list[float]
+    fitted_sigmas: list[float]
 
     def pipeline(self) -> Compose:
-        """``Compose([GaussianBlur(blur_sigma), GaussianNoise(noise_std)])``."""
-        return Compose([GaussianBlur(sigma=self.blur_sigma), GaussianNoise(std=self.noise_std)])
+        """``Compose([GaussianBlur(blur_sigma), ColouredNoise(added_power, levels)])``."""
+        return Compose([
+            GaussianBlur(sigma=self.blur_sigma),
+            ColouredNoise(pore_power=self.added_power["pores"], grain_power=self.added_power["grains"],
+                          pore_level=self.pore_level, grain_level=self.grain_level,
+                          pore_std=self.added_phase_noise["pores"], grain_std=self.added_phase_noise["grains"]),
+        ])
 
     def to_dict(self) -> dict:
         """JSON-able dict of every field."""
@@ -113,20 +152,9 @@ def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
     return tuple(slice(max(0, int(lo)), min(n, int(hi))) for lo, hi, n in zip(low, high, region.shape))
 
 
-def _blur_for_width(sigmas: np.ndarray, widths: np.ndarray, target: float) -> float:
-    """The sigma whose edge width is `target`, interpolated on the (running-maximum) widths."""
-    rising = np.maximum.accumulate(widths)
-    if target <= rising[0]:
-        logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's "
-                       "(%.3f): no blur", rising[0], target)
-        return 0.0
-    if target >= rising[-1]:
-        logger.warning("blurring by sigma %.2f gives edges of %.3f voxels, still sharper than the source's "
-                       "(%.3f): using that sigma", sigmas[-1], rising[-1], target)
-        return float(sigmas[-1])
-    i = int(np.searchsorted(rising, target))
-    t = (target - rising[i - 1]) / (rising[i] - rising[i - 1])
-    return float(sigmas[i - 1] + t * (sigmas[i] - sigmas[i - 1]))
+def _ring_powers(spectrum: NoiseSpectrum | None, n_rings: int) -> np.ndarray:
+    """Rings 1 to `n_rings` of a measured spectrum; zeros where none was measured (no patch fits)."""
+    return np.zeros(n_rings) if spectrum is None else spectrum.power[1 : n_rings + 1]
 
 
 def calibrate(
@@ -134,11 +162,17 @@ def calibrate(
     labels: np.ndarray,
     region: np.ndarray,
     *,
+    target_sigma: float,
+    target_shift: float,
+    target_power: dict[str, Sequence[float]],
+    target_phase_noise: dict[str, float | None],
     target_edge_width: float,
     target_noise: float,
-    sigmas: tuple[float, ...] = SIGMA_GRID,
+    pore_level: float,
+    grain_level: float,
+    steps: int = PSF_STEPS,
 ) -> Calibration:
-    """Fit blur sigma and noise std so the pack's edges and noise match the source's.
+    """Fit the PSF and the noise so the pack's edges and noise spectrum match the source's.
 
     Parameters
     ----------
@@ -149,41 +183,72 @@ def calibrate(
         Its labels (0 = pore, tube or outside).
     region : ndarray of bool, shape (Z, Y, X)
         Where to measure (the pack's bulk region, `~synthpack.postprocess.bulk_region`).
-    target_edge_width : float
-        The source's 10-90 edge width, voxels (`~synthpack.source.SourceStatistics.edge_width`).
-    target_noise : float
-        The source's noise level, intensity units (`~synthpack.source.SourceStatistics.noise_std`).
-    sigmas : tuple of float
-        Increasing blur sigmas (voxels) to search, starting at 0.
+    target_sigma, target_shift : float
+        The source's fitted edge width and shift, voxels (`~synthpack.source.SourceStatistics.edge_sigma`).
+    target_power : dict
+        ``"grains"`` and ``"pores"``: the source's noise power per ring (rings 1, 2, ...),
+        intensity units squared (`~synthpack.source.SourceStatistics.nps_grains`).
+    target_phase_noise : dict
+        ``"grains"`` and ``"pores"``: the source's noise level, intensity units
+        (`~synthpack.source.SourceStatistics.noise_grain_std`), or None (not matched).
+    target_edge_width, target_noise : float
+        The source's 10-90 edge width (voxels) and pooled noise level (intensity units),
+        recorded next to the pack's for the report.
+    pore_level, grain_level : float
+        The source's phase levels, intensity units.
+    steps : int
+        Fixed-point steps of the PSF fit (see the module docstring).
 
     Returns
     -------
     Calibration
     """
-    if not (math.isfinite(target_edge_width) and target_edge_width > 0 and math.isfinite(target_noise)
-            and target_noise >= 0):
+    if not (math.isfinite(target_sigma) and target_sigma > 0 and math.isfinite(target_shift)):
         raise SynthpackInputError(
-            f"calibration targets must be a positive edge width and a noise level >= 0, got "
-            f"{target_edge_width!r} and {target_noise!r}"
+            f"calibration targets must be a positive edge width and a finite shift, got {target_sigma!r} and "
+            f"{target_shift!r}"
         )
-    grid = np.asarray(sigmas, dtype=np.float64)
-    box = _crop(region, int(math.ceil(4 * grid.max())) + 2)
+    box = _crop(region, int(math.ceil(4 * target_sigma)) + 2)
     volume, box_labels, box_region = clean[box], np.asarray(labels[box]), region[box]
     distance = signed_distance(box_labels)
-    widths = np.array([
-        edge_width(edge_profile(GaussianBlur(sigma=float(s))(volume, 0), distance, box_region)) for s in grid
-    ])
-    sigma = _blur_for_width(grid, widths, target_edge_width)
-    blurred = GaussianBlur(sigma=sigma)(volume, 0)
-    width = edge_width(edge_profile(blurred, distance, box_region))
-    blurred_noise = estimate_noise(blurred, np.where(box_region, box_labels, -1)).std
-    noise = noise_to_add(target_noise, blurred_noise)
+
+    def edge(sigma: float) -> tuple[np.ndarray, EdgeSpread]:
+        blurred = GaussianBlur(sigma=float(sigma))(volume, 0)
+        return blurred, fit_edge_spread(edge_profile(blurred, distance, box_region))
+
+    sigmas, fitted = [0.0], []
+    blurred, spread = edge(0.0)
+    for _ in range(steps):
+        fitted.append(spread.sigma)
+        sigmas.append(math.sqrt(max(sigmas[-1] ** 2 + target_sigma**2 - spread.sigma**2, 0.0)))
+        blurred, spread = edge(sigmas[-1])
+    fitted.append(spread.sigma)
+    sigma = sigmas[-1]
+    if sigma == 0.0:
+        logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
+                       "no blur", fitted[0], target_sigma)
+    measured = phase_spectra(blurred, distance, box_region)
+    targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
+    cleans = {phase: _ring_powers(measured[phase], len(targets[phase])) for phase in targets}
+    added = {phase: np.maximum(targets[phase] - cleans[phase], 0.0) for phase in targets}
+    noise = estimate_noise(blurred, np.where(box_region, box_labels, -1))
+    clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
+    added_noise = {phase: None if target is None or clean_noise[phase] is None
+                   else math.sqrt(max(target**2 - clean_noise[phase] ** 2, 0.0))
+                   for phase, target in target_phase_noise.items()}
+    added_levels = [v for v in added_noise.values() if v is not None]
     calibration = Calibration(
-        blur_sigma=sigma, noise_std=float(noise.std), target_edge_width=float(target_edge_width),
-        target_noise=float(target_noise), edge_width=width, blurred_noise=float(blurred_noise),
-        sigmas=grid.tolist(), widths=widths.tolist(),
+        blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
+        edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
+        grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
+        clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
+        target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
+        target_edge_width=float(target_edge_width), edge_width=edge_width(edge_profile(blurred, distance, box_region)),
+        target_noise=float(target_noise),
+        noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
+        sigmas=sigmas, fitted_sigmas=fitted,
     )
-    logger.info("calibrated post-processing: blur sigma %.3f (edge width %.3f, source %.3f), noise std %.4g "
-                "(blurred %.4g, source %.4g)", sigma, width, target_edge_width, calibration.noise_std,
-                blurred_noise, target_noise)
+    logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "
+                "noise added %s", sigma, spread.sigma, spread.shift, target_sigma, target_shift,
+                {k: float(np.sum(v)) for k, v in added.items()})
     return calibration

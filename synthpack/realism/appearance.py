@@ -32,72 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..source.edges import INTERIOR, EdgeProfile, edge_profile, edge_width, signed_distance
+from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
 from ..source.noise import NoiseEstimate, estimate_noise
-from .patches import patch_corners, take_patches
+from ..source.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["Appearance", "NPS_PATCH", "NoiseSpectrum", "measure_appearance", "noise_levels",
            "noise_power_spectrum", "phase_masks"]
-
-#: Side (voxels) of the in-slice patches of the noise power spectrum.
-NPS_PATCH = 8
-#: The NPS uses at most this many patches per phase.
-_MAX_NPS_PATCHES = 4000
-
-
-@dataclass
-class NoiseSpectrum:
-    """Radially averaged noise power spectrum.
-
-    Attributes
-    ----------
-    frequency : ndarray of float64, shape (K,)
-        Ring centres, cycles per voxel (0 to about 0.7).
-    power : ndarray of float64, shape (K,)
-        Power in each ring, intensity units squared; the sum is the mean within-patch variance.
-    n_patches : int
-        Patches averaged.
-    """
-
-    frequency: np.ndarray
-    power: np.ndarray
-    n_patches: int
-
-    @property
-    def centroid(self) -> float:
-        """Power-weighted mean frequency, cycles per voxel."""
-        return float(np.sum(self.frequency * self.power) / np.sum(self.power))
-
-
-def noise_power_spectrum(tomogram: np.ndarray, mask: np.ndarray, size: int = NPS_PATCH) -> NoiseSpectrum | None:
-    """Radially averaged power spectrum of the in-slice patches wholly inside `mask`.
-
-    Parameters
-    ----------
-    tomogram : ndarray, shape (Z, Y, X)
-    mask : ndarray of bool, same shape
-        Where patches may lie (e.g. a phase interior).
-    size : int
-        Patch side, voxels.
-
-    Returns
-    -------
-    NoiseSpectrum or None
-        None when no patch fits in `mask`.
-    """
-    corners = patch_corners(mask, size, max(1, size // 2), _MAX_NPS_PATCHES)
-    if len(corners) == 0:
-        return None
-    patches = take_patches(tomogram, corners, size).astype(np.float64)
-    patches -= patches.mean(axis=(1, 2), keepdims=True)
-    power = (np.abs(np.fft.fft2(patches)) ** 2).mean(axis=0) / size**4
-    frequency = np.fft.fftfreq(size)
-    ring = np.rint(np.hypot(frequency[:, None], frequency[None, :]) * size).astype(np.int64)
-    per_ring = np.bincount(ring.ravel(), weights=power.ravel())
-    return NoiseSpectrum(np.arange(len(per_ring)) / size, per_ring, len(corners))
 
 
 def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
@@ -114,11 +57,7 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
     dict
         ``"grains"``, ``"pores"``, ``"edges"``: ndarray of bool, same shape.
     """
-    return {
-        "grains": region & (distance >= INTERIOR),
-        "pores": region & (distance <= -INTERIOR),
-        "edges": region & (np.abs(distance) <= 1.0),
-    }
+    return {**phase_interiors(distance, region), "edges": region & (np.abs(distance) <= 1.0)}
 
 
 def noise_levels(specimen: Specimen) -> NoiseEstimate:

@@ -75,12 +75,15 @@ class EdgeProfile:
     pore_level, grain_level : float
         Median intensity of the pore and grain interiors (at least `INTERIOR` voxels deep);
         they differ, in either order.
+    count : ndarray of int64, shape (K,)
+        Voxels averaged at each distance (the weights of a least-squares fit to the profile).
     """
 
     distance: np.ndarray
     intensity: np.ndarray
     pore_level: float
     grain_level: float
+    count: np.ndarray
 
     @property
     def contrast(self) -> float:
@@ -133,7 +136,8 @@ def edge_profile(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray 
             f"grains and pores have the same level ({grain_level:.4g}): there is no edge to measure; "
             "check that the labels belong to this tomogram"
         )
-    return EdgeProfile(keys[keep].astype(np.float64), means[keep], pore_level, grain_level)
+    return EdgeProfile(keys[keep].astype(np.float64), means[keep], pore_level, grain_level,
+                       counts[keep].astype(np.int64))
 
 
 def _crossing(distance: np.ndarray, profile: np.ndarray, level: float) -> float:

@@ -114,6 +114,7 @@ def estimate_noise(
     *,
     margin: int = 2,
     max_samples: int = 4_000_000,
+    region: np.ndarray | None = None,
 ) -> NoiseEstimate:
     """Estimate the standard deviation of the noise in grains and in pores.
 
@@ -130,6 +131,9 @@ def estimate_noise(
     max_samples : int
         Use at most about this many voxels (every k-th interior voxel) to keep
         memory bounded on big volumes. Default 4 million.
+    region : ndarray of bool, same shape, optional
+        Voxels to measure in (e.g. `~synthpack.source.specimen.specimen_mask`);
+        the others are left out, as with a negative label.
 
     Returns
     -------
@@ -152,6 +156,8 @@ def estimate_noise(
     0.05
     """
     image, label_array = _check_inputs(tomogram, labels, margin)
+    if region is not None:
+        label_array = np.where(region, label_array, -1)
     step = max(1, math.ceil(image.size / max_samples))
     halo = margin + 1
     grain_parts: list[np.ndarray] = []

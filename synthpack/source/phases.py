@@ -37,7 +37,7 @@ class PhaseLevels:
     grain_mean: float
 
 
-def estimate_phases(scan: Scan, max_samples: int = 2_000_000) -> PhaseLevels:
+def estimate_phases(scan: Scan, max_samples: int = 2_000_000, region: np.ndarray | None = None) -> PhaseLevels:
     """Intensity levels of the pore (label 0) and grain phases of `scan`.
 
     Parameters
@@ -47,6 +47,9 @@ def estimate_phases(scan: Scan, max_samples: int = 2_000_000) -> PhaseLevels:
     max_samples : int
         The volume is subsampled with a regular stride so that at most about this
         many voxels are read.
+    region : ndarray of bool, shape (Z, Y, X), optional
+        Voxels to measure in (e.g. `~synthpack.source.specimen.specimen_mask`, which
+        leaves out the container and the air around the specimen); default all.
 
     Returns
     -------
@@ -61,8 +64,10 @@ def estimate_phases(scan: Scan, max_samples: int = 2_000_000) -> PhaseLevels:
     """
     stride = max(1, int(np.ceil((scan.labels.size / max_samples) ** (1.0 / 3.0))))
     tomo = scan.tomogram[::stride, ::stride, ::stride].astype(np.float64)
-    pores = scan.labels[::stride, ::stride, ::stride] == 0
-    grain_mean = float(np.median(tomo[~pores])) if (~pores).any() else float(np.median(tomo))
+    labels = scan.labels[::stride, ::stride, ::stride]
+    inside = np.ones(labels.shape, bool) if region is None else np.asarray(region)[::stride, ::stride, ::stride]
+    pores, grains = (labels == 0) & inside, (labels > 0) & inside
+    grain_mean = float(np.median(tomo[grains])) if grains.any() else float(np.median(tomo))
     minimum = 0.001 * pores.size
     if np.count_nonzero(pores) < minimum:
         logger.warning("almost no background voxels: using the 1st intensity percentile")

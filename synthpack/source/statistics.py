@@ -8,9 +8,12 @@ from dataclasses import asdict, dataclass
 
 from ..errors import SynthpackInputError
 from ..scan import Scan
-from .edges import volume_edge_width
+from .edges import edge_profile, edge_width, signed_distance
 from .noise import estimate_noise
 from .phases import estimate_phases
+from .psf import fit_edge_spread
+from .specimen import specimen_mask
+from .spectrum import NPS_PATCH, phase_spectra
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +54,21 @@ class SourceStatistics:
         grain-pore boundaries (`~synthpack.source.edges.volume_edge_width`), the
         same for grains brighter or darker than pores; None when it cannot be
         measured (no grain or pore interior, or grains and pores of one level).
+    edge_shift, edge_sigma : float or None
+        The scanner's edge: half-height position relative to the label boundary
+        (voxels, > 0 inside the grains) and Gaussian width (voxels) of the
+        edge-spread function fitted to the same profile
+        (`~synthpack.source.psf.fit_edge_spread`); None with `edge_width`.
+    noise_grain_std, noise_pore_std : float or None
+        The noise level of each phase (`~synthpack.source.noise.estimate_noise`), intensity
+        units; None where the phase has too few interior voxels.
+    nps_grains, nps_pores : tuple of float or None
+        Noise power spectrum of the grain and of the pore interior
+        (`~synthpack.source.spectrum.noise_power_spectrum`): the power in rings
+        ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel, intensity units
+        squared (their sum is the variance within an in-slice patch of
+        `~synthpack.source.spectrum.NPS_PATCH` voxels); None where no patch fits
+        in that phase.
     """
 
     pore_mean: float
@@ -58,6 +76,12 @@ class SourceStatistics:
     grain_mean: float
     noise_std: float
     edge_width: float | None = None
+    edge_shift: float | None = None
+    edge_sigma: float | None = None
+    noise_grain_std: float | None = None
+    noise_pore_std: float | None = None
+    nps_grains: tuple[float, ...] | None = None
+    nps_pores: tuple[float, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -69,14 +93,21 @@ class SourceStatistics:
         """
         return self.grain_mean - self.pore_mean
 
-    def to_dict(self) -> dict[str, float]:
+    @property
+    def nps_frequencies(self) -> tuple[float, ...]:
+        """Centre frequency (cycles/voxel) of each ring of `nps_grains` and `nps_pores`."""
+        n = len(self.nps_grains or self.nps_pores or ())
+        return tuple((k + 1) / NPS_PATCH for k in range(n))
+
+    def to_dict(self) -> dict[str, float | list[float]]:
         """The measured fields as a JSON-able dict, in field order, without those that are None."""
-        return {name: value for name, value in asdict(self).items() if value is not None}
+        return {name: list(value) if isinstance(value, tuple) else value
+                for name, value in asdict(self).items() if value is not None}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, float]) -> SourceStatistics:
+    def from_dict(cls, data: Mapping[str, float | list[float]]) -> SourceStatistics:
         """Read back what `to_dict` wrote (a missing optional field is None)."""
-        return cls(**data)
+        return cls(**{name: tuple(value) if isinstance(value, list) else value for name, value in data.items()})
 
 
 def measure_source(scan: Scan) -> SourceStatistics:
@@ -90,22 +121,29 @@ def measure_source(scan: Scan) -> SourceStatistics:
     Returns
     -------
     SourceStatistics
-        With ``edge_width = None`` (and a warning) when the scan's edges cannot be measured.
+        With the edge fields None (and a warning) when the scan's edges cannot be measured.
 
     Raises
     ------
     SynthpackInputError
         If the noise cannot be estimated (no grain or pore interior to measure it in).
     """
-    levels = estimate_phases(scan)
-    noise = estimate_noise(scan.tomogram, scan.labels)
+    specimen = specimen_mask(scan.labels)
+    levels = estimate_phases(scan, region=specimen)
+    noise = estimate_noise(scan.tomogram, scan.labels, region=specimen)
+    distance = signed_distance(scan.labels)
+    edges: dict[str, float] = {}
     try:
-        edge_width: float | None = volume_edge_width(scan.tomogram, scan.labels)
+        profile = edge_profile(scan.tomogram, distance, region=specimen)
+        spread = fit_edge_spread(profile)
+        edges = {"edge_width": edge_width(profile), "edge_shift": spread.shift, "edge_sigma": spread.sigma}
     except SynthpackInputError as error:
         logger.warning("the source's edge width cannot be measured (%s): packs of 'postprocess: calibrated' "
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
-        edge_width = None
+    spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
+               for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen).items() if spectrum is not None}
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
-                                  grain_mean=levels.grain_mean, noise_std=noise.std, edge_width=edge_width)
+                                  grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
+                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics
