@@ -33,7 +33,7 @@ deterministic algorithms are enforced and the network trains on one thread by
 default (``CnnConfig.threads``): the sums of a multi-threaded convolution depend on
 the thread count, so one thread makes the scores independent of the machine's
 cores, and it never stalls on a machine whose cores are busy with other work
-(two threads were at best 1.5 times faster on 2 cores, and up to 10 times slower
+(two threads were at best 1.5 times faster on 2 cores, and up to 7 times slower
 when the cores were shared). The process-wide torch settings are restored afterwards.
 """
 
