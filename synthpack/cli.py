@@ -223,20 +223,30 @@ def _write_pack_preview(pack_path: Path, library, png: Path) -> Path:
     )
 
 
+def _auc_summary(classifiers: dict) -> str:
+    """``logistic AUC x, cnn AUC y`` of a classifier test's JSON summary."""
+    return ", ".join(f"{name} AUC {classifiers[name]['auc']:.3f}" for name in ("logistic", "cnn")
+                     if name in classifiers)
+
+
 def _cmd_compare(args: argparse.Namespace) -> None:
-    from .realism import compare
+    from .realism import CnnConfig, compare
 
     if args.source:
         if args.tomogram or args.labels:
             raise SynthpackInputError("give either --source T L or --tomogram/--labels, not both")
         args.tomogram, args.labels = args.source
-    report = compare(_read_source_scan(args), args.packs, patch=args.patch, seed=args.seed)
+    slab = {} if args.slab is None else {"slab": args.slab}
+    report = compare(_read_source_scan(args), args.packs, patch=args.patch, seed=args.seed,
+                     cnn=CnnConfig() if args.cnn else None, **slab)
     paths = report.write(args.out, overwrite=args.overwrite)
-    for pack in report.to_dict()["packs"]:
+    figures = report.to_dict()
+    print(f"floor (source against itself, slabs of {figures['floor']['slab']}): {_auc_summary(figures['floor'])}")
+    for pack in figures["packs"]:
         d = pack["distances"]
-        print(f"{pack['name']}: classifier AUC {d['classifier']['auc']:.3f}, KS diameter {d['ks_diameter']:.3f}, "
+        print(f"{pack['name']}: {_auc_summary(d['classifier'])}, KS diameter {d['ks_diameter']:.3f}, "
               f"W grains/pores/edges {d['wasserstein_grains']:.3f}/{d['wasserstein_pores']:.3f}/"
-              f"{d['wasserstein_edges']:.3f}")
+              f"{d['wasserstein_edges']:.3f}, edge half height shift {d['edge_half_height_shift']:+.3f}")
     print(f"report: {paths['realism.md']}")
 
 
@@ -393,12 +403,18 @@ def _add_compare_command(commands: Any) -> None:
     _add_scan_arguments(compare)
     compare.add_argument("--source", type=Path, nargs=2, metavar=("TOMOGRAM", "LABELS"),
                          help="the source scan (same as --tomogram T --labels L)")
-    compare.add_argument("--packs", type=Path, nargs="+", action="extend", required=True, metavar="DIR",
-                         help="pack folders, or folders holding pack_NNNN folders (one column per pack)")
+    compare.add_argument("--packs", type=Path, nargs="+", action="extend", default=[], metavar="DIR",
+                         help="pack folders, or folders holding pack_NNNN folders (one column per pack); "
+                              "without it, the report holds the source and its floor only")
     compare.add_argument("--out", type=Path, required=True,
                          help="report folder: realism.md, realism.json and PNG pictures")
     compare.add_argument("--patch", type=int, default=16, help="classifier patch side in voxels (default 16)")
-    compare.add_argument("--seed", type=int, default=0, help="seed of the classifier's folds (default 0)")
+    compare.add_argument("--seed", type=int, default=0, help="seed of the classifiers' folds and the CNN (default 0)")
+    compare.add_argument("--slab", type=int, metavar="SLICES",
+                         help="the floor's slab thickness along z: the source's even slabs are classified against "
+                              "its odd ones (default 10, synthpack.realism.floor.DEFAULT_SLAB)")
+    compare.add_argument("--cnn", action=argparse.BooleanOptionalAction, default=True,
+                         help="also judge with a small CNN trained from scratch (default: yes)")
     _add_overwrite_argument(compare)
     compare.set_defaults(run=_cmd_compare)
 

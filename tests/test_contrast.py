@@ -82,7 +82,7 @@ def test_compare_reports_a_dark_grain_pack(dark_pack, dark_scan, tmp_path):
     assert pack["figures"]["edge_width"] == pytest.approx(source["edge_width"], abs=0.15)
     for phase in ("grains", "pores", "edges"):
         assert 0 <= pack["distances"][f"wasserstein_{phase}"] < 0.2  # fractions of the contrast's magnitude
-    assert 0.5 <= pack["distances"]["classifier"]["auc"] <= 1.0
+    assert 0.5 <= pack["distances"]["classifier"]["logistic"]["auc"] <= 1.0
 
 
 @pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
@@ -97,4 +97,4 @@ def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
     assert main(["-q", "compare", *scan, "--packs", str(tmp_path / "packs"), "--out", str(tmp_path / "report")]) == 0
     report = json.loads((tmp_path / "report" / "realism.json").read_text())
     assert report["source"]["figures"]["grain_level"] < report["source"]["figures"]["pore_level"]
-    assert 0.5 <= report["packs"][0]["distances"]["classifier"]["auc"] <= 1.0
+    assert 0.5 <= report["packs"][0]["distances"]["classifier"]["logistic"]["auc"] <= 1.0

@@ -13,9 +13,9 @@ from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.generate import build_pack, generate_packs
 from synthpack.library import ParticleLibrary
-from synthpack.realism import RealismReport, Specimen
+from synthpack.realism import CnnConfig, RealismReport, Specimen, compare
 from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
-from synthpack.realism.discriminator import classifier_auc
+from synthpack.realism.discriminator import classifier_test
 from synthpack.realism.patches import patch_corners, take_patches
 from synthpack.realism.structure import coordination_numbers, grain_table, ks_distance, solid_fraction
 
@@ -97,12 +97,13 @@ def test_classifier_auc_near_half_for_one_distribution_and_near_one_for_two():
         base = np.where(rng.uniform(size=(n, 1, 1)) < 0.5, 0.3, 0.7) * np.ones((n, 16, 16))
         return np.clip(base + rng.normal(0.0, noise, (n, 16, 16)), 0, 1)
 
-    same = classifier_auc(patches(300, 0.05), patches(300, 0.05), seed=0)
-    assert abs(same["auc"] - 0.5) < 0.1
-    different = classifier_auc(patches(300, 0.05), patches(300, 0.1), seed=0)
-    assert different["auc"] > 0.95 and different["n_per_class"] == 300
+    same = classifier_test(patches(300, 0.05), patches(300, 0.05), seed=0)
+    assert abs(same.auc("logistic") - 0.5) < 0.1
+    different = classifier_test(patches(300, 0.05), patches(300, 0.1), seed=0)
+    assert different.auc("logistic") > 0.95 and different.n_per_class == 300
+    assert different.auc("cnn") is None and different.cnn_scores is None  # the CNN only when asked for
     with pytest.raises(SynthpackInputError, match="patches per class"):
-        classifier_auc(patches(4, 0.05), patches(300, 0.05))
+        classifier_test(patches(4, 0.05), patches(300, 0.05))
 
 
 @pytest.fixture(scope="module")
@@ -177,10 +178,32 @@ def test_without_the_source_edge_width_packs_get_match_source_with_a_warning(lar
     assert pack.manifest["noise_match"]["target_noise"] == statistics.noise_std
 
 
+def test_compare_measures_the_floor_and_the_cnn_and_shows_its_picks(packs, large_scan, tmp_path):
+    report = compare(large_scan, [packs[1]], cnn=CnnConfig(epochs=1, width=4))
+    paths = report.write(tmp_path / "report")
+    assert "cnn_patches.png" in paths and paths["cnn_patches.png"].stat().st_size > 0
+    figures = json.loads(paths["realism.json"].read_text())
+    floor, classifier = figures["floor"], figures["packs"][0]["distances"]["classifier"]
+    assert floor["slab"] == 10 and floor["n_per_class"] >= 500  # twice a pack's patches, split in two
+    for name in ("logistic", "cnn"):
+        assert 0 <= floor[name]["auc"] <= 1 and floor[name]["seconds"] > 0
+        assert classifier[name]["margin"] == pytest.approx(classifier[name]["auc"] - floor[name]["auc"])
+    assert figures["settings"]["cnn"]["epochs"] == 1
+    # the source's edge is centred on its labels; the pack's sits inside the grains (clean crops end at the mask)
+    source_half, pack_half = (f["figures"]["edge_half_height"] for f in (figures["source"], figures["packs"][0]))
+    assert abs(source_half) < 0.1 and pack_half > source_half
+    nps = figures["packs"][0]["distances"]["nps_ratio"]
+    assert nps["grains"]["frequency"] == [0.125, 0.25, 0.375, 0.5] and len(nps["pores"]["ratio"]) == 4
+    markdown = paths["realism.md"].read_text()
+    assert "**The floor**" in markdown and "## Classifiers" in markdown and "(cnn_patches.png)" in markdown
+    assert "CNN AUC (source: its floor)" in markdown and "edge half height" in markdown
+    assert f"{floor['cnn']['auc']:.3f} +- {floor['cnn']['auc_std']:.3f}" in markdown
+
+
 def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     out = tmp_path / "report"
     assert main(["-q", "compare", "--sample", "large", "--packs", str(packs[0]), str(packs[1]),
-                 "--out", str(out), "--patch", "12"]) == 0
+                 "--out", str(out), "--patch", "12", "--no-cnn"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [
         "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
     report = json.loads((out / "realism.json").read_text())
@@ -191,10 +214,21 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert figures["solid_fraction"] == pytest.approx(figures["pour_packing_fraction"], abs=0.03)
     assert report["source"]["figures"]["solid_fraction"] == pytest.approx(0.61, abs=0.02)
     for pack in report["packs"]:
-        assert 0.5 <= pack["distances"]["classifier"]["auc"] <= 1.0
+        assert 0.5 <= pack["distances"]["classifier"]["logistic"]["auc"] <= 1.0
+        assert "cnn" not in pack["distances"]["classifier"]
         assert 0 <= pack["distances"]["ks_diameter"] <= 1
-    assert "classifier AUC" in (out / "realism.md").read_text()
-    assert "classifier AUC" in capsys.readouterr().out
+    assert report["floor"]["slab"] == 10 and "cnn" not in report["floor"] and report["settings"]["cnn"] is None
+    assert "logistic AUC" in (out / "realism.md").read_text()
+    printed = capsys.readouterr().out
+    assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed
+    # without packs: the source and its floor only
+    floor_only = tmp_path / "floor"
+    assert main(["-q", "compare", "--sample", "large", "--out", str(floor_only), "--no-cnn", "--slab", "16"]) == 0
+    report = json.loads((floor_only / "realism.json").read_text())
+    assert report["packs"] == [] and report["floor"]["slab"] == 16
+    assert (floor_only / "realism.md").read_text().startswith("# Realism report: the floor of sample:large")
+    assert main(["-q", "compare", "--sample", "large", "--out", str(tmp_path / "y"), "--slab", "0"]) == 2
+    assert "slab thickness" in capsys.readouterr().err
     assert main(["-q", "compare", "--sample", "large", "--packs", str(tmp_path / "missing"),
                  "--out", str(tmp_path / "x")]) == 2
     with pytest.raises(SynthpackInputError, match="not a realism report written by synthpack"):

@@ -7,7 +7,10 @@ Modules, one job each:
 ``structure``     solid fraction, grain size and shape, coordination, orientation fabric
 ``appearance``    phase intensities, noise level and power spectrum, edge sharpness
 ``patches``       in-slice patches on a lattice inside a mask
-``discriminator`` classifier two-sample test: cross-validated AUC real vs synthetic
+``discriminator`` classifier two-sample tests: cross-validated AUCs of a logistic
+                  regression and of the CNN on the same folds; `CnnConfig`
+``cnn``           the small CNN discriminator (torch), trained from scratch per fold
+``floor``         the floor: the source's even against its odd slabs along z
 ``report``        `compare`: measure a source and packs, `RealismReport` (JSON, Markdown)
 ``markdown``      the report's Markdown
 ``plots``         the report's PNG pictures
@@ -18,7 +21,8 @@ from `synthpack.source`, the bulk region from `synthpack.postprocess`. The fit o
 post-processing to the source is `synthpack.artefacts.calibrate`.
 """
 
+from .discriminator import CnnConfig
 from .region import Specimen
 from .report import RealismReport, compare
 
-__all__ = ["RealismReport", "Specimen", "compare"]
+__all__ = ["CnnConfig", "RealismReport", "Specimen", "compare"]

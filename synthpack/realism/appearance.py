@@ -19,8 +19,12 @@ Figures:
   each minus its mean, so that the powers of all frequency rings add up to the
   variance within a patch. Its centroid (the power-weighted mean frequency, in
   cycles per voxel) is high for white noise and low for smooth, correlated noise
-  and texture;
-* the edge profile and its 10-90 width (`synthpack.source.edges`).
+  and texture. Against the source's, a pack's spectrum is read ring by ring: the
+  ratio pack / source of the power in each ring from 0.1 to 0.5 cycles per voxel
+  (`nps_ratio`; 1 = the same power at that frequency, 2 = twice as much);
+* the edge profile, its 10-90 width and its half-height position (where it
+  crosses half-way from the pore to the grain level, voxels of signed distance
+  from the label boundary; `synthpack.source.edges`).
 """
 
 from __future__ import annotations
@@ -32,15 +36,50 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
+from ..source.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
 from ..source.noise import NoiseEstimate, estimate_noise
 from ..source.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Appearance", "NPS_PATCH", "NoiseSpectrum", "measure_appearance", "noise_levels",
-           "noise_power_spectrum", "phase_masks"]
+__all__ = ["Appearance", "NPS_PATCH", "NPS_RATIO_BAND", "NoiseSpectrum", "measure_appearance", "noise_levels",
+           "noise_power_spectrum", "nps_ratio", "phase_masks"]
+
+#: Frequencies (cycles/voxel) of the rings whose power `nps_ratio` compares.
+NPS_RATIO_BAND = (0.1, 0.5)
+
+
+def nps_ratio(
+    spectrum: NoiseSpectrum, reference: NoiseSpectrum, band: tuple[float, float] = NPS_RATIO_BAND
+) -> dict:
+    """Ring-by-ring ratio of two noise power spectra of the same patch size.
+
+    Parameters
+    ----------
+    spectrum, reference : NoiseSpectrum
+        E.g. a pack's and the source's, from `noise_power_spectrum` with the same `size`.
+    band : (float, float)
+        The rings whose centre frequency lies in this closed range (cycles/voxel) are compared.
+
+    Returns
+    -------
+    dict
+        ``frequency`` (list of the rings' centres, cycles/voxel), ``ratio`` (list of
+        ``spectrum / reference`` power per ring) and ``max_abs_log2`` (the largest
+        ``|log2 ratio|``: below 1 means within a factor 2 in every ring).
+
+    Raises
+    ------
+    ValueError
+        If the spectra have different rings (patch sizes).
+    """
+    if not np.array_equal(spectrum.frequency, reference.frequency):
+        raise ValueError("the spectra have different frequency rings: measure them with the same patch size")
+    ring = (reference.frequency >= band[0]) & (reference.frequency <= band[1])
+    ratio = spectrum.power[ring] / reference.power[ring]
+    return {"frequency": reference.frequency[ring].tolist(), "ratio": ratio.tolist(),
+            "max_abs_log2": float(np.max(np.abs(np.log2(ratio))))}
 
 
 def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
@@ -93,6 +132,8 @@ class Appearance:
     profile : EdgeProfile
     edge_width : float
         10-90 width of `profile`, voxels.
+    half_height : float
+        Half-height position of `profile`, voxels of signed distance from the label boundary.
     """
 
     samples: dict[str, np.ndarray]
@@ -100,6 +141,7 @@ class Appearance:
     spectra: dict[str, NoiseSpectrum | None]
     profile: EdgeProfile
     edge_width: float
+    half_height: float
 
     @property
     def contrast(self) -> float:
@@ -128,8 +170,9 @@ def measure_appearance(specimen: Specimen, *, max_samples: int = 200_000) -> App
         samples[phase] = values[:: max(1, values.size // max_samples)]
     profile = edge_profile(specimen.tomogram, distance, specimen.region)
     spectra = {phase: noise_power_spectrum(specimen.tomogram, masks[phase]) for phase in ("grains", "pores")}
-    appearance = Appearance(samples, noise_levels(specimen), spectra, profile, edge_width(profile))
-    logger.info("%s: edge width %.3f voxels, noise %.4g (grain %s, pore %s)", specimen.name,
-                appearance.edge_width, appearance.noise.std, appearance.noise.grain_std,
-                appearance.noise.pore_std)
+    appearance = Appearance(samples, noise_levels(specimen), spectra, profile, edge_width(profile),
+                            half_height(profile))
+    logger.info("%s: edge width %.3f voxels, half height at %+.3f voxels, noise %.4g (grain %s, pore %s)",
+                specimen.name, appearance.edge_width, appearance.half_height, appearance.noise.std,
+                appearance.noise.grain_std, appearance.noise.pore_std)
     return appearance

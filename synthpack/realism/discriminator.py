@@ -1,27 +1,34 @@
-"""A classifier two-sample test: can a simple model tell real patches from synthetic ones?
+"""Classifier two-sample tests: can a model tell one set of patches from another?
 
 Square in-slice patches of the same size are cut from both volumes' bulk regions
 (`synthpack.realism.patches`) and mapped through the same intensity window (the
-source's 0.5 and 99.5 percentiles, as the YOLO export does) to [0, 1]. Each patch
-is described by features that say how it looks, not where its grains are:
+source's 0.5 and 99.5 percentiles, as the YOLO export does) to [0, 1]. The larger
+set is cut to an even subset of the smaller one's size, so the classes are balanced,
+and the patches are split into stratified, shuffled folds (scikit-learn). Two
+classifiers are trained on the same folds and scored by the area under the ROC
+curve (AUC) of the held-out fold:
 
-* the histogram of its intensities (16 bins on [0, 1]): grey levels and contrast;
-* the histogram of the absolute differences between neighbouring pixels (16 bins
-  on [0, 0.5]): noise level and edge sharpness;
-* the log of its radially averaged power spectrum (mean removed): noise texture
-  and blur.
+* **logistic**: a logistic regression (features standardised) on features that say
+  how a patch looks, not where its grains are: the histogram of its intensities (16
+  bins on [0, 1]: grey levels and contrast), the histogram of the absolute
+  differences between neighbouring pixels (16 bins on [0, 0.5]: noise level and
+  edge sharpness) and the log of its radially averaged power spectrum (mean
+  removed: noise texture and blur);
+* **cnn**: a small convolutional network trained from scratch on the patches
+  themselves (`synthpack.realism.cnn`), which learns its own features.
 
-A logistic regression (features standardised) is trained to tell the two sets
-apart and scored by the area under the ROC curve with stratified k-fold
-cross-validation (scikit-learn). An AUC of 0.5 means the classifier does no
-better than chance: the patches are indistinguishable to it. 1 means it tells
-every synthetic patch from every real one. It is a lower bound on how
-distinguishable the volumes are: a stronger model might still tell them apart.
+An AUC of 0.5 means a classifier does no better than chance: the patches are
+indistinguishable to it. 1 means it tells every patch of one set from every patch of
+the other. Each is a lower bound on how distinguishable the sets are: a stronger
+model might still tell them apart. Neither cares which set is brighter: both learn
+the sign of any difference.
 """
 
 from __future__ import annotations
 
 import logging
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,16 +38,19 @@ from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_PATCH", "classifier_auc", "patch_features", "specimen_patches"]
+__all__ = ["ClassifierTest", "CnnConfig", "DEFAULT_PATCH", "MAX_PATCHES", "classifier_test", "patch_features",
+           "specimen_patches"]
 
 #: Default patch side, voxels.
 DEFAULT_PATCH = 16
+#: Default number of patches cut from a pack (an even subset of its bulk region's lattice).
+MAX_PATCHES = 600
 _BINS = 16
 
 
 def specimen_patches(
-    specimen: Specimen, window: tuple[float, float], *, size: int = DEFAULT_PATCH, max_patches: int = 600
-) -> np.ndarray:
+    specimen: Specimen, window: tuple[float, float], *, size: int = DEFAULT_PATCH, max_patches: int = MAX_PATCHES
+) -> tuple[np.ndarray, np.ndarray]:
     """In-slice patches of a specimen's bulk region, windowed to [0, 1].
 
     Parameters
@@ -56,12 +66,14 @@ def specimen_patches(
 
     Returns
     -------
-    ndarray of float32, shape (N, size, size)
+    patches : ndarray of float32, shape (N, size, size)
+    corners : ndarray of int64, shape (N, 3)
+        ``(z, y0, x0)`` of each patch's first voxel, in slice order.
     """
     corners = patch_corners(specimen.region, size, max(1, size // 2), max_patches)
     lo, hi = window
     patches = (take_patches(specimen.tomogram, corners, size) - np.float32(lo)) / np.float32(hi - lo)
-    return np.clip(patches, 0.0, 1.0)
+    return np.clip(patches, 0.0, 1.0), corners
 
 
 def patch_features(patches: np.ndarray) -> np.ndarray:
@@ -97,49 +109,164 @@ def patch_features(patches: np.ndarray) -> np.ndarray:
                            np.log10(spectrum + 1e-12)], axis=1)
 
 
-def classifier_auc(real: np.ndarray, synthetic: np.ndarray, *, folds: int = 5, seed: int = 0) -> dict:
-    """Cross-validated ROC AUC of a logistic regression telling `real` from `synthetic` patches.
+@dataclass(frozen=True)
+class CnnConfig:
+    """Training settings of the CNN discriminator (`synthpack.realism.cnn`).
+
+    Attributes
+    ----------
+    epochs : int
+        Passes over each training fold.
+    batch_size : int
+        Patches per minibatch.
+    learning_rate : float
+        Peak Adam step size of the one-cycle schedule.
+    weight_decay : float
+        L2 penalty on the weights (Adam's ``weight_decay``).
+    width : int
+        Channels of the first convolutions (the last two have twice as many).
+    threads : int
+        Torch threads while training; 1 makes the scores independent of the machine (`synthpack.realism.cnn`).
+    """
+
+    epochs: int = 20
+    batch_size: int = 64
+    learning_rate: float = 3e-3
+    weight_decay: float = 1e-4
+    width: int = 16
+    threads: int = 1
+
+
+@dataclass
+class ClassifierTest:
+    """The result of one classifier two-sample test (see the module docstring).
+
+    Attributes
+    ----------
+    patches : ndarray of float32, shape (2n, S, S)
+        The balanced patches: the n of the first set (target 0), then the n of the second (target 1).
+    target : ndarray of int64, shape (2n,)
+    folds : list of (ndarray, ndarray)
+        ``(train, test)`` indices of each fold, the same for every classifier.
+    fold_auc : dict of str to ndarray of float64, shape (k,)
+        Per classifier (``"logistic"``, ``"cnn"``), the AUC of each held-out fold.
+    seconds : dict of str to float
+        Per classifier, the wall time of its cross-validation.
+    cnn_scores : ndarray of float64, shape (2n,), or None
+        The CNN's out-of-fold logit of "second set" for every patch; None without the CNN.
+    """
+
+    patches: np.ndarray
+    target: np.ndarray
+    folds: list[tuple[np.ndarray, np.ndarray]]
+    fold_auc: dict[str, np.ndarray] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    cnn_scores: np.ndarray | None = None
+
+    @property
+    def n_per_class(self) -> int:
+        """Patches in each set."""
+        return len(self.target) // 2
+
+    def auc(self, classifier: str) -> float | None:
+        """Mean AUC over the folds of `classifier`, or None if it was not run."""
+        return float(self.fold_auc[classifier].mean()) if classifier in self.fold_auc else None
+
+    def record(self, classifier: str, fold_auc: np.ndarray, seconds: float) -> None:
+        """Keep a classifier's held-out AUC per fold and the seconds its cross-validation took."""
+        self.fold_auc[classifier] = np.asarray(fold_auc, dtype=np.float64)
+        self.seconds[classifier] = seconds
+        logger.info("%s AUC %.3f +- %.3f (%d patches per class, %.1f s)", classifier, self.fold_auc[classifier].mean(),
+                    self.fold_auc[classifier].std(), self.n_per_class, seconds)
+
+    def summary(self, floor: ClassifierTest | None = None) -> dict:
+        """JSON-able figures: patches per class, folds and per classifier its AUC, spread and seconds.
+
+        Parameters
+        ----------
+        floor : ClassifierTest, optional
+            The source against itself (`synthpack.realism.floor`): each classifier then
+            also gets ``margin``, its AUC minus the floor's.
+        """
+        result: dict = {"n_per_class": self.n_per_class, "folds": len(self.folds)}
+        for name, aucs in self.fold_auc.items():
+            result[name] = {"auc": float(aucs.mean()), "auc_std": float(aucs.std()),
+                            "seconds": self.seconds[name]}
+            floor_auc = floor.auc(name) if floor is not None else None
+            if floor_auc is not None:
+                result[name]["margin"] = float(aucs.mean()) - floor_auc
+        return result
+
+
+def _logistic_fold_auc(patches: np.ndarray, target: np.ndarray,
+                       folds: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Held-out AUC of each fold of a logistic regression on `patch_features`."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import cross_val_score
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    model = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=2000))
+    return cross_val_score(model, patch_features(patches), target, scoring="roc_auc", cv=folds)
+
+
+def classifier_test(
+    first: np.ndarray,
+    second: np.ndarray,
+    *,
+    folds: int = 5,
+    seed: int = 0,
+    cnn: CnnConfig | None = None,
+) -> ClassifierTest:
+    """Cross-validated AUCs of the classifiers telling `first` from `second` patches.
 
     Both sets are cut to the same size (an even subset of the larger one) so that
-    the classes are balanced.
+    the classes are balanced; both classifiers use the same folds.
 
     Parameters
     ----------
-    real, synthetic : ndarray, shape (N, S, S) and (M, S, S)
-        Windowed patches (`specimen_patches`), the same S.
+    first, second : ndarray, shape (N, S, S) and (M, S, S)
+        Windowed patches (`specimen_patches`), the same S: e.g. real and synthetic.
     folds : int
         Stratified cross-validation folds (>= 2).
     seed : int
-        Seed of the fold shuffling.
+        Seed of the fold shuffling and of the CNN.
+    cnn : CnnConfig, optional
+        Also train the CNN with these settings; None = the logistic regression only.
 
     Returns
     -------
-    dict
-        ``auc`` (mean over folds), ``auc_std`` (spread over folds), ``n_per_class``.
+    ClassifierTest
 
     Raises
     ------
     SynthpackInputError
         If the patch sizes differ or a set has fewer than ``2 * folds`` patches.
     """
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.model_selection import StratifiedKFold, cross_val_score
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
+    from sklearn.model_selection import StratifiedKFold
 
-    if real.shape[1:] != synthetic.shape[1:]:
-        raise SynthpackInputError(f"patches differ in size: {real.shape[1:]} and {synthetic.shape[1:]}")
-    n = min(len(real), len(synthetic))
+    if first.shape[1:] != second.shape[1:]:
+        raise SynthpackInputError(f"patches differ in size: {first.shape[1:]} and {second.shape[1:]}")
+    n = min(len(first), len(second))
     if n < 2 * folds:
         raise SynthpackInputError(
             f"only {n} patches per class for a {folds}-fold classifier test: "
             "measure bigger volumes or use smaller patches"
         )
-    take = [np.linspace(0, len(s) - 1, n).astype(np.int64) for s in (real, synthetic)]
-    features = np.concatenate([patch_features(real[take[0]]), patch_features(synthetic[take[1]])])
+    take = [np.linspace(0, len(s) - 1, n).astype(np.int64) for s in (first, second)]
+    patches = np.concatenate([first[take[0]], second[take[1]]])
     target = np.repeat([0, 1], n)
-    model = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=2000))
-    scores = cross_val_score(model, features, target, scoring="roc_auc",
-                             cv=StratifiedKFold(n_splits=folds, shuffle=True, random_state=seed))
-    logger.info("classifier AUC %.3f +- %.3f (%d patches per class)", scores.mean(), scores.std(), n)
-    return {"auc": float(scores.mean()), "auc_std": float(scores.std()), "n_per_class": int(n)}
+    splits = list(StratifiedKFold(n_splits=folds, shuffle=True, random_state=seed).split(patches, target))
+    test = ClassifierTest(patches, target, splits)
+    start = time.perf_counter()
+    test.record("logistic", _logistic_fold_auc(patches, target, splits), time.perf_counter() - start)
+    if cnn is not None:
+        from sklearn.metrics import roc_auc_score
+
+        from .cnn import out_of_fold_scores
+
+        start = time.perf_counter()
+        test.cnn_scores = out_of_fold_scores(patches, target, splits, config=cnn, seed=seed)
+        held_out_auc = [roc_auc_score(target[held], test.cnn_scores[held]) for _, held in splits]
+        test.record("cnn", np.array(held_out_auc), time.perf_counter() - start)
+    return test

@@ -14,9 +14,33 @@ is the standard deviation of the white noise with the same high-frequency conten
 (`synthpack.source.estimate_noise`); the NPS centroid is the power-weighted mean
 frequency of the noise power spectrum in 8x8 in-slice patches (cycles/voxel: lower =
 smoother noise and texture). The edge width is the 10-90 % rise distance of the mean
-profile across grain-pore boundaries (voxels). The classifier AUC is the cross-validated
-area under the ROC curve of a logistic regression on patch appearance features that tries
-to tell synthetic from real patches: 0.5 = it cannot tell them apart, 1 = it always can.
+profile across grain-pore boundaries (voxels); its half height is the signed distance
+from the label boundary (voxels, + into the grains) where that profile crosses half-way
+from the pore to the grain level: 0 when the edge is centred on the boundary. The NPS
+ratio is the pack's noise power over the source's in each frequency ring from 0.1 to 0.5
+cycles/voxel (1 = the same power; the noise matches within a factor 2 in every ring when
+max |log2 ratio| < 1). A classifier AUC is the cross-validated area under the ROC curve of a
+model that tries to tell synthetic from real {patch}x{patch} in-slice patches: 0.5 = it cannot tell
+them apart, 1 = it always can.
+
+**The floor** (the source column of the AUC rows). Before any pack, each classifier is
+asked to tell the source from itself: patches from its even slabs of {slab} slices along z
+against those from its odd slabs. Whatever AUC it reaches there comes from the scan's own
+variation (drift along z, grains that differ from place to place, the spread of the folds),
+so no pack can be expected to do better: read a pack's AUC against the floor, not against
+0.5. The margin is the pack's AUC minus the floor's; a margin within the folds' spread
+(+-) means the classifier tells the pack from the source no better than the source from
+itself.
+
+**The two classifiers.** The logistic regression sees fixed summaries of each patch
+(intensity histogram, histogram of neighbour differences, radial power spectrum). The CNN
+is a small convolutional network (4 convolutions, about 16 k weights) trained from
+scratch on the patches themselves, on the same folds, so it learns its own features: it
+also catches what the summaries average away, such as the shape of an edge, a rim
+around grains or the texture's grain. Each is a lower bound on how far the pack is from
+the source: if either tells them apart, they differ. `cnn_patches.png` shows, per pack,
+the patches the CNN scores as most synthetic (out of fold) next to random source
+patches, in the same window: where to look first.
 """
 
 
@@ -46,6 +70,71 @@ def _row(label: str, key: str, source: dict, packs: list[dict], ks: str | None =
     return cells
 
 
+def _half_height_row(source: dict, packs: list[dict]) -> list[str]:
+    """Half-height position of the edge profile, and each pack's shift from the source's."""
+    return ["edge half height (voxels from the boundary, + = into grains)",
+            f"{source['figures']['edge_half_height']:+.3f}",
+            *[f"{p['figures']['edge_half_height']:+.3f} (shift {p['distances']['edge_half_height_shift']:+.3f})"
+              for p in packs]]
+
+
+def _auc(summary: dict | None, classifier: str, margin: bool = False) -> str:
+    """``AUC +- sd`` of one classifier of a `ClassifierTest.summary`, with its margin over the floor."""
+    if summary is None or classifier not in summary:
+        return "n/a"
+    result = summary[classifier]
+    cell = f"{result['auc']:.3f} +- {result['auc_std']:.3f}"
+    if margin and "margin" in result:
+        cell += f" (margin {result['margin']:+.3f})"
+    return cell
+
+
+def _nps_cell(ratio: dict | None) -> str:
+    """Range of the per-ring NPS ratios and the largest |log2 ratio|."""
+    if ratio is None:
+        return "n/a"
+    return f"{min(ratio['ratio']):.2f}-{max(ratio['ratio']):.2f} (max abs log2 {ratio['max_abs_log2']:.2f})"
+
+
+def _classifier_section(report: dict) -> list[str]:
+    """The floor against each pack, per classifier, and the CNN picture."""
+    floor, packs = report["floor"], report["packs"]
+    summaries = [p["distances"]["classifier"] for p in packs]
+    header = ["", "floor (source vs itself)", *[p["name"] for p in packs]]
+    rows = []
+    for classifier, label in (("logistic", "logistic regression"), ("cnn", "CNN")):
+        rows.append([f"{label} AUC", _auc(floor, classifier), *[_auc(s, classifier) for s in summaries]])
+        rows.append([f"{label}: margin over the floor", "-",
+                     *[f"{s[classifier]['margin']:+.3f}" if classifier in s else "n/a" for s in summaries]])
+        rows.append([f"{label}: seconds", *[f"{s[classifier]['seconds']:.1f}" if s and classifier in s else "n/a"
+                                            for s in (floor, *summaries)]])
+    rows.append(["patches per class, folds", *[f"{s['n_per_class']}, {s['folds']}" if s else "n/a"
+                                               for s in (floor, *summaries)]])
+    out = ["\n## Classifiers\n", _table(header, rows)]
+    settings = report["settings"]
+    cnn = settings.get("cnn")
+    out.append(f"\nFloor: even against odd slabs of {settings['slab']} slices along z. "
+               + (f"CNN: {cnn['epochs']} epochs, batches of {cnn['batch_size']}, width {cnn['width']}, "
+                  f"{cnn['threads']} thread(s).\n" if cnn else "CNN: not run.\n"))
+    if packs and cnn:
+        out.append("\n![patches the CNN finds most synthetic](cnn_patches.png)\n")
+    return out
+
+
+def _nps_section(packs: list[dict]) -> list[str]:
+    """Per ring, the NPS ratio pack / source in grains and pores."""
+    columns = [(p["name"], phase, p["distances"]["nps_ratio"][phase]) for p in packs for phase in ("grains", "pores")]
+    measured = [ratio for _, _, ratio in columns if ratio is not None]
+    if not measured:
+        return []
+    rows = [[f"{frequency:.3f}",
+             *["n/a" if ratio is None else f"{ratio['ratio'][k]:.2f}" for _, _, ratio in columns]]
+            for k, frequency in enumerate(measured[0]["frequency"])]
+    rows.append(["max abs log2", *["n/a" if r is None else f"{r['max_abs_log2']:.2f}" for _, _, r in columns]])
+    return ["\n## Noise power spectrum: pack / source, ring by ring\n",
+            _table(["ring (cycles/voxel)", *[f"{name}, {phase}" for name, phase, _ in columns]], rows)]
+
+
 def report_markdown(report: dict) -> str:
     """Markdown of a realism report.
 
@@ -58,22 +147,30 @@ def report_markdown(report: dict) -> str:
     -------
     str
     """
-    source, packs, settings = report["source"], report["packs"], report["settings"]
+    source, packs, settings, floor = report["source"], report["packs"], report["settings"], report["floor"]
     names = [p["name"] for p in packs]
     header = ["", source["name"], *names]
-    out = [f"# Realism report: {', '.join(names)} against {settings['source'] or source['name']}\n"]
-    out.append(_HOW_TO_READ)
+    against = settings["source"] or source["name"]
+    out = [f"# Realism report: {', '.join(names)} against {against}\n" if names
+           else f"# Realism report: the floor of {against}\n"]
+    out.append(_HOW_TO_READ.format(slab=settings["slab"], patch=settings["patch"]))
     out.append("## At a glance\n")
     glance = [
-        ["classifier AUC (0.5 = indistinguishable)", "-",
-         *[f"{p['distances']['classifier']['auc']:.3f} +- {p['distances']['classifier']['auc_std']:.3f}"
-           for p in packs]],
+        ["logistic AUC (0.5 = indistinguishable; source: its floor)", _auc(floor, "logistic"),
+         *[_auc(p["distances"]["classifier"], "logistic", margin=True) for p in packs]],
+        ["CNN AUC (source: its floor)", _auc(floor, "cnn"),
+         *[_auc(p["distances"]["classifier"], "cnn", margin=True) for p in packs]],
         ["W grains / pores / edges", "-",
          *[" / ".join(f"{p['distances'][f'wasserstein_{k}']:.3f}" for k in ("grains", "pores", "edges"))
            for p in packs]],
         _row("noise in grains", "noise_grain", source, packs, digits=4),
         _row("noise in pores", "noise_pore", source, packs, digits=4),
         _row("edge width (voxels)", "edge_width", source, packs),
+        _half_height_row(source, packs),
+        ["NPS ratio pack / source in grains, 0.1-0.5 cycles/voxel", "-",
+         *[_nps_cell(p["distances"]["nps_ratio"]["grains"]) for p in packs]],
+        ["NPS ratio pack / source in pores, 0.1-0.5 cycles/voxel", "-",
+         *[_nps_cell(p["distances"]["nps_ratio"]["pores"]) for p in packs]],
         _row("grain size: median diameter", "diameter_median", source, packs, ks="ks_diameter"),
     ]
     out.append(_table(header, glance))
@@ -105,10 +202,12 @@ def report_markdown(report: dict) -> str:
         _row("NPS centroid in grains (cycles/voxel)", "nps_centroid_grain", source, packs),
         _row("NPS centroid in pores (cycles/voxel)", "nps_centroid_pore", source, packs),
         _row("edge width 10-90 (voxels)", "edge_width", source, packs),
-        ["classifier AUC", "-", *[f"{p['distances']['classifier']['auc']:.3f}" for p in packs]],
-        ["patches per class", "-", *[str(p["distances"]["classifier"]["n_per_class"]) for p in packs]],
+        _half_height_row(source, packs),
     ]))
-    out.append("\n## Post-processing of each pack\n")
+    out += _nps_section(packs)
+    out += _classifier_section(report)
+    if packs:
+        out.append("\n## Post-processing of each pack\n")
     for pack, info in zip(packs, settings["packs"]):
         line = f"- **{pack['name']}** (`{info['path']}`): `postprocess: {info['postprocess']}`"
         calibration = info.get("calibration")

@@ -1,4 +1,4 @@
-"""Pictures of the realism report (PNG): structure, appearance, and slices side by side."""
+"""Pictures of the realism report (PNG): structure, appearance, slices side by side, and the CNN's picks."""
 
 from __future__ import annotations
 
@@ -9,11 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_file
+from .discriminator import ClassifierTest
 from .report import Measurements
 
-__all__ = ["save_appearance_plot", "save_slices_plot", "save_structure_plot"]
+__all__ = ["save_appearance_plot", "save_cnn_patches_plot", "save_slices_plot", "save_structure_plot"]
 
 _DPI = 72
+#: Patches shown per set in the CNN picture (a square number).
+_SHOWN = 16
 
 
 def _pyplot():
@@ -92,7 +95,8 @@ def save_appearance_plot(source: Measurements, packs: Sequence[Measurements], pa
     for measured in everyone:
         profile = measured.appearance.profile
         ax.plot(profile.distance, profile.normalised, marker=".",
-                label=f"{measured.specimen.name} (10-90 {measured.appearance.edge_width:.2f})")
+                label=f"{measured.specimen.name} (10-90 {measured.appearance.edge_width:.2f}, "
+                      f"half height {measured.appearance.half_height:+.2f})")
     ax.set_xlabel("signed distance from the grain boundary [voxels]")
     ax.set_ylabel("normalised mean intensity")
     ax.legend(fontsize=8)
@@ -132,4 +136,53 @@ def save_slices_plot(
         ax.imshow(image, cmap="gray", vmin=window[0], vmax=window[1], origin="lower")
         ax.set_title(f"{measured.specimen.name}, z = {z}", fontsize=10)
         ax.set_axis_off()
+    return _save(fig, path)
+
+
+def _mosaic(patches: np.ndarray) -> np.ndarray:
+    """Square grid of equal patches (K, S, S), K a square number, one NaN pixel between them."""
+    side, size = int(round(np.sqrt(len(patches)))), patches.shape[1]
+    grid = np.full((side * (size + 1) - 1, side * (size + 1) - 1), np.nan, dtype=np.float32)
+    for k, patch in enumerate(patches):
+        row, column = divmod(k, side)
+        grid[row * (size + 1):row * (size + 1) + size, column * (size + 1):column * (size + 1) + size] = patch
+    return grid
+
+
+def save_cnn_patches_plot(
+    packs: Sequence[Measurements], tests: Sequence[ClassifierTest], path: str | os.PathLike, *, seed: int = 0
+) -> Path:
+    """Per pack, the patches the CNN finds most synthetic next to random real ones.
+
+    The synthetic patches are the 16 with the highest out-of-fold CNN score (each
+    scored by the network that did not see it in training); the real ones are 16
+    drawn at random (seeded) from the same test. All are shown in the same window,
+    the report's patch window (0 = black, 1 = white).
+
+    Parameters
+    ----------
+    packs : sequence of Measurements
+    tests : sequence of ClassifierTest
+        One per pack, with ``cnn_scores`` (real = set 0, synthetic = set 1).
+    path : path-like
+        Output PNG.
+    seed : int
+        Seed of the draw of the real patches.
+    """
+    plt = _pyplot()
+    rng = np.random.default_rng(seed)
+    fig, axes = plt.subplots(len(packs), 2, figsize=(8, 4.2 * len(packs)), layout="constrained", squeeze=False)
+    cmap = plt.get_cmap("gray").with_extremes(bad="tab:blue")
+    for (left, right), measured, test in zip(axes, packs, tests):
+        real, synthetic = np.flatnonzero(test.target == 0), np.flatnonzero(test.target == 1)
+        shown = min(_SHOWN, len(real), len(synthetic))
+        shown = int(np.sqrt(shown)) ** 2
+        picked = rng.choice(real, shown, replace=False)
+        worst = synthetic[np.argsort(test.cnn_scores[synthetic], kind="stable")[::-1][:shown]]
+        left.imshow(_mosaic(test.patches[picked]), cmap=cmap, vmin=0.0, vmax=1.0, interpolation="nearest")
+        left.set_title(f"source: {shown} random patches", fontsize=10)
+        right.imshow(_mosaic(test.patches[worst]), cmap=cmap, vmin=0.0, vmax=1.0, interpolation="nearest")
+        right.set_title(f"{measured.specimen.name}: the {shown} the CNN finds most synthetic", fontsize=10)
+        for ax in (left, right):
+            ax.set_axis_off()
     return _save(fig, path)

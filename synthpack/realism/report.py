@@ -3,14 +3,17 @@
 `compare` measures the source scan (whole field of view) and each synthetic pack
 (its bulk region, `synthpack.realism.region`) with the structure
 (`synthpack.realism.structure`), appearance (`synthpack.realism.appearance`) and
-classifier (`synthpack.realism.discriminator`) measurements, then writes a report
-folder::
+classifier (`synthpack.realism.discriminator`) measurements. Before any pack, it
+runs the classifiers on the source against itself (`synthpack.realism.floor`): the
+floor no pack can beat. Then it writes a report folder::
 
-    realism.md        tables: source, then one column per pack, and how to read them
+    realism.md        tables: source (and the floor), then one column per pack, and how to read them
     realism.json      the same figures (and the distributions' summaries)
     structure.png     grain size, shape, contacts and orientation distributions
     appearance.png    phase histograms, edge profiles, noise power spectra
     slices.png        one slice of each volume, in the same intensity window
+    cnn_patches.png   per pack, the patches the CNN finds most synthetic next to random
+                      real ones (when the CNN ran and there are packs)
 
 Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
 same distribution, 1 = disjoint); W = Wasserstein (earth mover's) distance of the
@@ -21,6 +24,7 @@ brighter or darker than pores.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -37,8 +41,10 @@ from ..errors import SynthpackInputError
 from ..intensity import intensity_window
 from ..pack import find_packs
 from ..scan import Scan
-from .appearance import Appearance, measure_appearance
-from .discriminator import DEFAULT_PATCH, classifier_auc, specimen_patches
+from .appearance import Appearance, measure_appearance, nps_ratio
+from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfig, classifier_test,
+                            specimen_patches)
+from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
 from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance, solid_fraction
 
@@ -62,7 +68,9 @@ class Measurements:
     grains : GrainTable
     appearance : Appearance
     patches : ndarray of float32, shape (N, S, S)
-        Windowed patches for the classifier test.
+        Windowed patches for the classifier tests.
+    patch_corners : ndarray of int64, shape (N, 3)
+        Their ``(z, y0, x0)`` corners (the floor splits the source's by slice).
     """
 
     specimen: Specimen
@@ -70,6 +78,7 @@ class Measurements:
     grains: GrainTable
     appearance: Appearance
     patches: np.ndarray
+    patch_corners: np.ndarray
 
     def figures(self) -> dict:
         """Scalar figures of this specimen (JSON-able; None where not measurable)."""
@@ -94,6 +103,7 @@ class Measurements:
             "nps_centroid_grain": spectra["grains"],
             "nps_centroid_pore": spectra["pores"],
             "edge_width": a.edge_width,
+            "edge_half_height": a.half_height,
         }
 
 
@@ -101,7 +111,9 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(values)) if len(values) else None
 
 
-def measure(specimen: Specimen, window: tuple[float, float], *, patch: int = DEFAULT_PATCH) -> Measurements:
+def measure(
+    specimen: Specimen, window: tuple[float, float], *, patch: int = DEFAULT_PATCH, max_patches: int = MAX_PATCHES
+) -> Measurements:
     """Measure a specimen's structure, appearance and classifier patches.
 
     Parameters
@@ -111,28 +123,45 @@ def measure(specimen: Specimen, window: tuple[float, float], *, patch: int = DEF
         Intensity window of the classifier patches (the source's).
     patch : int
         Classifier patch side, voxels.
+    max_patches : int
+        At most this many classifier patches, spread evenly over the region.
     """
     logger.info("measuring %s", specimen.name)
+    patches, corners = specimen_patches(specimen, window, size=patch, max_patches=max_patches)
     return Measurements(specimen, solid_fraction(specimen.labels, specimen.region), grain_table(specimen),
-                        measure_appearance(specimen), specimen_patches(specimen, window, size=patch))
+                        measure_appearance(specimen), patches, corners)
 
 
 def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
     return ks_distance(a, b) if len(a) and len(b) else None
 
 
-def distances(source: Measurements, pack: Measurements, *, seed: int = 0) -> dict:
-    """Distances of `pack` from `source` (see the module docstring), and the classifier AUC."""
+def distances(source: Measurements, pack: Measurements) -> dict:
+    """Distances of `pack` from `source` (see the module docstring).
+
+    Returns
+    -------
+    dict
+        ``ks_<grain figure>``, ``wasserstein_<phase>``, ``edge_half_height_shift`` (pack
+        minus source, voxels) and ``nps_ratio``: per phase (``grains``, ``pores``) the
+        ring-by-ring power ratio pack / source of `~synthpack.realism.appearance.nps_ratio`,
+        or None where a spectrum could not be measured.
+    """
     sg, pg = source.grains, pack.grains
-    contrast = abs(source.appearance.contrast)
+    sa, pa = source.appearance, pack.appearance
+    contrast = abs(sa.contrast)
     result = {
         f"ks_{name}": _ks(getattr(sg, name), getattr(pg, name))
         for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine")
     }
-    for phase, values in source.appearance.samples.items():
-        result[f"wasserstein_{phase}"] = float(
-            stats.wasserstein_distance(values, pack.appearance.samples[phase]) / contrast)
-    result["classifier"] = classifier_auc(source.patches, pack.patches, seed=seed)
+    for phase, values in sa.samples.items():
+        result[f"wasserstein_{phase}"] = float(stats.wasserstein_distance(values, pa.samples[phase]) / contrast)
+    result["edge_half_height_shift"] = pa.half_height - sa.half_height
+    result["nps_ratio"] = {
+        phase: None if sa.spectra[phase] is None or pa.spectra[phase] is None
+        else nps_ratio(pa.spectra[phase], sa.spectra[phase])
+        for phase in sa.spectra
+    }
     return result
 
 
@@ -146,22 +175,38 @@ class RealismReport:
     packs : list of Measurements
     distances : list of dict
         One per pack, from `distances`.
+    floor : ClassifierTest or None
+        The classifiers on the source against itself (`synthpack.realism.floor`).
+    tests : list of ClassifierTest
+        One per pack: the classifiers on the source against the pack.
     settings : dict
-        How it was measured (window, patch size, seed, pack paths, manifests' post-processing).
+        How it was measured (window, patch size, slab, seed, CNN settings, pack paths,
+        manifests' post-processing).
     """
 
     source: Measurements
     packs: list[Measurements]
     distances: list[dict]
+    floor: ClassifierTest | None = None
+    tests: list[ClassifierTest] = field(default_factory=list)
     settings: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        """JSON-able dict: settings, source figures, and per pack its figures and distances."""
+        """JSON-able dict: settings, source figures, the floor, and per pack its figures and distances.
+
+        A pack's ``distances["classifier"]`` holds ``n_per_class``, ``folds`` and per
+        classifier (``logistic``, ``cnn``) its ``auc``, ``auc_std``, ``seconds`` and
+        ``margin`` (AUC minus the floor's); ``floor`` holds the same for the source
+        against itself, and ``slab``.
+        """
+        floor = None if self.floor is None else {"slab": self.settings.get("slab"), **self.floor.summary()}
         return {
             "settings": self.settings,
             "source": {"name": self.source.specimen.name, "figures": self.source.figures()},
-            "packs": [{"name": m.specimen.name, "figures": m.figures(), "distances": d}
-                      for m, d in zip(self.packs, self.distances)],
+            "floor": floor,
+            "packs": [{"name": m.specimen.name, "figures": m.figures(),
+                       "distances": {**d, "classifier": t.summary(self.floor)}}
+                      for m, d, t in zip(self.packs, self.distances, self.tests)],
         }
 
     def markdown(self) -> str:
@@ -181,17 +226,25 @@ class RealismReport:
         SynthpackInputError
             If `out` is a file, or a non-empty folder that is not an earlier report (and not `overwrite`).
         """
-        from .plots import save_appearance_plot, save_slices_plot, save_structure_plot
+        from .plots import save_appearance_plot, save_cnn_patches_plot, save_slices_plot, save_structure_plot
 
         out = Path(out)
+        names = ["realism.md", "realism.json", "structure.png", "appearance.png", "slices.png"]
         with atomic_directory(out, REPORT_OUTPUT, overwrite=overwrite) as staging:
             (staging / "realism.json").write_text(json.dumps(_plain(self.to_dict()), indent=1))
             (staging / "realism.md").write_text(self.markdown())
             save_structure_plot(self.source, self.packs, staging / "structure.png")
             save_appearance_plot(self.source, self.packs, staging / "appearance.png")
             save_slices_plot(self.source, self.packs, tuple(self.settings["window"]), staging / "slices.png")
-        names = ("realism.md", "realism.json", "structure.png", "appearance.png", "slices.png")
+            if self.has_cnn_patches:
+                save_cnn_patches_plot(self.packs, self.tests, staging / "cnn_patches.png", seed=self.settings["seed"])
+                names.append("cnn_patches.png")
         return {name: out / name for name in names}
+
+    @property
+    def has_cnn_patches(self) -> bool:
+        """Whether the report has a picture of the patches the CNN finds most synthetic."""
+        return bool(self.tests) and all(t.cnn_scores is not None for t in self.tests)
 
 
 def _plain(value):
@@ -207,10 +260,12 @@ def _plain(value):
 
 def compare(
     source: Scan,
-    packs: Sequence[str | os.PathLike],
+    packs: Sequence[str | os.PathLike] = (),
     *,
     patch: int = DEFAULT_PATCH,
     seed: int = 0,
+    slab: int = DEFAULT_SLAB,
+    cnn: CnnConfig | None = CnnConfig(),
 ) -> RealismReport:
     """Measure a source scan and synthetic packs, and how far each pack is from the source.
 
@@ -220,29 +275,46 @@ def compare(
         The real (source) scan, measured over its whole field of view.
     packs : sequence of path-like
         Pack folders, or folders holding pack folders; every pack gets its own column.
+        Empty: the source and its floor only.
     patch : int
-        Side (voxels) of the classifier's in-slice patches.
+        Side (voxels) of the classifiers' in-slice patches.
     seed : int
-        Seed of the classifier's cross-validation folds.
+        Seed of the classifiers' cross-validation folds and of the CNN.
+    slab : int
+        Slab thickness (slices along z) of the floor, the source against itself
+        (`synthpack.realism.floor`).
+    cnn : CnnConfig or None
+        Settings of the CNN discriminator; None = the logistic regression only.
 
     Returns
     -------
     RealismReport
         Call ``.write(folder)`` to save it.
+
+    Raises
+    ------
+    SynthpackInputError
+        If a pack folder holds no pack, or the source is too small for the floor's slabs.
     """
+    check_slab(slab)
     directories = [p for path in packs for p in find_packs(path)]
     window = intensity_window([source.tomogram])
-    reference = measure(Specimen.from_scan(source), window, patch=patch)
-    measured, manifests = [], []
+    # twice the patches of a pack, so that each half of the floor has as many as a pack
+    reference = measure(Specimen.from_scan(source), window, patch=patch, max_patches=2 * MAX_PATCHES)
+    logger.info("floor: the source's even against its odd slabs of %d slices", slab)
+    floor = floor_test(reference.patches, reference.patch_corners, slab=slab, seed=seed, cnn=cnn)
+    measured, manifests, tests = [], [], []
     for directory in directories:
         specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
         measured.append(measure(specimen, window, patch=patch))
+        tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn))
         manifest = json.loads((Path(directory) / "manifest.json").read_text())
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
                           "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
                           "calibration": manifest.get("calibration")})
-    settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "packs": manifests}
-    return RealismReport(reference, measured, [distances(reference, m, seed=seed) for m in measured], settings)
+    settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "slab": slab,
+                "cnn": None if cnn is None else dataclasses.asdict(cnn), "packs": manifests}
+    return RealismReport(reference, measured, [distances(reference, m) for m in measured], floor, tests, settings)
 
 
 def _column_name(directory: Path, directories: list[Path]) -> str:

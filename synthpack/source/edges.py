@@ -8,12 +8,11 @@ intensity of the voxels at each signed distance within `REACH` voxels of the
 boundary; scaled so that the pore interior is 0 and the grain interior is 1, its
 *10-90 width* is the distance over which it rises from 0.1 to 0.9 (about
 ``2.56 sigma`` for an edge blurred by a Gaussian of ``sigma`` voxels, more for
-a scan with partial-volume voxels on top). Grain-grain contacts are not edges.
-
-Grains may be brighter or darker than the pore phase (X-ray CT of sand against
-neutron CT or aggregates in cement paste): the profile is scaled by the signed
-step ``grain_level - pore_level``, so an edge and its negative have the same
-normalised profile and the same width.
+a scan with partial-volume voxels on top), and its *half-height position* is the
+signed distance at which it crosses 0.5: 0 when the edge is centred on the label
+boundary, positive when it sits inside the grains. Both read the profile scaled by
+the signed step ``grain_level - pore_level``, so they hold for grains darker than
+the pores too. Grain-grain contacts are not edges.
 """
 
 from __future__ import annotations
@@ -25,7 +24,8 @@ from scipy import ndimage
 
 from ..errors import SynthpackInputError
 
-__all__ = ["EdgeProfile", "INTERIOR", "REACH", "edge_profile", "edge_width", "signed_distance", "volume_edge_width"]
+__all__ = ["EdgeProfile", "INTERIOR", "REACH", "edge_profile", "edge_width", "half_height", "signed_distance",
+           "volume_edge_width"]
 
 #: Voxels within this distance of the boundary make up the edge profile.
 REACH = 4.0
@@ -168,6 +168,24 @@ def edge_width(profile: EdgeProfile) -> float:
     """
     normalised = profile.normalised
     return _crossing(profile.distance, normalised, 0.9) - _crossing(profile.distance, normalised, 0.1)
+
+
+def half_height(profile: EdgeProfile) -> float:
+    """Half-height position (voxels) of a normalised edge profile.
+
+    Parameters
+    ----------
+    profile : EdgeProfile
+
+    Returns
+    -------
+    float
+        The signed distance from the label boundary at which the normalised profile
+        (running maximum) first reaches 0.5, linearly interpolated between its points:
+        0 for an edge centred on the boundary, ``+s`` for one shifted ``s`` voxels into
+        the grains, ``-s`` into the pores. Grains darker or brighter than pores alike.
+    """
+    return _crossing(profile.distance, profile.normalised, 0.5)
 
 
 def volume_edge_width(tomogram: np.ndarray, labels: np.ndarray, region: np.ndarray | None = None) -> float:
