@@ -6,7 +6,6 @@ Modules, one job each:
 ``region``        `Specimen` (a labelled volume and the bulk region measured in it)
 ``structure``     solid fraction, grain size and shape, coordination, orientation fabric
 ``appearance``    phase intensities, noise level and power spectrum, edge sharpness
-``patches``       in-slice patches on a lattice inside a mask
 ``discriminator`` classifier two-sample tests: cross-validated AUCs of a logistic
                   regression and of the CNN on the same folds; `CnnConfig`
 ``cnn``           the small CNN discriminator (torch), trained from scratch per fold
@@ -16,9 +15,10 @@ Modules, one job each:
 ``plots``         the report's PNG pictures
 ================  ==================================================================
 
-The measurements it shares with the earlier stages come from them: edges and noise
-from `synthpack.source`, the bulk region from `synthpack.postprocess`. The fit of the
-post-processing to the source is `synthpack.artefacts.calibrate`.
+The measurements it shares with the earlier stages come from them: edges, noise,
+spectra and patches from `synthpack.source`, the bulk region from
+`synthpack.postprocess`. The fit of the post-processing to the source is
+`synthpack.artefacts.calibrate`.
 """
 
 from .discriminator import CnnConfig
