@@ -82,7 +82,7 @@ class PoreTexture:
                              "cycles/voxel")
     sigma: float = setting(0.8, non_negative, "gaussian model: correlation length of the pore texture, Gaussian "
                            "sigma, voxels")
-    tile: int = setting(64, positive, "period of the pore texture, voxels (far beyond its correlation length)")
+    tile: int = setting(128, positive, "period of the pore texture, voxels (beyond the largest scale it holds)")
 
     def model_for(self, pore_spectrum: tuple[float, ...] | None) -> str:
         """The model drawn for a source with `pore_spectrum`: `model`, or ``"gaussian"`` when none was measured."""

@@ -183,6 +183,14 @@ class Background:
         """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""
         return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum)
 
+    def texture_density(self) -> np.ndarray:
+        """The pore texture's power spectral density on its tile's FFT grid (see `PoreTexture.density`).
+
+        Float64, shape ``(tile,) * 3``, intensity units squared times voxels cubed; zeros for flat pores.
+        """
+        density = self.texture.density(self.pore_std, self.pore_spectrum)
+        return density if self.pore_std > 0 else np.zeros_like(density)
+
     def texture_record(self, seed: int) -> dict:
         """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
         return self.texture.record(self.pore_std, self.pore_spectrum, seed)

@@ -57,7 +57,7 @@ __all__ = ["BLOCK", "MAX_BLOCKS", "MIN_PAIRS", "MIN_VOXELS", "PORE_SPECTRUM_SIZE
 logger = logging.getLogger(__name__)
 
 #: Side (voxels) of the lag window: lags up to half of it, shells of ``1 / PORE_SPECTRUM_SIZE`` cycles per voxel.
-PORE_SPECTRUM_SIZE = 32
+PORE_SPECTRUM_SIZE = 64
 #: Side (voxels) of the cubes a large scan is cut into.
 BLOCK = 128
 #: At most this many cubes are measured.
@@ -165,7 +165,9 @@ def measure_pore_spectrum(
 def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_SIZE) -> np.ndarray:
     """A shell spectrum (`measure_pore_spectrum`) on the full FFT grid of a periodic cube of `tile` voxels.
 
-    Linear interpolation in ``|f|`` between the shell centres, 0 beyond the last.
+    Interpolated linearly in ``|f|`` on the logarithm of the density (geometrically:
+    a spectrum that falls by decades between two shells is not lifted by the one
+    above it), 0 beyond the last shell.
 
     Returns
     -------
@@ -173,4 +175,8 @@ def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_S
         Density at every frequency of the grid; its mean is the variance of noise with it.
     """
     density = np.asarray(density, dtype=np.float64)
-    return np.interp(frequency_radius((tile,) * 3), shell_frequencies(len(density), size), density, right=0.0)
+    radius = frequency_radius((tile,) * 3)
+    logarithm = np.log(np.maximum(density, np.finfo(float).tiny))
+    grid = np.exp(np.interp(radius, shell_frequencies(len(density), size), logarithm))
+    grid[radius > shell_frequencies(len(density), size)[-1]] = 0.0
+    return grid
