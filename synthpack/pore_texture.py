@@ -136,7 +136,7 @@ class PoreTexture:
         return _periodic_field(self, float(pore_std), pore_spectrum, seed)[np.ix_(*wrapped)]
 
     def record(self, pore_std: float, pore_spectrum: tuple[float, ...] | None, seed: int) -> dict:
-        """What was drawn, for the pack manifest: settings, the model drawn, its amplitude (std, intensity units), seed."""
+        """What was drawn, for the manifest: settings, the model drawn, amplitude (std, intensity units), seed."""
         amplitude = float(np.sqrt(self.density(pore_std, pore_spectrum).mean()))
         return {**asdict(self), "model": self.model_for(pore_spectrum), "amplitude": amplitude, "seed": seed}
 

@@ -33,7 +33,9 @@ variance ``s^2`` has the flat density ``s^2``).
 axial correlations are averaged). Variation on scales beyond about
 ``PORE_SPECTRUM_SIZE / 2`` voxels is folded into the lowest shells, and the
 frequency resolution is about ``2 / PORE_SPECTRUM_SIZE`` cycles per voxel (the
-taper). Where the pores are thin (a dense sand pack: interior voxels in small,
+taper); the two lowest shells are biased low (by about a third for white noise
+smoothed over 2 voxels), because the taper spreads them and the mean is taken
+from the data. Where the pores are thin (a dense sand pack: interior voxels in small,
 separate pore bodies), long lags are measured between different pore bodies,
 so the large-scale part is that of the pore phase as a whole; with no lag of at
 least `MIN_PAIRS` pairs beyond zero, or fewer than `MIN_VOXELS` interior voxels,
