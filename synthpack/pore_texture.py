@@ -1,27 +1,54 @@
-"""The pore texture: seeded, spatially correlated noise in the space between grains (a step of the render).
+"""The pore texture: seeded, spatially correlated variation in the space between grains (a step of the render).
 
-A CT scan's pores are not flat: reconstruction and detector blur leave noise that
-is correlated over about a voxel. The render draws the pore phase as the source's
-pore level plus ``amplitude x texture``, with the amplitude the source's pore
-spread (`~synthpack.source.SourceStatistics.pore_std`) and the texture a
-unit-variance field of white noise smoothed by a Gaussian of `PoreTexture.sigma`
-voxels. The field is a periodic cube of `PoreTexture.tile` voxels (its period far
-beyond the correlation length, so the repetition is invisible) drawn from the
-render's seed, and the value of a voxel depends only on its global index: the
-texture does not depend on how the volume is cut into chunks.
+A real pore phase is not flat: a cement paste holds sand, voids and moisture, a
+brine its own density variations, and every scan adds its noise. The render
+draws the pore phase as the source's pore level plus a zero-mean texture, a
+Gaussian random field with a given power spectral density ``D(f)``, synthesized
+by filtering white noise in Fourier space by ``sqrt(D)`` on a periodic cube of
+`PoreTexture.tile` voxels (copies of it tile space seamlessly). The cube's white
+noise is drawn from the render's seed, its realised standard deviation is set
+to the expected one, and the value of a voxel depends only on its global index:
+the texture does not depend on how the volume is cut into chunks.
+
+Two models (`PoreTexture.model`):
+
+``measured`` (the default)
+    ``D`` is the source's pore spectrum
+    (`~synthpack.source.SourceStatistics.pore_spectrum`, measured on every scale up
+    to 32 voxels), kept below `PoreTexture.cutoff` cycles per voxel and rolled off
+    to 0 by a raised cosine over the next `PoreTexture.rolloff`. The split is the
+    image-formation model's: the texture carries the pore phase's structure on
+    scales of 5 voxels and more (at 0.1 cycles/voxel a Gaussian PSF of 1 voxel
+    keeps 82 % of the amplitude, so the calibrated blur applied later barely
+    changes it), and the calibrated noise step
+    (`~synthpack.artefacts.calibrate`) adds what the source's noise power
+    spectrum holds beyond it, ring by ring, after the blur. Drawing the whole
+    spectrum here instead would put the source's voxel-scale power into the
+    clean pack, where the blur would take part of it away and the noise step,
+    which only adds, could not give it back in the right shape.
+``gaussian``
+    White noise smoothed by a Gaussian of `PoreTexture.sigma` voxels (``D`` =
+    ``exp(-4 pi^2 sigma^2 |f|^2)``), with the source's pore spread
+    (`~synthpack.source.SourceStatistics.pore_std`) as its standard deviation.
+    The ``measured`` model falls back to it, with a warning, for a source whose
+    pore spectrum could not be measured (too little pore interior).
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+import logging
+from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import ndimage
+from scipy import fft
 
-from ._schema import non_negative, positive, setting
+from ._schema import non_negative, one_of, positive, setting
+from .source.pore_spectrum import frequency_radius, spectrum_on_grid
 
 __all__ = ["PoreTexture"]
+
+logger = logging.getLogger(__name__)
 
 #: Stream of the render's seed that the texture's white noise is drawn from.
 _STREAM = 0x7E47
@@ -33,17 +60,63 @@ class PoreTexture:
 
     Attributes
     ----------
+    model : str
+        ``"measured"``: the source's pore spectrum below `cutoff`; ``"gaussian"``:
+        Gaussian-smoothed noise of `sigma` (see the module docstring).
+    cutoff : float
+        Measured model: highest frequency of the source's pore spectrum kept whole, cycles/voxel.
+    rolloff : float
+        Measured model: width of the raised-cosine roll-off above `cutoff`, cycles/voxel (0: a sharp cut).
     sigma : float
-        Correlation length: Gaussian sigma of the smoothing, voxels (0: white noise).
+        Gaussian model: correlation length, Gaussian sigma, voxels (0: white noise).
     tile : int
         Period of the texture along each axis, voxels.
     """
 
-    sigma: float = setting(0.8, non_negative, "correlation length of the pore texture: Gaussian sigma, voxels")
-    tile: int = setting(64, positive, "period of the pore texture, voxels (far beyond its correlation length)")
+    model: str = setting("measured", one_of(("measured", "gaussian")),
+                         "measured: the source's pore spectrum below cutoff (the calibrated noise adds the rest); "
+                         "gaussian: noise smoothed by sigma, with the source's pore spread")
+    cutoff: float = setting(0.1, non_negative, "measured model: the source's pore spectrum is kept up to this "
+                            "frequency, cycles/voxel")
+    rolloff: float = setting(0.1, non_negative, "measured model: width of the raised-cosine roll-off above cutoff, "
+                             "cycles/voxel")
+    sigma: float = setting(0.8, non_negative, "gaussian model: correlation length of the pore texture, Gaussian "
+                           "sigma, voxels")
+    tile: int = setting(128, positive, "period of the pore texture, voxels (beyond the largest scale it holds)")
 
-    def sample(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
-        """The texture over the global index box ``[lo, hi)``.
+    def model_for(self, pore_spectrum: tuple[float, ...] | None) -> str:
+        """The model drawn for a source with `pore_spectrum`: `model`, or ``"gaussian"`` when none was measured."""
+        return "gaussian" if pore_spectrum is None else self.model
+
+    def density(self, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
+        """The texture's power spectral density on the FFT grid of its tile.
+
+        Parameters
+        ----------
+        pore_std : float
+            The source's pore spread, intensity units: the Gaussian model's standard deviation.
+        pore_spectrum : tuple of float or None
+            The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`).
+
+        Returns
+        -------
+        ndarray of float64, shape (tile, tile, tile)
+            Intensity units squared times voxels cubed, 0 at frequency 0; its mean is the texture's variance.
+        """
+        radius = frequency_radius((self.tile,) * 3)
+        if self.model_for(pore_spectrum) == "measured":
+            ramp = np.clip((radius - self.cutoff) / max(self.rolloff, np.finfo(float).tiny), 0.0, 1.0)
+            density = spectrum_on_grid(np.asarray(pore_spectrum), self.tile) * 0.5 * (1.0 + np.cos(np.pi * ramp))
+            density[0, 0, 0] = 0.0
+            return density
+        density = np.exp(-4.0 * np.pi**2 * self.sigma**2 * radius**2)
+        density[0, 0, 0] = 0.0
+        return density * (pore_std**2 / max(density.mean(), np.finfo(float).tiny))
+
+    def sample(
+        self, lo: np.ndarray, hi: np.ndarray, seed: int, pore_std: float, pore_spectrum: tuple[float, ...] | None,
+    ) -> np.ndarray:
+        """The texture over the global index box ``[lo, hi)``, intensity units.
 
         Parameters
         ----------
@@ -51,29 +124,41 @@ class PoreTexture:
             Half-open box in global voxel indices.
         seed : int
             The render's seed.
+        pore_std, pore_spectrum
+            The source's pore spread and pore spectrum (see `density`).
 
         Returns
         -------
         ndarray of float32, shape hi - lo
-            Unit variance and zero mean over a period; a new array.
+            Zero mean over a period; a new array.
         """
         wrapped = (np.arange(a, b) % self.tile for a, b in zip(lo, hi))
-        return _periodic_field(self.sigma, self.tile, seed)[np.ix_(*wrapped)]
+        return _periodic_field(self, float(pore_std), pore_spectrum, seed)[np.ix_(*wrapped)]
 
-    def record(self, amplitude: float, seed: int) -> dict:
-        """What was drawn, for the pack manifest: settings, amplitude (intensity units) and seed."""
-        return {"sigma": self.sigma, "tile": self.tile, "amplitude": amplitude, "seed": seed}
+    def record(self, pore_std: float, pore_spectrum: tuple[float, ...] | None, seed: int) -> dict:
+        """What was drawn, for the manifest: settings, the model drawn, amplitude (std, intensity units), seed."""
+        amplitude = float(np.sqrt(self.density(pore_std, pore_spectrum).mean()))
+        return {**asdict(self), "model": self.model_for(pore_spectrum), "amplitude": amplitude, "seed": seed}
 
 
 @functools.lru_cache(maxsize=8)
-def _periodic_field(sigma: float, tile: int, seed: int) -> np.ndarray:
-    """A periodic cube of unit-variance noise with a Gaussian correlation of `sigma` voxels.
+def _periodic_field(
+    texture: PoreTexture, pore_std: float, pore_spectrum: tuple[float, ...] | None, seed: int,
+) -> np.ndarray:
+    """A periodic cube of the texture (`PoreTexture.density`) from the white noise of `seed`.
 
-    White noise from ``seed``, smoothed with wrap-around boundaries, so copies of
-    the cube tile space seamlessly. Read-only float32, shape ``(tile,) * 3``.
+    Read-only float32, shape ``(tile,) * 3``; its standard deviation is exactly the expected one.
     """
-    white = np.random.default_rng([seed, _STREAM]).standard_normal((tile,) * 3)
-    smooth = ndimage.gaussian_filter(white, sigma, mode="wrap")
-    field = ((smooth - smooth.mean()) / smooth.std()).astype(np.float32)
+    if texture.model == "measured" and pore_spectrum is None:
+        logger.warning("the source has no measured pore spectrum: the pore texture is Gaussian noise of sigma %g "
+                       "voxels with the source's pore spread", texture.sigma)
+    shape = (texture.tile,) * 3
+    density = texture.density(pore_std, pore_spectrum)
+    white = np.random.default_rng([seed, _STREAM]).standard_normal(shape)
+    field = fft.irfftn(fft.rfftn(white) * np.sqrt(density[..., : texture.tile // 2 + 1]), s=shape)
+    realised = field.std()
+    if realised > 0:
+        field *= np.sqrt(density.mean()) / realised
+    field = field.astype(np.float32)
     field.flags.writeable = False
     return field

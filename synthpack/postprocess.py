@@ -48,7 +48,7 @@ from .artefacts import Compose, calibrate, from_config, generic_postprocessing, 
 from .errors import SynthpackInputError
 from .reconstruct import Grid
 from .source.noise import estimate_noise
-from .source.spectrum import NPS_PATCH
+from .source.spectrum import NPS_PATCH, white_ring_powers
 from .source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)
@@ -127,13 +127,17 @@ def _check_mode(postprocess: str | list) -> None:
 def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
     """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics.
 
-    A phase without a measured spectrum or noise level (too thin for a patch) takes the other phase's.
+    A phase without a measured noise level takes the other phase's. A phase without a
+    measured spectrum (too thin for a patch) gets white noise at its noise level: the
+    other phase's spectrum may hold that phase's texture (a cement paste's sand and
+    voids), which is not the noise of the first.
     """
-    spectra = {"grains": statistics.nps_grains or statistics.nps_pores,
-               "pores": statistics.nps_pores or statistics.nps_grains}
     grain_std, pore_std = statistics.noise_grain_std, statistics.noise_pore_std
     levels = {"grains": grain_std if grain_std is not None else pore_std,
               "pores": pore_std if pore_std is not None else grain_std}
+    n_rings = len(statistics.nps_pores or statistics.nps_grains)
+    spectra = {phase: tuple(measured) if measured is not None else tuple(white_ring_powers(levels[phase] ** 2, n_rings))
+               for phase, measured in (("grains", statistics.nps_grains), ("pores", statistics.nps_pores))}
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
             "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
             "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
@@ -166,6 +170,7 @@ def resolve_postprocessing(
     labels: Any,
     grid: Grid,
     packing_region: dict[str, float],
+    pore_texture: np.ndarray | None = None,
 ) -> Postprocessing:
     """The post-processing of one rendered pack (see the module docstring for the modes).
 
@@ -184,6 +189,9 @@ def resolve_postprocessing(
     packing_region : dict
         ``radius``, ``z_min``, ``z_max`` of the pour's bulk sub-cylinder, physical
         units (``PourChecks.packing_region``); ``calibrated`` measures there.
+    pore_texture : ndarray of float64, shape (T, T, T), optional
+        The render's pore texture density (`~synthpack.reconstruct.Background.texture_density`),
+        for ``calibrated`` (`~synthpack.artefacts.calibrate`).
 
     Returns
     -------
@@ -207,7 +215,8 @@ def resolve_postprocessing(
         if fallback is None:
             try:
                 region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
-                calibration = calibrate(clean, labels, region, **_calibration_targets(statistics))
+                calibration = calibrate(clean, labels, region, pore_texture=pore_texture,
+                                        **_calibration_targets(statistics))
             except SynthpackInputError as error:
                 fallback = f"this pack: {error}"
             else:

@@ -150,33 +150,50 @@ class Background:
     pore_mean : float
         Pore level: the space between grains.
     pore_std : float
-        Amplitude of the pore texture added to it (0: flat pores).
+        The source's pore spread: the Gaussian texture's amplitude (0: flat pores, whatever the texture).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
     texture : PoreTexture
-        Correlation length and period of the pore texture.
+        The pore texture's settings.
+    pore_spectrum : tuple of float or None
+        The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`), which the
+        measured texture is drawn from; None: the Gaussian texture.
     """
 
     pore_mean: float
     pore_std: float = 0.0
     wall: float | None = None
     texture: PoreTexture = PoreTexture()
+    pore_spectrum: tuple[float, ...] | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
         """The background of a pack of grains from a source scan: the one place it is derived.
 
-        Pore level and texture amplitude are the source's pore level and spread.
-        The wall is `WALL_FRACTION` of the way from pore to grain level unless
+        Pore level, spread and spectrum are the source's. The wall is
+        `WALL_FRACTION` of the way from pore to grain level unless
         ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
         """
         wall = config.wall_intensity if config.wall_intensity is not None else (
             statistics.pore_mean + WALL_FRACTION * statistics.contrast)
-        return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture)
+        return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture,
+                   statistics.pore_spectrum)
+
+    def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
+        """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""
+        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum)
+
+    def texture_density(self) -> np.ndarray:
+        """The pore texture's power spectral density on its tile's FFT grid (see `PoreTexture.density`).
+
+        Float64, shape ``(tile,) * 3``, intensity units squared times voxels cubed; zeros for flat pores.
+        """
+        density = self.texture.density(self.pore_std, self.pore_spectrum)
+        return density if self.pore_std > 0 else np.zeros_like(density)
 
     def texture_record(self, seed: int) -> dict:
         """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
-        return self.texture.record(self.pore_std, seed)
+        return self.texture.record(self.pore_std, self.pore_spectrum, seed)
 
 
 @dataclass(frozen=True)
@@ -290,10 +307,10 @@ def _background(
     grid: Grid, lo: np.ndarray, hi: np.ndarray, background: Background, tube: tuple[float, float, float] | None,
     seed: int,
 ) -> np.ndarray:
-    """The background over the box ``[lo, hi)``: pore level + amplitude x pore texture, then the wall."""
+    """The background over the box ``[lo, hi)``: pore level + pore texture, then the wall."""
     values = np.full(tuple(hi - lo), background.pore_mean, dtype=np.float32)
     if background.pore_std > 0:
-        values += np.float32(background.pore_std) * background.texture.sample(lo, hi, seed)
+        values += background.texture_values(lo, hi, seed)
     if tube is not None and background.wall is not None:
         inner, outer, base = tube
         index = np.ogrid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]

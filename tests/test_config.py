@@ -25,9 +25,10 @@ def test_replace_merges_sections():
 
 
 def test_pore_texture_is_a_sub_section_of_reconstruct():
-    assert PackConfig().to_dict()["reconstruct"]["pore_texture"] == {"sigma": 0.8, "tile": 64}
+    assert PackConfig().to_dict()["reconstruct"]["pore_texture"] == {
+        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128}
     config = PackConfig().replace(reconstruct={"pore_texture": {"sigma": 1.5}})
-    assert (config.reconstruct.pore_texture.sigma, config.reconstruct.pore_texture.tile) == (1.5, 64)
+    assert (config.reconstruct.pore_texture.sigma, config.reconstruct.pore_texture.tile) == (1.5, 128)
     assert PackConfig.from_dict(config.to_dict()) == config
 
 
@@ -54,6 +55,7 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
         ({"reconstruct": {"pore_texture": {"sigma": -0.5}}}, "'reconstruct.pore_texture.sigma' is out of range"),
         ({"reconstruct": {"pore_texture": {"tile": 6.5}}}, "'reconstruct.pore_texture.tile' has the wrong type"),
         ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
+        ({"reconstruct": {"pore_texture": {"model": "fractal"}}}, "'reconstruct.pore_texture.model'"),
         ({"pour": 3}, "must be a mapping"),
     ],
 )

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 
 import numpy as np
@@ -8,6 +9,7 @@ from synthpack.config import PackConfig
 from synthpack.errors import PackBuildError
 from synthpack.generate import build_pack, generate_packs, pack_seed
 from synthpack.pack import is_complete_pack, open_pack
+from synthpack.pore_texture import PoreTexture
 
 SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
 
@@ -49,12 +51,15 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
 
 
 def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
-    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == {"sigma": 0.8, "tile": 64}
+    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == dataclasses.asdict(PoreTexture())
+    statistics = large_library.statistics
     assert small_pack.manifest["pore_texture"] == {
-        "sigma": 0.8, "tile": 64, "amplitude": large_library.statistics.pore_std, "seed": 11}
-    smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"sigma": 1.5}}), seed=11,
+        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "seed": 11,
+        "amplitude": pytest.approx(float(np.sqrt(PoreTexture().density(statistics.pore_std,
+                                                                       statistics.pore_spectrum).mean())))}
+    smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"cutoff": 0.05}}), seed=11,
                           progress=False)
-    assert smoother.manifest["pore_texture"]["sigma"] == 1.5
+    assert smoother.manifest["pore_texture"]["cutoff"] == 0.05
     np.testing.assert_array_equal(smoother.labels, small_pack.labels)
     pores = small_pack.labels == 0
     assert not np.array_equal(smoother.clean[pores], small_pack.clean[pores])

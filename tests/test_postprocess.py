@@ -10,11 +10,13 @@ import pytest
 
 from synthpack import postprocess as postprocess_module
 from synthpack.artefacts import ColouredNoise, GaussianNoise, generic_postprocessing
+from synthpack.artefacts.calibrate import _clean_ring_powers
 from synthpack.errors import SynthpackInputError
 from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.reconstruct import Grid
 from synthpack.source import SourceStatistics, estimate_noise, fit_edge_spread, phase_spectra
 from synthpack.source.edges import edge_profile, signed_distance
+from synthpack.source.spectrum import white_ring_powers
 
 STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0,
                               edge_shift=0.0, edge_sigma=1.2, nps_grains=(1e-4,) * 6, nps_pores=(1e-4,) * 6)
@@ -120,6 +122,20 @@ def test_calibrated_fits_darker_grains_as_it_fits_brighter_ones(rendered):
     darker = _resolve("calibrated", (inverted, *rendered[1:]), darker_statistics).record["calibration"]
     assert darker["blur_sigma"] == pytest.approx(brighter["blur_sigma"], abs=1e-3)
     assert darker["edge_sigma"] == pytest.approx(brighter["edge_sigma"], abs=1e-3)
+
+
+def test_a_phase_without_a_measured_spectrum_gets_white_noise_at_its_own_level(rendered):
+    # e.g. a cement paste's spectrum holds its sand and voids: not the noise of the aggregates
+    statistics = dataclasses.replace(STATISTICS, nps_grains=None, noise_grain_std=0.02, noise_pore_std=0.03)
+    fit = _resolve("calibrated", rendered, statistics).record["calibration"]
+    np.testing.assert_allclose(fit["target_power"]["grains"], white_ring_powers(0.02**2, 6))
+    assert fit["target_power"]["pores"] == list(STATISTICS.nps_pores)
+
+
+def test_the_clean_spectrum_of_a_phase_too_thin_for_a_patch_is_white_noise_plus_the_pore_texture():
+    texture = np.full((16, 16, 16), 2.0)  # a white texture of variance 2
+    np.testing.assert_allclose(_clean_ring_powers(None, 6, 1.0, texture), white_ring_powers(3.0, 6))
+    np.testing.assert_allclose(_clean_ring_powers(None, 6, None, None), np.zeros(6))
 
 
 def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_fitted(

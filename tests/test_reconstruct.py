@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -151,14 +153,15 @@ def _pore_texture_autocorrelation(texture: PoreTexture) -> tuple[np.ndarray, flo
 
 
 def test_pore_texture_settings_shape_the_texture():
-    default, correlation = _pore_texture_autocorrelation(PoreTexture())
+    gaussian = PoreTexture(model="gaussian", tile=64)
+    default, correlation = _pore_texture_autocorrelation(gaussian)
     assert default.std() == pytest.approx(1.0, rel=1e-3)  # unit variance times the amplitude
     assert correlation == pytest.approx(np.exp(-1 / (4 * 0.8**2)), abs=0.05)  # Gaussian smoothing, sigma 0.8
-    _, white = _pore_texture_autocorrelation(PoreTexture(sigma=0.0))
+    _, white = _pore_texture_autocorrelation(PoreTexture(model="gaussian", sigma=0.0, tile=64))
     assert abs(white) < 0.02
-    _, smoother = _pore_texture_autocorrelation(PoreTexture(sigma=2.0))
+    _, smoother = _pore_texture_autocorrelation(PoreTexture(model="gaussian", sigma=2.0, tile=64))
     assert smoother > correlation
-    short, _ = _pore_texture_autocorrelation(PoreTexture(tile=16))
+    short, _ = _pore_texture_autocorrelation(PoreTexture(model="gaussian", tile=16))
     np.testing.assert_array_equal(short[:16, :16, :16], short[16:32, 32:48, 48:64])  # period 16
     assert not np.array_equal(default[:16, :16, :16], default[16:32, 32:48, 48:64])
 
@@ -167,10 +170,15 @@ def test_background_from_source_statistics():
     statistics = SourceStatistics(pore_mean=0.2, pore_std=0.03, grain_mean=0.7, noise_std=0.05)
     texture = PoreTexture(sigma=1.2, tile=32)
     background = Background.from_source(statistics, ReconstructConfig(pore_texture=texture))
-    assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)
+    assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)  # no pore spectrum measured
     assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9
     assert Background.from_source(statistics, ReconstructConfig(wall=False)).wall is None
-    assert background.texture_record(seed=5) == {"sigma": 1.2, "tile": 32, "amplitude": 0.03, "seed": 5}
+    assert background.texture_record(seed=5) == {"model": "gaussian", "cutoff": 0.1, "rolloff": 0.1, "sigma": 1.2,
+                                                 "tile": 32, "amplitude": pytest.approx(0.03), "seed": 5}
+    measured = Background.from_source(dataclasses.replace(statistics, pore_spectrum=(1e-3, 5e-4, 1e-4)),
+                                      ReconstructConfig())
+    assert measured.pore_spectrum == (1e-3, 5e-4, 1e-4)
+    assert measured.texture_record(seed=5)["model"] == "measured"
 
 
 def _ball_scene(large_library, n=12):

@@ -20,7 +20,11 @@ fits the rest of the scanner's image formation to the source
    blurred volume (`~synthpack.source.spectrum`) is measured, and
    `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
    power the source has beyond it (the deficit; none where the pack already has
-   as much): the noise the crops and the pore texture carry is accounted for. The
+   as much): the noise the crops and the pore texture carry is accounted for. In a
+   phase too thin for a patch (small grains, narrow pores) the clean spectrum is
+   that of white noise at the phase's clean noise level, plus, in the pores, the
+   expected spectrum of the render's pore texture after the blur (computed from
+   its density, `~synthpack.pore_texture.PoreTexture.density`). The
    same is done for the noise level `~synthpack.source.noise.estimate_noise`
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
@@ -42,10 +46,10 @@ from ..errors import SynthpackInputError
 from ..source.edges import edge_profile, edge_width, signed_distance
 from ..source.noise import estimate_noise
 from ..source.psf import EdgeSpread, fit_edge_spread
-from ..source.spectrum import NoiseSpectrum, phase_spectra
+from ..source.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose
 from .blur import GaussianBlur
-from .coloured_noise import ColouredNoise
+from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
 from .noise import GaussianNoise
 
 logger = logging.getLogger(__name__)
@@ -152,9 +156,25 @@ def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
     return tuple(slice(max(0, int(lo)), min(n, int(hi))) for lo, hi, n in zip(low, high, region.shape))
 
 
-def _ring_powers(spectrum: NoiseSpectrum | None, n_rings: int) -> np.ndarray:
-    """Rings 1 to `n_rings` of a measured spectrum; zeros where none was measured (no patch fits)."""
-    return np.zeros(n_rings) if spectrum is None else spectrum.power[1 : n_rings + 1]
+def _clean_ring_powers(
+    spectrum: NoiseSpectrum | None, n_rings: int, noise_std: float | None, texture: np.ndarray | None,
+) -> np.ndarray:
+    """Rings 1 to `n_rings` of the clean phase's spectrum: measured, or where no patch fits, modelled.
+
+    The model: white noise of `noise_std` (0 if None), plus the expected ring powers of
+    `texture` (a density on a periodic cube's FFT grid, already blurred; None: none).
+    """
+    if spectrum is not None:
+        return spectrum.power[1 : n_rings + 1]
+    powers = white_ring_powers((noise_std or 0.0) ** 2, n_rings)
+    return powers if texture is None else powers + ring_powers_of_spectrum(texture, n_rings)
+
+
+def _blurred(density: np.ndarray, sigma: float) -> np.ndarray:
+    """A density on a cube's FFT grid after a Gaussian blur of `sigma` voxels: times ``exp(-4 pi^2 sigma^2 |f|^2)``."""
+    f = np.fft.fftfreq(density.shape[0])
+    gain = np.exp(-4.0 * np.pi**2 * sigma**2 * f**2)
+    return density * gain[:, None, None] * gain[None, :, None] * gain[None, None, :]
 
 
 def calibrate(
@@ -170,6 +190,7 @@ def calibrate(
     target_noise: float,
     pore_level: float,
     grain_level: float,
+    pore_texture: np.ndarray | None = None,
     steps: int = PSF_STEPS,
 ) -> Calibration:
     """Fit the PSF and the noise so the pack's edges and noise spectrum match the source's.
@@ -196,6 +217,10 @@ def calibrate(
         recorded next to the pack's for the report.
     pore_level, grain_level : float
         The source's phase levels, intensity units.
+    pore_texture : ndarray of float64, shape (T, T, T), optional
+        Power spectral density of the render's pore texture on the FFT grid of its
+        tile (`~synthpack.pore_texture.PoreTexture.density`): the clean pores'
+        spectrum where no patch fits in the pack's pore interior.
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
 
@@ -228,11 +253,13 @@ def calibrate(
         logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
                        "no blur", fitted[0], target_sigma)
     measured = phase_spectra(blurred, distance, box_region)
-    targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
-    cleans = {phase: _ring_powers(measured[phase], len(targets[phase])) for phase in targets}
-    added = {phase: np.maximum(targets[phase] - cleans[phase], 0.0) for phase in targets}
     noise = estimate_noise(blurred, np.where(box_region, box_labels, -1))
     clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
+    textures = {"grains": None, "pores": None if pore_texture is None else _blurred(pore_texture, sigma)}
+    targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
+    cleans = {phase: _clean_ring_powers(measured[phase], len(targets[phase]), clean_noise[phase], textures[phase])
+              for phase in targets}
+    added = {phase: np.maximum(targets[phase] - cleans[phase], 0.0) for phase in targets}
     added_noise = {phase: None if target is None or clean_noise[phase] is None
                    else math.sqrt(max(target**2 - clean_noise[phase] ** 2, 0.0))
                    for phase, target in target_phase_noise.items()}

@@ -3,7 +3,10 @@
 A `Specimen` is a labelled tomogram together with the boolean mask of the part of
 it that is measured, its *bulk region*:
 
-* a source scan: the whole field of view (every voxel of the volume);
+* a source scan: the specimen (`synthpack.source.specimen.specimen_mask`: in each
+  slice, the convex hull of the labelled voxels), so the container, the air
+  around it and the corners outside the reconstructed field of view are left
+  out, as in the source statistics the packs are built from;
 * a synthetic pack: the cylinder about the tube axis that the pour's
   packing-fraction check uses (`synthpack.physics.checks`), i.e. one median grain
   diameter away from the tube wall and above the floor, and two diameters below
@@ -23,6 +26,7 @@ import numpy as np
 from ..errors import SynthpackInputError
 from ..postprocess import bulk_region
 from ..scan import Scan
+from ..source.specimen import specimen_mask
 
 __all__ = ["Specimen"]
 
@@ -60,9 +64,10 @@ class Specimen:
 
     @classmethod
     def from_scan(cls, scan: Scan, name: str = "source") -> Specimen:
-        """A source scan, measured over its whole field of view."""
-        return cls(name, np.asarray(scan.tomogram, dtype=np.float32), np.asarray(scan.labels, dtype=np.int32),
-                   np.ones(scan.shape, dtype=bool), tuple(scan.voxel_size), scan.unit)
+        """A source scan, measured in the specimen (`~synthpack.source.specimen.specimen_mask`)."""
+        labels = np.asarray(scan.labels, dtype=np.int32)
+        return cls(name, np.asarray(scan.tomogram, dtype=np.float32), labels, specimen_mask(labels),
+                   tuple(scan.voxel_size), scan.unit)
 
     @classmethod
     def from_pack(cls, directory: str | os.PathLike, *, clean: bool = False, name: str | None = None) -> Specimen:

@@ -21,7 +21,7 @@ from .edges import INTERIOR
 from .patches import patch_corners, take_patches
 
 __all__ = ["NPS_PATCH", "NoiseSpectrum", "noise_power_spectrum", "phase_interiors", "phase_spectra", "ring_of",
-           "ring_frequencies"]
+           "ring_frequencies", "white_ring_powers"]
 
 #: Side (voxels) of the in-slice patches of the noise power spectrum.
 NPS_PATCH = 8
@@ -38,6 +38,15 @@ def ring_of(size: int = NPS_PATCH) -> np.ndarray:
 def ring_frequencies(size: int = NPS_PATCH) -> np.ndarray:
     """Centre frequency (cycles/voxel) of every ring of `ring_of`, ring 0 first, float64."""
     return np.arange(int(ring_of(size).max()) + 1) / size
+
+
+def white_ring_powers(variance: float, n_rings: int, size: int = NPS_PATCH) -> np.ndarray:
+    """Expected ring powers (rings 1 to `n_rings`) of white noise of `variance`: its share of the ring's frequencies.
+
+    Returns float64, shape (n_rings,), intensity units squared (the patch mean, ring 0, is removed).
+    """
+    counts = np.bincount(ring_of(size).ravel()).astype(np.float64)
+    return variance * counts[1 : n_rings + 1] / size**2
 
 
 @dataclass

@@ -12,8 +12,9 @@ from .edges import edge_profile, edge_width, signed_distance
 from .noise import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
+from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
 from .specimen import specimen_mask
-from .spectrum import NPS_PATCH, phase_spectra
+from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +70,13 @@ class SourceStatistics:
         squared (their sum is the variance within an in-slice patch of
         `~synthpack.source.spectrum.NPS_PATCH` voxels); None where no patch fits
         in that phase.
+    pore_spectrum : tuple of float or None
+        Power spectral density of the pore interior's intensity fluctuations on
+        every scale up to `~synthpack.source.pore_spectrum.PORE_SPECTRUM_SIZE`
+        voxels (`~synthpack.source.pore_spectrum.measure_pore_spectrum`), radially
+        averaged over 3D shells ``k = 0, 1, ...`` at ``k / PORE_SPECTRUM_SIZE``
+        cycles per voxel, intensity units squared times voxels cubed; the pack's
+        pore texture is drawn from it. None where the pore interior is too small.
     """
 
     pore_mean: float
@@ -82,6 +90,7 @@ class SourceStatistics:
     noise_pore_std: float | None = None
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
+    pore_spectrum: tuple[float, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -98,6 +107,11 @@ class SourceStatistics:
         """Centre frequency (cycles/voxel) of each ring of `nps_grains` and `nps_pores`."""
         n = len(self.nps_grains or self.nps_pores or ())
         return tuple((k + 1) / NPS_PATCH for k in range(n))
+
+    @property
+    def pore_spectrum_frequencies(self) -> tuple[float, ...]:
+        """Centre frequency (cycles/voxel) of each shell of `pore_spectrum`."""
+        return tuple(k / PORE_SPECTRUM_SIZE for k in range(len(self.pore_spectrum or ())))
 
     def to_dict(self) -> dict[str, float | list[float]]:
         """The measured fields as a JSON-able dict, in field order, without those that are None."""
@@ -142,6 +156,12 @@ def measure_source(scan: Scan) -> SourceStatistics:
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
                for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen).items() if spectrum is not None}
+    pore_spectrum = measure_pore_spectrum(scan.tomogram, phase_interiors(distance, specimen)["pores"])
+    if pore_spectrum is None:
+        logger.warning("the source's pore spectrum cannot be measured (too little pore interior): packs get the "
+                       "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
+    else:
+        spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)

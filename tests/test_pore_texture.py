@@ -1,0 +1,123 @@
+"""The pore phase's measured spectrum (synthpack.source.pore_spectrum) and the texture drawn from it."""
+
+import logging
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from synthpack.pore_texture import PoreTexture
+from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.source.pore_spectrum import (
+    PORE_SPECTRUM_SIZE,
+    frequency_radius,
+    measure_pore_spectrum,
+    shell_frequencies,
+    spectrum_on_grid,
+)
+
+SIGMA = 2.0  # voxels
+VARIANCE = 4.0  # intensity units squared
+
+
+def _gaussian_density(frequency: np.ndarray) -> np.ndarray:
+    """The density of white noise smoothed by a Gaussian of SIGMA, scaled to VARIANCE (intensity^2 voxel^3)."""
+    return VARIANCE * (8 * np.pi**1.5 * SIGMA**3) * np.exp(-4 * np.pi**2 * SIGMA**2 * frequency**2)
+
+
+def _smoothed_noise(shape=(96, 96, 96), seed=0) -> np.ndarray:
+    white = np.random.default_rng(seed).standard_normal(shape)
+    field = ndimage.gaussian_filter(white, SIGMA, mode="wrap")
+    return 10.0 + field * np.sqrt(VARIANCE) / field.std()
+
+
+def _holes(shape, seed=1) -> np.ndarray:
+    """A pore-interior-like mask: the volume less 120 random balls of radius 9 (about two thirds left)."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, shape[0], size=(120, 3))
+    index = np.indices(shape).reshape(3, -1).T
+    mask = np.ones(shape, bool).ravel()
+    for centre in centres:
+        mask &= np.sum((index - centre) ** 2, axis=1) > 81
+    return mask.reshape(shape)
+
+
+def test_measured_spectrum_recovers_smoothed_noise_through_holes():
+    field = _smoothed_noise()
+    mask = _holes(field.shape)
+    assert 0.4 < mask.mean() < 0.8
+    measured = measure_pore_spectrum(field, mask)
+    f = shell_frequencies(len(measured))
+    assert len(measured) == int(np.rint(np.sqrt(3) * PORE_SPECTRUM_SIZE / 2)) + 1
+    # the variance (the mean of the density on the grid) within 10 %
+    assert spectrum_on_grid(measured, PORE_SPECTRUM_SIZE).mean() == pytest.approx(VARIANCE, rel=0.1)
+    # the shape within 25 % where it holds 99 % of the power (beyond: the taper's leakage floor), but
+    # for the two lowest shells: the taper's width and the mean taken from the data bias them low
+    expected = _gaussian_density(f)
+    band = (f >= 2 / PORE_SPECTRUM_SIZE) & (f <= 0.15)
+    np.testing.assert_allclose(measured[band], expected[band], rtol=0.25)
+    np.testing.assert_allclose(measured[:2], expected[:2], rtol=0.5)
+
+
+def test_too_little_pore_interior_measures_nothing():
+    field = _smoothed_noise((32, 32, 32))
+    mask = np.zeros(field.shape, bool)
+    mask[:10, :10, :10] = True
+    assert measure_pore_spectrum(field, mask) is None
+
+
+def _shells(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The periodogram of a periodic cube averaged over shells of 1/T: (density per shell, frequencies per shell)."""
+    tile = field.shape[0]
+    periodogram = np.abs(np.fft.fftn(field)) ** 2 / tile**3
+    shells = np.rint(frequency_radius(field.shape) * tile).astype(int).ravel()
+    counts = np.bincount(shells)
+    return np.bincount(shells, periodogram.ravel()) / counts, counts
+
+
+def test_texture_has_the_spectrum_it_is_drawn_from():
+    f = shell_frequencies(29)
+    spectrum = tuple(_gaussian_density(f) + 1.0)  # a smooth texture on a white floor
+    texture = PoreTexture(cutoff=0.15, rolloff=0.1, tile=128)
+    field = texture.sample(np.zeros(3, int), np.full(3, 128), 7, pore_std=1.0, pore_spectrum=spectrum)
+    expected = texture.density(1.0, spectrum)
+    assert field.std() == pytest.approx(np.sqrt(expected.mean()), rel=1e-5)  # the expected variance, exactly
+    measured, counts = _shells(field.astype(np.float64))
+    shells = np.rint(frequency_radius(expected.shape) * 128).astype(int).ravel()
+    wanted = np.bincount(shells, expected.ravel()) / counts
+    # every shell of at least 100 frequencies within 25 % (sampling: about 1 / sqrt(n) per shell)
+    kept = (counts >= 100) & (wanted > 0.01 * wanted.max())
+    assert kept.sum() >= 15
+    np.testing.assert_allclose(measured[kept], wanted[kept], rtol=0.25)
+    # above cutoff + rolloff nothing: the noise step's band
+    beyond = shell_frequencies(len(measured), 128) > 0.25 + 1.5 / 128
+    assert measured[beyond].max() < 1e-6 * measured.max()
+
+
+def _empty_render(texture: PoreTexture, spectrum, seed: int, chunks) -> np.ndarray:
+    grid = Grid((40, 48, 56), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
+    background = Background(5.0, 1.0, texture=texture, pore_spectrum=spectrum)
+    return reconstruct([], maps, grid, background, seed=seed, chunks=chunks)[0]
+
+
+def test_measured_texture_is_chunking_independent_and_seeded():
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    texture = PoreTexture(tile=32)
+    whole = _empty_render(texture, spectrum, 3, (40, 48, 56))
+    np.testing.assert_array_equal(whole, _empty_render(texture, spectrum, 3, (7, 11, 13)))
+    assert whole.tobytes() == _empty_render(texture, spectrum, 3, (40, 48, 56)).tobytes()
+    assert not np.array_equal(whole, _empty_render(texture, spectrum, 4, (40, 48, 56)))
+    np.testing.assert_array_equal(whole[:8], whole[32:40])  # period: the tile
+    assert not np.array_equal(whole[:8], whole[8:16])
+
+
+def test_without_a_measured_spectrum_the_texture_is_gaussian(caplog):
+    texture = PoreTexture(tile=32)
+    with caplog.at_level(logging.WARNING, logger="synthpack.pore_texture"):
+        drawn = _empty_render(texture, None, 3, (40, 48, 56))
+    assert "no measured pore spectrum" in caplog.text
+    gaussian = _empty_render(PoreTexture(model="gaussian", tile=32), None, 3, (40, 48, 56))
+    np.testing.assert_array_equal(drawn, gaussian)
+    assert texture.record(1.0, None, 3)["model"] == "gaussian"
+    assert texture.record(1.0, (1.0, 0.5), 3)["model"] == "measured"
