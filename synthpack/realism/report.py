@@ -1,6 +1,6 @@
 """The realism report: every figure of a source scan and of synthetic packs, side by side.
 
-`compare` measures the source scan (whole field of view) and each synthetic pack
+`compare` measures the source scan (inside its specimen) and each synthetic pack
 (its bulk region, `synthpack.realism.region`) with the structure
 (`synthpack.realism.structure`), appearance (`synthpack.realism.appearance`) and
 classifier (`synthpack.realism.discriminator`) measurements. Before any pack, it
@@ -272,7 +272,7 @@ def compare(
     Parameters
     ----------
     source : Scan
-        The real (source) scan, measured over its whole field of view.
+        The real (source) scan, measured inside its specimen (`synthpack.source.specimen.specimen_mask`).
     packs : sequence of path-like
         Pack folders, or folders holding pack folders; every pack gets its own column.
         Empty: the source and its floor only.
