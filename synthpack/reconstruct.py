@@ -488,16 +488,15 @@ class _Composite:
         where = np.nonzero(occupancy)
         if not len(where[0]):
             return
-        fraction = occupancy[where]
-        self.occupancy[window][where] += fraction
-        self.value[window][where] += fraction * _sample(crop.intensity, matrix, offset + PAD, where, order)
+        # dense adds over the box (zeros where the grain is not) are cheaper than scattered ones
+        self.occupancy[window] += occupancy
+        occupancy[where] *= _sample(crop.intensity, matrix, offset + PAD, where, order)
+        self.value[window] += occupancy
 
     def over(self, background: np.ndarray) -> None:
         """Composite onto `background` in place: ``(1 - O) b + V``, or ``V / O`` where grains overlap (``O > 1``)."""
-        covered = np.minimum(self.occupancy, 1.0)
-        normalise = np.where(self.occupancy > 1.0, 1.0 / np.maximum(self.occupancy, 1.0), 1.0).astype(np.float32)
-        background *= 1.0 - covered
-        background += self.value * normalise
+        background *= 1.0 - np.minimum(self.occupancy, 1.0)
+        background += self.value * (1.0 / np.maximum(self.occupancy, 1.0))
 
 
 def reconstruct(

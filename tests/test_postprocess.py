@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from synthpack import postprocess as postprocess_module
-from synthpack.artefacts import ColouredNoise, GaussianNoise, generic_postprocessing
-from synthpack.artefacts.calibrate import _clean_ring_powers
+from synthpack.artefacts import ColouredNoise, GaussianNoise, calibrate, generic_postprocessing
+from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices
 from synthpack.errors import SynthpackInputError
 from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.reconstruct import Grid
@@ -110,6 +110,29 @@ def test_calibrated_fits_the_psf_and_the_noise_spectrum_to_the_source_and_record
     assert fit_edge_spread(edge_profile(out, distance)).sigma == pytest.approx(target.edge_sigma, abs=0.1)
     noise = estimate_noise(out, labels)
     assert (noise.grain_std, noise.pore_std) == (pytest.approx(level, rel=0.1), pytest.approx(level, rel=0.1))
+
+
+def test_central_slices_keep_at_most_the_asked_voxels_of_a_region_centred_in_its_slices():
+    region = np.zeros((40, 8, 8), dtype=bool)
+    region[5:35, 2:6, 2:6] = True  # 30 slices of 16 voxels
+    assert central_slices(region, 10_000) is region
+    kept = central_slices(region, 160)
+    assert np.count_nonzero(kept) == 160 and not np.any(kept & ~region)
+    assert np.flatnonzero(kept.any(axis=(1, 2))).tolist() == list(range(15, 25))
+    assert np.count_nonzero(central_slices(region, 1)) == 16  # at least one slice
+
+
+def test_calibrated_on_central_slices_fits_what_the_whole_region_fits(rendered):
+    clean, labels, _ = rendered
+    spread = fit_edge_spread(edge_profile(clean, signed_distance(labels)))
+    region = np.ones(clean.shape, dtype=bool)
+    targets = dict(target_sigma=spread.sigma + 0.4, target_shift=spread.shift, target_power={
+        "grains": (1e-4,) * 6, "pores": (1e-4,) * 6}, target_phase_noise={"grains": 0.05, "pores": 0.05},
+        target_edge_width=3.0, target_noise=0.05, pore_level=0.2, grain_level=0.8)
+    whole = calibrate(clean, labels, region, max_voxels=region.size, **targets)
+    half = calibrate(clean, labels, region, max_voxels=region.size // 2, **targets)
+    assert half.blur_sigma == pytest.approx(whole.blur_sigma, abs=0.05)
+    assert half.noise_std == pytest.approx(whole.noise_std, rel=0.05)
 
 
 def test_calibrated_fits_darker_grains_as_it_fits_brighter_ones(rendered):

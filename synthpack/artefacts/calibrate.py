@@ -4,7 +4,10 @@ The clean synthetic volume is rendered with partial-volume edges
 (`synthpack.partial_volume`) from grain crops that hold the source's noise
 thinned by resampling, between pores that hold the pore texture. `calibrate`
 fits the rest of the scanner's image formation to the source
-(`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk):
+(`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk).
+A representative sample is enough: the fit measures the central slices of the
+region holding at most `CALIBRATION_VOXELS` of its voxels (`central_slices`), so
+its cost is fixed and vanishes per voxel on big packs.
 
 1. **Point-spread function.** The width of the clean volume's edge-spread function
    is fitted (`~synthpack.source.psf.fit_edge_spread`, on the mean edge profile
@@ -43,7 +46,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..source.edges import edge_profile, edge_width, signed_distance
+from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
 from ..source.noise import estimate_noise
 from ..source.psf import EdgeSpread, fit_edge_spread
 from ..source.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
@@ -54,10 +57,15 @@ from .noise import GaussianNoise
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Calibration", "PSF_STEPS", "calibrate", "noise_to_add"]
+__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "calibrate", "central_slices", "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
+#: The fit measures at most about this many voxels of the region (its central slices, `central_slices`):
+#: more than a 150-grain pack's whole bulk. On a 600-grain pack of the "large" sample (bulk 3.2 M voxels)
+#: the PSF sigma fitted on it is within 0.003 voxel, the noise levels within 0.1 % and the ring powers
+#: within 2 % of the whole-bulk fit, at a quarter of its cost.
+CALIBRATION_VOXELS = 1 << 20
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -156,6 +164,35 @@ def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
     return tuple(slice(max(0, int(lo)), min(n, int(hi))) for lo, hi, n in zip(low, high, region.shape))
 
 
+def central_slices(region: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> np.ndarray:
+    """The part of `region` in its central slices (along axis 0), holding at most about `max_voxels` voxels.
+
+    Parameters
+    ----------
+    region : ndarray of bool, shape (Z, Y, X)
+        Not empty.
+    max_voxels : int
+        Bound on the voxels kept; at least the central slice is kept.
+
+    Returns
+    -------
+    ndarray of bool, same shape
+        `region` itself when it holds at most `max_voxels` voxels; else `region` on
+        ``n`` consecutive slices of those it occupies, centred in their range, with
+        ``n = max_voxels // (the most voxels on one of its slices)`` (at least 1).
+    """
+    per_slice = np.count_nonzero(region, axis=(1, 2))
+    if per_slice.sum() <= max_voxels:
+        return region
+    occupied = np.flatnonzero(per_slice)
+    n = min(len(occupied), max(1, max_voxels // int(per_slice.max())))
+    start = occupied[(len(occupied) - n) // 2]
+    stop = occupied[(len(occupied) - n) // 2 + n - 1] + 1
+    kept = np.zeros_like(region)
+    kept[start:stop] = region[start:stop]
+    return kept
+
+
 def _clean_ring_powers(
     spectrum: NoiseSpectrum | None, n_rings: int, noise_std: float | None, texture: np.ndarray | None,
 ) -> np.ndarray:
@@ -192,6 +229,7 @@ def calibrate(
     grain_level: float,
     pore_texture: np.ndarray | None = None,
     steps: int = PSF_STEPS,
+    max_voxels: int = CALIBRATION_VOXELS,
 ) -> Calibration:
     """Fit the PSF and the noise so the pack's edges and noise spectrum match the source's.
 
@@ -203,7 +241,8 @@ def calibrate(
     labels : ndarray of int, shape (Z, Y, X)
         Its labels (0 = pore, tube or outside).
     region : ndarray of bool, shape (Z, Y, X)
-        Where to measure (the pack's bulk region, `~synthpack.postprocess.bulk_region`).
+        Where to measure (the pack's bulk region, `~synthpack.postprocess.bulk_region`): its central
+        slices holding at most `max_voxels` voxels (`central_slices`).
     target_sigma, target_shift : float
         The source's fitted edge width and shift, voxels (`~synthpack.source.SourceStatistics.edge_sigma`).
     target_power : dict
@@ -223,6 +262,8 @@ def calibrate(
         spectrum where no patch fits in the pack's pore interior.
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
+    max_voxels : int
+        Bound on the region's voxels measured (default `CALIBRATION_VOXELS`).
 
     Returns
     -------
@@ -233,20 +274,22 @@ def calibrate(
             f"calibration targets must be a positive edge width and a finite shift, got {target_sigma!r} and "
             f"{target_shift!r}"
         )
+    region = central_slices(region, max_voxels)
     box = _crop(region, int(math.ceil(4 * target_sigma)) + 2)
     volume, box_labels, box_region = clean[box], np.asarray(labels[box]), region[box]
     distance = signed_distance(box_labels)
 
-    def edge(sigma: float) -> tuple[np.ndarray, EdgeSpread]:
+    def edge(sigma: float) -> tuple[np.ndarray, EdgeProfile, EdgeSpread]:
         blurred = GaussianBlur(sigma=float(sigma))(volume, 0)
-        return blurred, fit_edge_spread(edge_profile(blurred, distance, box_region))
+        profile = edge_profile(blurred, distance, box_region)
+        return blurred, profile, fit_edge_spread(profile)
 
     sigmas, fitted = [0.0], []
-    blurred, spread = edge(0.0)
+    blurred, profile, spread = edge(0.0)
     for _ in range(steps):
         fitted.append(spread.sigma)
         sigmas.append(math.sqrt(max(sigmas[-1] ** 2 + target_sigma**2 - spread.sigma**2, 0.0)))
-        blurred, spread = edge(sigmas[-1])
+        blurred, profile, spread = edge(sigmas[-1])
     fitted.append(spread.sigma)
     sigma = sigmas[-1]
     if sigma == 0.0:
@@ -270,7 +313,7 @@ def calibrate(
         grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
         clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
         target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
-        target_edge_width=float(target_edge_width), edge_width=edge_width(edge_profile(blurred, distance, box_region)),
+        target_edge_width=float(target_edge_width), edge_width=edge_width(profile),
         target_noise=float(target_noise),
         noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
         sigmas=sigmas, fitted_sigmas=fitted,
