@@ -102,16 +102,9 @@ class PoreTexture:
         -------
         ndarray of float64, shape (tile, tile, tile)
             Intensity units squared times voxels cubed, 0 at frequency 0; its mean is the texture's variance.
+            Read-only (computed once per texture and source, then shared).
         """
-        radius = frequency_radius((self.tile,) * 3)
-        if self.model_for(pore_spectrum) == "measured":
-            ramp = np.clip((radius - self.cutoff) / max(self.rolloff, np.finfo(float).tiny), 0.0, 1.0)
-            density = spectrum_on_grid(np.asarray(pore_spectrum), self.tile) * 0.5 * (1.0 + np.cos(np.pi * ramp))
-            density[0, 0, 0] = 0.0
-            return density
-        density = np.exp(-4.0 * np.pi**2 * self.sigma**2 * radius**2)
-        density[0, 0, 0] = 0.0
-        return density * (pore_std**2 / max(density.mean(), np.finfo(float).tiny))
+        return _density(self, float(pore_std), pore_spectrum)
 
     def sample(
         self, lo: np.ndarray, hi: np.ndarray, seed: int, pore_std: float, pore_spectrum: tuple[float, ...] | None,
@@ -139,6 +132,22 @@ class PoreTexture:
         """What was drawn, for the manifest: settings, the model drawn, amplitude (std, intensity units), seed."""
         amplitude = float(np.sqrt(self.density(pore_std, pore_spectrum).mean()))
         return {**asdict(self), "model": self.model_for(pore_spectrum), "amplitude": amplitude, "seed": seed}
+
+
+@functools.lru_cache(maxsize=4)
+def _density(texture: PoreTexture, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
+    """`PoreTexture.density`, computed once per argument and read-only."""
+    radius = frequency_radius((texture.tile,) * 3)
+    if texture.model_for(pore_spectrum) == "measured":
+        ramp = np.clip((radius - texture.cutoff) / max(texture.rolloff, np.finfo(float).tiny), 0.0, 1.0)
+        density = spectrum_on_grid(np.asarray(pore_spectrum), texture.tile) * 0.5 * (1.0 + np.cos(np.pi * ramp))
+        density[0, 0, 0] = 0.0
+    else:
+        density = np.exp(-4.0 * np.pi**2 * texture.sigma**2 * radius**2)
+        density[0, 0, 0] = 0.0
+        density *= pore_std**2 / max(density.mean(), np.finfo(float).tiny)
+    density.flags.writeable = False
+    return density
 
 
 @functools.lru_cache(maxsize=8)

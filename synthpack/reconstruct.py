@@ -348,6 +348,7 @@ def prepare_crops(
     crops: Sequence[tuple[np.ndarray, np.ndarray]],
     partial_volume: PartialVolume | None = None,
     used: Sequence[int] | None = None,
+    threads: int = 1,
 ) -> list[RenderCrop | None]:
     """Crops as :func:`render_chunk` takes them (see `RenderCrop`).
 
@@ -357,22 +358,25 @@ def prepare_crops(
         Clean crop (float32, shape (nz, ny, nx)) and mask (bool, same shape) of every
         library particle.
     partial_volume : PartialVolume, optional
-        Prepare the crops for the partial-volume render (`PartialVolume.prepare`);
-        None: whole voxels.
+        Prepare the crops for the partial-volume render (`PartialVolume.prepare`, which
+        keeps them for the next render); None: whole voxels.
     used : sequence of int, optional
         Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
+    threads : int
+        Threads preparing crops (SciPy's distance transforms release the GIL).
     """
-    wanted = set(range(len(crops)) if used is None else (int(i) for i in used))
-    prepared: list[RenderCrop | None] = []
-    for index, (tomogram, mask) in enumerate(crops):
-        if index not in wanted:
-            prepared.append(None)
-            continue
+    wanted = sorted(set(range(len(crops)) if used is None else (int(i) for i in used)))
+
+    def prepare(index: int) -> RenderCrop:
+        tomogram, mask = crops[index]
         padded_mask = np.pad(mask.astype(np.float32), 1)
         if partial_volume is None:
-            prepared.append(RenderCrop(padded_mask, tomogram, None))
-        else:
-            prepared.append(RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask)))
+            return RenderCrop(padded_mask, tomogram, None)
+        return RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask))
+
+    prepared: list[RenderCrop | None] = [None] * len(crops)
+    for index, crop in bounded_map(prepare, wanted, threads):
+        prepared[index] = crop
     return prepared
 
 
@@ -550,7 +554,7 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index))
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers)
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
