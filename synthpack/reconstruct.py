@@ -158,6 +158,9 @@ class Background:
     pore_spectrum : tuple of float or None
         The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`), which the
         measured texture is drawn from; None: the Gaussian texture.
+    pore_quantiles : tuple of float or None
+        The source's pore histogram shape (`~synthpack.source.SourceStatistics.pore_quantiles`), which
+        the measured texture's values are mapped onto (`PoreTexture.histogram`); None: Gaussian values.
     """
 
     pore_mean: float
@@ -165,23 +168,24 @@ class Background:
     wall: float | None = None
     texture: PoreTexture = PoreTexture()
     pore_spectrum: tuple[float, ...] | None = None
+    pore_quantiles: tuple[float, ...] | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
         """The background of a pack of grains from a source scan: the one place it is derived.
 
-        Pore level, spread and spectrum are the source's. The wall is
+        Pore level, spread, spectrum and histogram shape are the source's. The wall is
         `WALL_FRACTION` of the way from pore to grain level unless
         ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
         """
         wall = config.wall_intensity if config.wall_intensity is not None else (
             statistics.pore_mean + WALL_FRACTION * statistics.contrast)
         return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture,
-                   statistics.pore_spectrum)
+                   statistics.pore_spectrum, statistics.pore_quantiles)
 
     def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
         """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""
-        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum)
+        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum, self.pore_quantiles)
 
     def texture_density(self) -> np.ndarray:
         """The pore texture's power spectral density on its tile's FFT grid (see `PoreTexture.density`).
@@ -193,7 +197,7 @@ class Background:
 
     def texture_record(self, seed: int) -> dict:
         """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
-        return self.texture.record(self.pore_std, self.pore_spectrum, seed)
+        return self.texture.record(self.pore_std, self.pore_spectrum, seed, self.pore_quantiles)
 
 
 @dataclass(frozen=True)
