@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
-from synthpack.source.pore_histogram import QUANTILE_SCORES, MIN_QUANTILE_VOXELS, measure_pore_quantiles
+from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.source.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
     frequency_radius,
