@@ -12,6 +12,7 @@ from .edges import edge_profile, edge_width, signed_distance
 from .noise import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
+from .pore_histogram import measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
 from .specimen import specimen_mask
 from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
@@ -77,6 +78,11 @@ class SourceStatistics:
         averaged over 3D shells ``k = 0, 1, ...`` at ``k / PORE_SPECTRUM_SIZE``
         cycles per voxel, intensity units squared times voxels cubed; the pack's
         pore texture is drawn from it. None where the pore interior is too small.
+    pore_quantiles : tuple of float or None
+        Shape of the pore interior's intensity histogram: quantiles of ``(I - median) / std``
+        at the probabilities of `~synthpack.source.pore_histogram.QUANTILE_SCORES`
+        (`~synthpack.source.pore_histogram.measure_pore_quantiles`), dimensionless; the
+        measured pore texture's values are mapped onto it. None where the pore interior is too small.
     """
 
     pore_mean: float
@@ -91,6 +97,7 @@ class SourceStatistics:
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
     pore_spectrum: tuple[float, ...] | None = None
+    pore_quantiles: tuple[float, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -156,12 +163,16 @@ def measure_source(scan: Scan) -> SourceStatistics:
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
                for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen).items() if spectrum is not None}
-    pore_spectrum = measure_pore_spectrum(scan.tomogram, phase_interiors(distance, specimen)["pores"])
+    pore_interior = phase_interiors(distance, specimen)["pores"]
+    pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
     if pore_spectrum is None:
         logger.warning("the source's pore spectrum cannot be measured (too little pore interior): packs get the "
                        "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
+    pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
+    if pore_quantiles is not None:
+        spectra["pore_quantiles"] = tuple(float(q) for q in pore_quantiles)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
