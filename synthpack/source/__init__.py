@@ -11,6 +11,7 @@ Modules, one job each:
 ``spectrum``       noise power spectrum of the grain and pore interiors
 ``pore_spectrum``  the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
 ``specimen``       `specimen_mask`: the specimen's voxels, without the container and the air
+``scanner``        `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``patches``        in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
 =================  =========================================================================================
 
@@ -22,6 +23,7 @@ from .noise import NoiseEstimate, estimate_noise
 from .phases import PhaseLevels, estimate_phases
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
 from .psf import EdgeSpread, fit_edge_spread
+from .scanner import ScannerArtefacts, measure_scanner
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 from .statistics import SourceStatistics, measure_source
 
@@ -33,6 +35,7 @@ __all__ = [
     "NoiseEstimate",
     "NoiseSpectrum",
     "PhaseLevels",
+    "ScannerArtefacts",
     "SourceStatistics",
     "edge_profile",
     "edge_width",
@@ -40,6 +43,7 @@ __all__ = [
     "estimate_phases",
     "fit_edge_spread",
     "measure_pore_spectrum",
+    "measure_scanner",
     "measure_source",
     "noise_power_spectrum",
     "phase_spectra",

@@ -13,6 +13,7 @@ from .noise import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
+from .scanner import measure_scanner
 from .specimen import specimen_mask
 from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
 
@@ -91,6 +92,15 @@ class SourceStatistics:
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
     pore_spectrum: tuple[float, ...] | None = None
+    scan_axis: tuple[float, float] | None = None
+    cupping_strength: float | None = None
+    cupping_error: float | None = None
+    ring_radii: tuple[float, ...] | None = None
+    ring_amplitudes: tuple[float, ...] | None = None
+    ring_width: float | None = None
+    wall_intensity: float | None = None
+    wall_thickness: float | None = None
+    wall_gap: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -162,8 +172,11 @@ def measure_source(scan: Scan) -> SourceStatistics:
                        "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
+    scanner = measure_scanner(scan.tomogram, scan.labels, specimen, distance, pore_level=levels.pore_mean,
+                              grain_level=levels.grain_mean)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
-                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
+                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
+                                  **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics
