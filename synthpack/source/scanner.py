@@ -5,7 +5,8 @@ axis, the same in every slice. The axis is taken parallel to axis 0 (z) through
 the centre of the specimen (`rotation_axis`: per slice, the centroid of the
 specimen mask, `~synthpack.source.specimen.specimen_mask`; their median over the
 slices): a scanner's specimen is mounted on its rotation axis. An error of the
-axis of a voxel or two smears rings and a thin wall over that range of radii.
+axis of a voxel or two smears rings over that range of radii (the wall is
+measured about its own centre, searched within `WALL_SEARCH` voxels of the axis).
 
 The measure reads at most about `SCANNER_VOXELS` voxels: evenly spaced slices of
 the specimen (rings and cupping are constant along z, so a subsample of slices
@@ -16,41 +17,45 @@ does not pass for an artefact.
 
 **Cupping.** In the grain and the pore interiors
 (`~synthpack.source.spectrum.phase_interiors`, less the voxels that stand out of
-their neighbourhood: voids, inclusions) within the field of view, the level is fitted as ``a + b r^2`` by least
-squares: the form `~synthpack.artefacts.BeamHardening` applies,
-``L (1 - s (1 - (r / R)^2))``, after taking off the rings found (below), with ``R`` the radius of the scan's field of view
-as `BeamHardening` takes it on a slice (half the smaller of Y and X), so that the
+their neighbourhood: voids, inclusions) within the field of view, the level is
+fitted as ``a + b r^2`` by least squares, after taking off the rings found
+(below): the form `~synthpack.artefacts.BeamHardening` applies,
+``L (1 - s (1 - (r / R)^2))``, with ``R`` the radius of the field of view as
+`BeamHardening` takes it on a slice (half the smaller of Y and X), so that the
 strength is ``s = b R^2 / (a + b R^2)``: > 0 a darker centre (cupping), < 0 a
-brighter one. The two phases' strengths are combined with inverse-variance weights;
-the strength is significant when it exceeds `CUPPING_SIGNIFICANCE` standard errors.
+brighter one. The two phases' strengths are combined with inverse-variance
+weights; the strength is significant when it exceeds `CUPPING_SIGNIFICANCE`
+standard errors.
 
-**Rings.** Each interior voxel less its phase's local mean in the slice
-(`_detail`: a Gaussian mean of `RING_HIGHPASS` voxels over the phase's interior,
-which takes off the grains' own levels, the pore texture and any radial trend)
-is averaged over azimuth and slices in radius bins of `RING_BIN` voxels. The standard error of each
-bin is the larger of ``sigma / sqrt(n)`` (``n`` samples in the bin; ``sigma^2``
-the median over bins of the slabs' variance times their samples: the noise,
-correlations included) and the spread of the slabs' profiles at that bin. Rings
-are found one at a time (the most significant bin above `RING_SIGNIFICANCE`
-standard errors), and after each the rings found so far are fitted jointly
-(radii, one common width and signed amplitudes of the Gaussian ring profiles
+**Rings.** Each interior voxel, less its phase's fitted level, less its phase's
+local mean in the slice (`_detail`: a Gaussian mean of `RING_HIGHPASS` voxels
+over the phase's interior, which takes off the grains' own levels, the pore
+texture and what is left of a radial trend), is averaged over azimuth and slices
+in radius bins of `RING_BIN` voxels. The standard error of each bin is the
+larger of ``sigma / sqrt(n)`` (``n`` samples in the bin; ``sigma^2`` the median
+over bins of the slabs' variance times their samples: the noise, correlations
+included) and the spread of the slabs' profiles at that bin. Rings are found one
+at a time (the most significant bin above `RING_SIGNIFICANCE` standard errors),
+and after each the rings found so far are fitted jointly (radii, one common width
+and signed amplitudes of the Gaussian ring profiles
 `~synthpack.artefacts.RingArtefacts` draws, less their 1D smoothing) and taken
 off the profile, so a strong ring's side lobes are not counted as rings. The
 amplitudes are then fitted on unit rings passed through the same in-slice
 high-pass as the data (`_exact_basis`), and rings whose amplitude is not
 significant are dropped.
 
-**Wall.** Outside the specimen, the median intensity in 1-voxel radius bins
+**Wall.** Outside the specimen, the median intensity in `RING_BIN` radius bins
 (those at least half outside the specimen mask, with at least a quarter of their
 circle inside the slice). A container wall is the brightest bump of that profile
-that stands out by more than `WALL_CONTRAST` of the grain-pore contrast both from
-the pore level and from the darkest level beyond it (the air): its thickness is
-the bump's width at half its height (over the pore level inward, over the air
-outward), its intensity the level that a sharp wall of that thickness needs to hold
-the bump's area above the pore level (inward of its middle) and above the air
-(outward; a blur keeps areas), its inner radius the inner half-height crossing. A wall whose intensity lies between the pore
-level and the air's cannot be told from the blurred edge of the specimen and is
-not detected.
+that stands out by more than `WALL_CONTRAST` of the grain-pore contrast both
+above the pore level and above the darkest level beyond it (the air): its
+thickness is the bump's width at half its height (over the pore level inward,
+over the air outward); its intensity the level that a sharp wall of that
+thickness needs to hold the bump's area above the pore level (inward of its
+middle) and above the air (outward; a blur keeps areas); its inner radius the
+inner half-height crossing. A wall whose intensity lies between the pore level
+and the air's cannot be told from the blurred edge of the specimen and is not
+detected.
 """
 
 from __future__ import annotations
@@ -380,7 +385,7 @@ def _cupping(samples: dict[str, _Samples], n_slabs: int, field_radius: float, ri
 
 
 def _ring_basis(radius: np.ndarray, radii: np.ndarray, width: float) -> np.ndarray:
-    """Unit Gaussian ring profiles at `radii` of FWHM `width`, less their smoothing as `_detail` takes it: (bins, rings)."""
+    """Unit Gaussian rings at `radii` of FWHM `width`, less their 1D smoothing as `_detail` takes it: (bins, rings)."""
     sigma = width * _FWHM_TO_SIGMA
     columns = np.exp(-0.5 * ((radius[:, None] - radii[None, :]) / sigma) ** 2)
     step = np.gradient(radius) if len(radius) > 1 else np.ones(1)
@@ -490,7 +495,6 @@ def _wall_centre(tomogram: np.ndarray, specimen: np.ndarray, slices: np.ndarray,
     The sharpest circle: a wall a voxel off its centre is smeared over two voxels of radius.
     Mean intensities in `RING_BIN` bins outside the specimen and `specimen_radius` are compared.
     """
-    ny, nx = specimen.shape[1:]
     outside = ~specimen[slices]
     values = np.asarray(tomogram[slices], dtype=np.float64)[outside]
     where = np.nonzero(outside)
