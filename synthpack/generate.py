@@ -157,6 +157,7 @@ def build_pack(
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        wall=render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
     )
@@ -174,7 +175,7 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 @dataclass(frozen=True)
 class _Render:
     """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
-    the partial volume (None: whole voxels)."""
+    the partial volume (None: whole voxels), the wall's inner and outer radius (physical units)."""
 
     grid: Grid
     clean: Any
@@ -182,6 +183,7 @@ class _Render:
     background: Background
     contested: int
     partial_volume: PartialVolume | None
+    wall: tuple[float, float]
 
 
 def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: bool) -> Placements:
@@ -204,21 +206,22 @@ def _render(
     """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays."""
     tube = placements.tube
     chunks = tuple(config.chunks)
-    grid = Grid.covering(tube.outer_radius, -tube.base_thickness, placements.checks.fill_height,
+    background = Background.from_source(library.statistics, config)
+    wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
+    grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=config.margin)
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
                      reach=partial_volume.reach if partial_volume else 1.0)
-    background = Background.from_source(library.statistics, config)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in library], maps, grid, background,
-        tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
+        tube=(wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
         partial_volume=partial_volume,
     )
-    return _Render(grid, clean, labels, background, contested, partial_volume)
+    return _Render(grid, clean, labels, background, contested, partial_volume, wall)
 
 
 def _postprocess(

@@ -153,6 +153,8 @@ class Background:
         The source's pore spread: the Gaussian texture's amplitude (0: flat pores, whatever the texture).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
+    wall_thickness : float or None
+        Thickness of the drawn wall, voxels (the source's measured wall); None: the tube's own.
     texture : PoreTexture
         The pore texture's settings.
     pore_spectrum : tuple of float or None
@@ -169,19 +171,42 @@ class Background:
     texture: PoreTexture = PoreTexture()
     pore_spectrum: tuple[float, ...] | None = None
     pore_quantiles: tuple[float, ...] | None = None
+    wall_thickness: float | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
         """The background of a pack of grains from a source scan: the one place it is derived.
 
-        Pore level, spread, spectrum and histogram shape are the source's. The wall is
-        `WALL_FRACTION` of the way from pore to grain level unless
-        ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
+        Pore level, spread, spectrum and histogram shape are the source's. The wall has the
+        intensity ``config.wall_intensity`` if set, else the source's measured wall's
+        (`~synthpack.source.SourceStatistics.wall_intensity`), else `WALL_FRACTION` of
+        the way from pore to grain level; the source's measured wall's thickness, else
+        the tube's; ``config.wall = False`` draws none.
         """
-        wall = config.wall_intensity if config.wall_intensity is not None else (
-            statistics.pore_mean + WALL_FRACTION * statistics.contrast)
+        if config.wall_intensity is not None:
+            wall = config.wall_intensity
+        elif statistics.wall_intensity is not None:
+            wall = statistics.wall_intensity
+        else:
+            wall = statistics.pore_mean + WALL_FRACTION * statistics.contrast
         return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture,
-                   statistics.pore_spectrum, statistics.pore_quantiles)
+                   statistics.pore_spectrum, statistics.pore_quantiles,
+                   statistics.wall_thickness if config.wall else None)
+
+    def wall_radii(self, inner: float, outer: float, voxel: float) -> tuple[float, float]:
+        """The drawn wall's inner and outer radius for a tube of `inner` and `outer` radius (physical units).
+
+        The outer radius is ``inner + wall_thickness * voxel`` where the source's wall was
+        measured (`voxel`: the lateral voxel size), else the tube's `outer`.
+        """
+        return inner, outer if self.wall_thickness is None else inner + self.wall_thickness * voxel
+
+    def wall_record(self, radii: tuple[float, float]) -> dict | None:
+        """The drawn wall for the manifest: intensity, inner and outer radius (`radii`, physical units); None: none."""
+        if self.wall is None:
+            return None
+        return {"intensity": float(self.wall), "inner_radius": float(radii[0]), "outer_radius": float(radii[1]),
+                "measured": self.wall_thickness is not None}
 
     def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
         """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""

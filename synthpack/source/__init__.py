@@ -12,6 +12,7 @@ Modules, one job each:
 ``pore_spectrum``   the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
 ``pore_histogram``  the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
 ``specimen``        `specimen_mask`: the specimen's voxels, without the container and the air
+``scanner``         `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``patches``         in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
 ==================  =========================================================================================
 
@@ -24,6 +25,7 @@ from .phases import PhaseLevels, estimate_phases
 from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
 from .psf import EdgeSpread, fit_edge_spread
+from .scanner import ScannerArtefacts, measure_scanner
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 from .statistics import SourceStatistics, measure_source
 
@@ -36,6 +38,7 @@ __all__ = [
     "NoiseSpectrum",
     "PhaseLevels",
     "QUANTILE_SCORES",
+    "ScannerArtefacts",
     "SourceStatistics",
     "edge_profile",
     "edge_width",
@@ -45,6 +48,7 @@ __all__ = [
     "map_to_quantiles",
     "measure_pore_quantiles",
     "measure_pore_spectrum",
+    "measure_scanner",
     "measure_source",
     "noise_power_spectrum",
     "phase_spectra",
