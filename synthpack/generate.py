@@ -27,7 +27,6 @@ from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
 from .partial_volume import PartialVolume
 from .physics import Placements, Tube, pour
-from .physics.engine import Material
 from .physics.registry import get_engine
 from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
 from .reconstruct import Background, Grid, pose_maps, reconstruct
@@ -193,7 +192,7 @@ def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: boo
     placements = pour(
         library, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
         seed=seed, container=_tube(library, config), scale=scale,
-        material=Material(friction=pour_config.friction, restitution=pour_config.restitution),
+        material=pour_config.material(),
         progress=progress, engine_options=pour_config.engine_options,
     )
     return placements
