@@ -360,7 +360,7 @@ def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch)
     class Stop(Exception):
         pass
 
-    def capture(self, bodies, tube, material, settle, options, progress):
+    def capture(self, bodies, tube, material, settle, options, progress, compaction=None):
         received.append(options)
         raise Stop
 

@@ -13,7 +13,7 @@ from .noise import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
-from .specimen import specimen_mask
+from .specimen import solid_fraction, specimen_mask
 from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
@@ -77,6 +77,12 @@ class SourceStatistics:
         averaged over 3D shells ``k = 0, 1, ...`` at ``k / PORE_SPECTRUM_SIZE``
         cycles per voxel, intensity units squared times voxels cubed; the pack's
         pore texture is drawn from it. None where the pore interior is too small.
+    solid_fraction : float or None
+        Bulk solid fraction: the fraction of the specimen's voxels
+        (`~synthpack.source.specimen.specimen_mask`) that are grain
+        (`~synthpack.source.specimen.solid_fraction`), dimensionless; the default
+        target of a pour (``pour.target_solid_fraction: source``). None for a
+        library of an older synthpack.
     """
 
     pore_mean: float
@@ -91,6 +97,7 @@ class SourceStatistics:
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
     pore_spectrum: tuple[float, ...] | None = None
+    solid_fraction: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -164,6 +171,7 @@ def measure_source(scan: Scan) -> SourceStatistics:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
-                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
+                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
+                                  solid_fraction=solid_fraction(scan.labels, specimen))
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics
