@@ -310,8 +310,13 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:
-        why = ("denser than these grains pack under full compaction" if reached < target
-               else "looser than the largest spacing of the grains gives")
+        limit = 1.0 if reached < target else -MAX_INFLATION
+        knobs = [] if controller is None else controller.knobs
+        if knobs and np.mean(np.isclose(knobs, limit)) >= 0.5:
+            why = ("denser than these grains pack under full compaction" if reached < target
+                   else "looser than the largest spacing gives")
+        else:
+            why = "the control did not settle in so few batches: pour more grains or smaller batches"
         logger.warning("Target packing fraction %.3f NOT reached: the bulk packs at %.3f (%s).",
                        target, reached, why)
     else:
