@@ -8,9 +8,12 @@ Run from the repository root::
 It builds the particle library of the built-in "large" sample scan once, then
 
 1. pours N_SMALL and N_LARGE grains (default 500 and 2,000) with the default engine
-   (pybullet, settle detection, locking) and prints seconds, seconds per grain,
-   packing fraction and largest interpenetration; the scaling ratio is s/grain at
-   N_LARGE over s/grain at N_SMALL (locking should keep it near 1; target <= 1.5);
+   (pybullet, settle detection, locking), side by side as a free pour
+   (``target_solid_fraction=None``) and packed to the source's bulk solid fraction
+   (the default, :mod:`synthpack.physics.compaction`), and prints seconds, seconds per
+   grain, packing fraction and largest interpenetration; the compaction's cost is the
+   ratio of their seconds per grain (target <= 1.5), the scaling ratio is s/grain at
+   N_LARGE over s/grain at N_SMALL (locking should keep it near 1; target <= 1.3);
 2. emulates "the paper's way of running Blender" on the same pybullet engine: every
    batch a fixed 1,000 frames of 1/24 s with 50 substeps per frame (50,000 solver
    steps of 1/1200 s), no settle detection and no deactivation (Blender's rigid
@@ -86,28 +89,33 @@ def main() -> None:
           f"{time.perf_counter() - start:.1f} s (built once)")
 
     rows = []
+    target = library.statistics.solid_fraction
     for n in (n_small, n_large):
-        placements = pour(library, n, batch, seed=args.seed, progress=False)
-        rows.append(_row("default (settle detection)", placements, "default tube"))
-        print(f"poured {n} grains in {placements.checks.seconds:.1f} s")
-    scaling = rows[1]["s_per_grain"] / rows[0]["s_per_grain"]
+        for name, value in (("free pour (target none)", None), (f"packed to the source's {target:.3f}", "source")):
+            placements = pour(library, n, batch, seed=args.seed, progress=False, target_solid_fraction=value)
+            reached = placements.checks.target_reached
+            rows.append(_row(name, placements, "default tube" + ("" if value is None else f", reached: {reached}")))
+            print(f"poured {n} grains ({name}) in {placements.checks.seconds:.1f} s")
+    cost = [rows[k + 1]["s_per_grain"] / rows[k]["s_per_grain"] for k in (0, 2)]
+    scaling = [rows[k + 2]["s_per_grain"] / rows[k]["s_per_grain"] for k in (0, 1)]
 
     d = float(np.median(library.equivalent_diameters))
     narrow = Tube(inner_radius=2.0 * d, height=25.0 * d, wall_thickness=30.0, base_thickness=30.0)
-    ours = pour(library, n_baseline, batch, seed=args.seed, container=narrow, progress=False)
+    ours = pour(library, n_baseline, batch, seed=args.seed, container=narrow, progress=False,
+                target_solid_fraction=None)
     rows.append(_row("default (settle detection)", ours, "tube r = 2 d_med, same pour as below"))
     print(f"poured {n_baseline} grains (narrow tube) in {ours.checks.seconds:.1f} s")
     paper = pour(
         library, n_baseline, batch, seed=args.seed, container=narrow, progress=False,
         settle=SettleCriteria(time_step=PAPER_FRAME_TIME, substeps=PAPER_SUBSTEPS),
-        engine_options={"fixed_steps": PAPER_FRAMES, "allow_sleeping": False},
+        engine_options={"fixed_steps": PAPER_FRAMES, "allow_sleeping": False}, target_solid_fraction=None,
     )
     rows.append(_row(
         "paper's Blender schedule (emulated)", paper,
         f"{PAPER_FRAMES} frames x {PAPER_SUBSTEPS} substeps per batch, no settle detection",
     ))
     print(f"poured {n_baseline} grains (paper's schedule) in {paper.checks.seconds:.1f} s")
-    speedup = rows[3]["s_per_grain"] / rows[2]["s_per_grain"]
+    speedup = rows[5]["s_per_grain"] / rows[4]["s_per_grain"]
 
     print()
     print(f"Batch size {batch}, seed {args.seed}; 'steps' of the paper's schedule count frames "
@@ -115,7 +123,10 @@ def main() -> None:
     print()
     print(_table(rows))
     print()
-    print(f"Scaling: s/grain at {n_large} / s/grain at {n_small} = {scaling:.2f} (target <= 1.5)")
+    print(f"Compaction cost: s/grain packed / free = {cost[0]:.2f} at {n_small}, {cost[1]:.2f} at {n_large} "
+          "(target <= 1.5)")
+    print(f"Scaling: s/grain at {n_large} / s/grain at {n_small} = {scaling[0]:.2f} free, {scaling[1]:.2f} packed "
+          "(target <= 1.3)")
     print(f"Speed-up of settle detection over the paper's fixed schedule (same {n_baseline}-grain "
           f"pour, per grain): {speedup:.1f}x (target >= 10x)")
     for n, row in zip((n_small, n_large), rows[:2]):

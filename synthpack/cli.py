@@ -35,7 +35,8 @@ __all__ = ["main"]
 
 _ENGINE_CHOICES = tuple(ENGINES)
 #: The `pour` command's options that are `PourConfig` settings (validated by it).
-_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "collision_shape", "tube_radius", "tube_height")
+_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "collision_shape", "tube_radius", "tube_height",
+                 "target_solid_fraction")
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack._atomic.check_output`).
@@ -155,6 +156,7 @@ def _load_config(args: argparse.Namespace):
     pour = {key: value for key, value in (
         ("n_particles", args.n_particles), ("batch_size", args.batch_size), ("engine", args.engine),
         ("collision_shape", args.collision_shape),
+        ("target_solid_fraction", args.target_solid_fraction),
     ) if value is not None}
     changes = {"pour": pour} if pour else {}
     if args.seed is not None:
@@ -267,11 +269,14 @@ def _cmd_pour(args: argparse.Namespace) -> None:
         container = Tube.for_library(library, settings.n_particles, inner_radius=settings.tube_radius,
                                      height=settings.tube_height)
     placements = pour(library, settings.n_particles, settings.batch_size, engine=settings.engine, seed=args.seed,
-                      container=container, material=settings.material())
+                      container=container, material=settings.material(),
+                      target_solid_fraction=settings.target_solid_fraction)
     placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks
     packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
                else f"{checks.packing_fraction:.3f}")
+    if checks.target_packing_fraction is not None:
+        packing += f" (target {checks.target_packing_fraction:.3f}: {'reached' if checks.target_reached else 'NOT reached'})"
     print(f"poured {len(placements)} grains in {len(checks.steps_per_batch)} batches: "
           f"{checks.n_outside} outside the tube, packing fraction {packing}, "
           f"max interpenetration {checks.max_grain_penetration_voxels:.2f} voxels; wrote {args.out}")
@@ -379,6 +384,8 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--engine", choices=_ENGINE_CHOICES, help="rigid-body engine (config pour.engine)")
     generate.add_argument("--collision-shape", choices=COLLISION_SHAPES,
                           help=help_of(PourConfig, "collision_shape") + " (config pour.collision_shape)")
+    generate.add_argument("--target-solid-fraction", type=_target_option, metavar="TARGET",
+                          help=help_of(PourConfig, "target_solid_fraction").replace("(default", "(config default"))
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
     generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff",
@@ -424,6 +431,14 @@ def _add_compare_command(commands: Any) -> None:
 
 
 
+def _target_option(text: str) -> float | str:
+    """A ``--target-solid-fraction`` value: a number as a float, 'source' or 'none' as given (checked by PourConfig)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def _add_pour_command(commands: Any) -> None:
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
@@ -435,6 +450,9 @@ def _add_pour_command(commands: Any) -> None:
     pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     for name in ("tube_radius", "tube_height"):
         pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
+    pour.add_argument("--target-solid-fraction", type=_target_option, metavar="TARGET",
+                      default=default_of(PourConfig, "target_solid_fraction"),
+                      help=help_of(PourConfig, "target_solid_fraction"))
     _add_overwrite_argument(pour)
     pour.set_defaults(run=_cmd_pour)
 

@@ -27,6 +27,8 @@ from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
 from .partial_volume import PartialVolume
 from .physics import Placements, Tube, pour
+from .physics.compaction import expected_fraction
+from .physics.container import DEFAULT_PACKING_FRACTION
 from .physics.registry import get_engine
 from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
 from .reconstruct import Background, Grid, pose_maps, reconstruct
@@ -83,6 +85,7 @@ def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
     return Tube.for_library(
         library, pour_config.n_particles, scale=float(max(np.atleast_1d(pour_config.scale))),
         inner_radius=pour_config.tube_radius, height=pour_config.tube_height,
+        packing_fraction=expected_fraction(pour_config.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
     )
 
 
@@ -194,6 +197,7 @@ def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: boo
         seed=seed, container=_tube(library, config), scale=scale,
         material=pour_config.material(),
         progress=progress, engine_options=pour_config.engine_options,
+        target_solid_fraction=pour_config.target_solid_fraction,
     )
     return placements
 

@@ -18,7 +18,12 @@ from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.engine import Body, Engine, EngineOptions, TubeSpec
 from synthpack.physics.plan import make_plan
 
-TOLERANCE_VOXELS = 0.5  # largest interpenetration accepted, grain-grain and grain-tube
+TOLERANCE_VOXELS = 0.5  # largest penetration into the tube wall or floor accepted
+# Largest grain-grain overlap of the convex hulls accepted. Since the collision shapes are shrunk by the
+# margin (so that grains that touch in the simulation touch in the voxels), resting contacts show the
+# solver's slop as hull overlap: 0.44-0.54 voxel measured over seeds 4-5 on the narrow pours below,
+# against 0.25 with the 2-margin gap before; the hulls are larger than the concave grains.
+GRAIN_OVERLAP_VOXELS = 0.6
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +73,7 @@ def test_every_grain_rests_inside_the_tube_below_the_fill_height(large_library, 
 
 def test_no_two_grains_interpenetrate(poured):
     checks = poured.checks
-    assert checks.max_grain_penetration_voxels < TOLERANCE_VOXELS
+    assert checks.max_grain_penetration_voxels < GRAIN_OVERLAP_VOXELS
     assert checks.max_wall_penetration_voxels < TOLERANCE_VOXELS
     assert checks.overlap_fraction < 0.01
     # a plausible random loose-to-dense packing of angular grains (45 grains in a narrow tube:
@@ -359,7 +364,7 @@ def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow
     assert any("Retired" in r.message for r in caplog.records)
     checks = placements.checks
     assert checks.n_outside == 0 and all(checks.settled_per_batch)
-    assert checks.max_grain_penetration_voxels < TOLERANCE_VOXELS
+    assert checks.max_grain_penetration_voxels < GRAIN_OVERLAP_VOXELS
     np.testing.assert_array_equal(placements.snapshots[2][0], placements.positions[:60])
 
 
@@ -405,7 +410,7 @@ def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch)
     class Stop(Exception):
         pass
 
-    def capture(self, bodies, tube, material, settle, options, progress):
+    def capture(self, bodies, tube, material, settle, options, progress, compaction=None):
         received.append((options, material.collision_shape))
         raise Stop
 

@@ -30,8 +30,9 @@ from tqdm.auto import tqdm
 
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
+from .compaction import PackingController, expected_fraction, report_target, resolve_target
 from .config import PourConfig
-from .container import Tube
+from .container import DEFAULT_PACKING_FRACTION, Tube
 from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
@@ -62,6 +63,7 @@ def pour(
     settle: SettleCriteria | None = None,
     progress: bool = True,
     engine_options: Mapping[str, Any] | None = None,
+    target_solid_fraction: float | str | None = PourConfig.target_solid_fraction,
 ) -> Placements:
     """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
 
@@ -97,6 +99,15 @@ def pour(
         ``max_hull_vertices``, ``fixed_steps``, ``allow_sleeping``) or
         :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
         ``blend_file``). They are recorded in ``Placements.parameters``.
+    target_solid_fraction : "source", float or None
+        Packing fraction of the bulk to reach, batch by batch, by compaction (denser
+        than a free pour) or spaced collision shells (looser)
+        (:mod:`synthpack.physics.compaction`): ``"source"`` (default) the source
+        scan's bulk solid fraction (``library.statistics.solid_fraction``), a number
+        in (0, 1), or None for a free pour. An engine without compaction pours
+        freely for ``"source"`` and refuses a number. The reached value is in the
+        checks (``target_reached`` False, and a warning, when it is more than
+        :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
 
     Returns
     -------
@@ -107,7 +118,7 @@ def pour(
     ------
     SynthpackInputError
         For a bad count, batch size, seed, engine, option, material, settle
-        criterion, scale, size class or tube, or an engine that cannot run here.
+        criterion, scale, size class, tube or target, or an engine that cannot run here.
     ContainmentError
         When grains end outside the tube even on the retry with twice the substeps,
         or above its rim (never a pack with grains outside).
@@ -118,22 +129,28 @@ def pour(
     material = Material() if material is None else material
     settle = SettleCriteria() if settle is None else settle
     chosen.check(material, settle, options)
+    target = resolve_target(target_solid_fraction, library, chosen)
     chosen.check_available()
     low, high = parse_scale(scale)
-    tube = _tube(library, n_particles, container, high)
+    tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
                      size_classes=size_classes)
     length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float)))
     mass_unit = float(np.median([library[i].mass for i in range(len(library))]))
     bodies = _bodies(library, plan, length, mass_unit)
-    logger.info("Pouring %d grains in %d batches with %s (seed %d)",
-                n_particles, plan.n_batches, chosen.name, seed)
+    spec = tube.spec(length)
+    logger.info("Pouring %d grains in %d batches with %s (seed %d)%s",
+                n_particles, plan.n_batches, chosen.name, seed,
+                "" if target is None else f", to a packing fraction of {target:.3f}")
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
-        result, seconds = _run(chosen, bodies, tube.spec(length), material, settle, options,
-                               plan.n_batches, progress)
+        controller = None if target is None else PackingController(
+            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed)
+        result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
+                               controller)
         positions = np.asarray(result.positions, dtype=float) * length
-        checks = _checks(library, plan, positions, result, tube, length, seconds, seed)
+        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed),
+                               target, controller)
         if checks.n_outside == 0 or attempt == CONTAINMENT_ATTEMPTS:
             break
         logger.warning("%d grains ended outside the tube; pouring again with %d substeps per step.",
@@ -149,6 +166,7 @@ def pour(
         "settle": asdict(settle),
         "length_scale": length,
         "mass_unit": mass_unit,
+        "target_solid_fraction": target,
         "engine_options": {name: getattr(options, name) for name in engine_options or {}},
     }
     return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)
@@ -188,9 +206,13 @@ def _count(value: Any, name: str) -> int:
     return int(value)
 
 
-def _tube(library: Any, n_particles: int, container: Tube | None, largest_scale: float) -> Tube:
-    """`container`, or the default tube for the library's grains at their largest scale."""
-    tube = Tube.for_library(library, n_particles, scale=largest_scale) if container is None else container
+def _tube(
+    library: Any, n_particles: int, container: Tube | None, largest_scale: float, packing_fraction: float,
+) -> Tube:
+    """`container`, or the default tube for the library's grains at their largest scale, sized for `packing_fraction`."""
+    tube = container
+    if container is None:
+        tube = Tube.for_library(library, n_particles, scale=largest_scale, packing_fraction=packing_fraction)
     if not isinstance(tube, Tube):
         raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
     return tube
@@ -198,14 +220,14 @@ def _tube(library: Any, n_particles: int, container: Tube | None, largest_scale:
 
 def _run(
     engine: Engine, bodies: list[Body], tube: TubeSpec, material: Material, settle: SettleCriteria,
-    options: EngineOptions, n_batches: int, progress: bool,
+    options: EngineOptions, n_batches: int, progress: bool, compaction: PackingController | None,
 ) -> tuple[EngineResult, float]:
     """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
     bar = tqdm(total=n_batches, desc="pouring", unit="batch", disable=not progress)
     start = time.perf_counter()
     try:
         result = engine.simulate(bodies, tube, material, settle, options,
-                                 progress=lambda done, total: bar.update(1))
+                                 progress=lambda done, total: bar.update(1), compaction=compaction)
     finally:
         bar.close()
     return result, time.perf_counter() - start

@@ -179,7 +179,9 @@ class BlenderEngine(Engine):
         settle: SettleCriteria,
         options: BlenderOptions,
         progress: ProgressCallback | None,
+        compaction: None = None,
     ) -> EngineResult:
+        # no packing to a target here (supports_compaction is False): Engine.simulate refuses it
         prefix = require_blender()
         with tempfile.TemporaryDirectory(prefix="synthpack-blender-") as tmp:
             directory = Path(tmp)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from .._schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .engine import COLLISION_SHAPES, Material, SettleCriteria
+from .compaction import TARGET_SOURCE, parse_target
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 
@@ -18,6 +20,15 @@ def _scale(value: float | list) -> bool:
     try:
         parse_scale(value)
     except (SynthpackInputError, TypeError, ValueError):
+        return False
+    return True
+
+
+def _target(value: Any) -> bool:
+    """'source', a number in (0, 1), or none"""
+    try:
+        parse_target(value)
+    except SynthpackInputError:
         return False
     return True
 
@@ -51,6 +62,9 @@ class PourConfig:
         "how grains collide: hull (convex hull) or decomposition (V-HACD convex parts, for concave "
         "grains; pybullet only, 2-3 s per distinct grain to prepare)",
     )
+    target_solid_fraction: float | str | None = setting(
+        TARGET_SOURCE, _target,
+        "bulk solid fraction to pack to, batch by batch: 'source' (the source scan's), a number, or none (free pour)")
     engine_options: dict = setting({}, None, "options of the engine that differ from its defaults, "
                                               "e.g. {max_hull_vertices: 32}")
 
@@ -58,6 +72,14 @@ class PourConfig:
         engine = get_engine(self.engine)
         engine.check(self.material(), SettleCriteria(),
                      engine.options(self.engine_options, prefix="pour.engine_options."))
+        target = parse_target(self.target_solid_fraction, "pour.target_solid_fraction")
+        object.__setattr__(self, "target_solid_fraction", target)  # 'none' -> None, '0.5' -> 0.5
+        if isinstance(target, float) and not engine.supports_compaction:
+            raise SynthpackInputError(
+                f"config key 'pour.target_solid_fraction': the {self.engine} engine cannot pack to "
+                f"{target:g}; use engine pybullet, or target_solid_fraction: none (or 'source', "
+                "which it pours freely)."
+            )
 
     def material(self) -> Material:
         """The pour's :class:`~synthpack.physics.engine.Material`: these settings, the rest its defaults."""

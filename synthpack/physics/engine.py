@@ -26,13 +26,16 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Sequence
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
 from .._schema import build, in_range, positive, setting
 from ..errors import SynthpackInputError
 from .hulls import MAX_HULL_VERTICES
+
+if TYPE_CHECKING:
+    from .compaction import PackingController
 
 __all__ = [
     "Body",
@@ -250,6 +253,8 @@ class Engine(abc.ABC):
     name: ClassVar[str]
     #: The engine's options: an :class:`EngineOptions` subclass.
     Options: ClassVar[type[EngineOptions]] = EngineOptions
+    #: Whether the engine packs to a target (:mod:`synthpack.physics.compaction`).
+    supports_compaction: ClassVar[bool] = False
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
@@ -307,6 +312,7 @@ class Engine(abc.ABC):
         settle: SettleCriteria,
         options: EngineOptions | None = None,
         progress: ProgressCallback | None = None,
+        compaction: PackingController | None = None,
     ) -> EngineResult:
         """Pour `bodies` batch by batch into `tube`, locking each batch once it has settled.
 
@@ -324,6 +330,10 @@ class Engine(abc.ABC):
             The engine's ``Options`` (:meth:`options`); default: its defaults.
         progress : callable, optional
             ``progress(batch_index, n_batches)`` after each batch is locked.
+        compaction : PackingController, optional
+            Packs each batch toward a target solid fraction before it is locked
+            (:mod:`synthpack.physics.compaction`); None: a free pour. Only for an
+            engine that :attr:`supports_compaction`.
 
         Returns
         -------
@@ -334,14 +344,20 @@ class Engine(abc.ABC):
         Raises
         ------
         SynthpackInputError
-            For input the engine cannot simulate, or when it cannot run here.
+            For input the engine cannot simulate (compaction included), or when it
+            cannot run here.
         """
         options = self.Options() if options is None else options
         check_bodies(bodies)
         check_tube(tube)
         self.check(material, settle, options)
+        if compaction is not None and not self.supports_compaction:
+            raise SynthpackInputError(
+                f"The {self.name} engine cannot pack to a target solid fraction; "
+                "use the pybullet engine or target_solid_fraction: none."
+            )
         self.check_available()
-        return self._simulate(bodies, tube, material, settle, options, progress)
+        return self._simulate(bodies, tube, material, settle, options, progress, compaction)
 
     @abc.abstractmethod
     def _simulate(
@@ -352,6 +368,7 @@ class Engine(abc.ABC):
         settle: SettleCriteria,
         options: EngineOptions,
         progress: ProgressCallback | None,
+        compaction: PackingController | None = None,
     ) -> EngineResult:
         """The simulation itself, on checked input (see :meth:`simulate`)."""
 

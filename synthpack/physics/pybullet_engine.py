@@ -59,6 +59,11 @@ Choices, and why:
   the world still costs a little per step, so locked grains buried deeper than any
   later grain can reach are removed from the world (:mod:`synthpack.physics.burial`,
   shared with the Blender engine).
+* Packing to a target (:mod:`synthpack.physics.compaction`): a
+  :class:`~synthpack.physics.compaction.PackingController` sets each batch's knob
+  before it falls: a lowered friction while it falls (denser, :func:`_compact`), or
+  collision hulls inflated about the centre of mass (looser, :func:`_shape_for`);
+  it measures the bulk after each batch is locked.
 """
 
 from __future__ import annotations
@@ -67,7 +72,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
@@ -77,6 +82,7 @@ from scipy.spatial.transform import Rotation
 from .._schema import setting
 from ..errors import SynthpackInputError
 from .burial import buried, largest_diameter
+from .compaction import FALL_QUIET, FALL_STEPS, BatchCompaction, PackingController
 from .engine import (
     Body,
     Engine,
@@ -130,6 +136,7 @@ class PybulletEngine(Engine):
 
     name = "pybullet"
     Options = PybulletOptions
+    supports_compaction = True
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
@@ -151,11 +158,12 @@ class PybulletEngine(Engine):
         settle: SettleCriteria,
         options: PybulletOptions,
         progress: ProgressCallback | None,
+        compaction: PackingController | None = None,
     ) -> EngineResult:
         from ._bullet import Client
 
         with Client() as client:
-            return _pour(client, bodies, tube, material, settle, progress, options)
+            return _pour(client, bodies, tube, material, settle, progress, options, compaction)
 
 
 @dataclass(frozen=True)
@@ -179,6 +187,7 @@ def _pour(
     settle: SettleCriteria,
     progress: ProgressCallback | None,
     options: PybulletOptions,
+    compaction: PackingController | None = None,
 ) -> EngineResult:
     """Pour `bodies`, batch by batch, on a fresh physics client (see :class:`PybulletEngine`)."""
     _configure(client, settle)
@@ -201,6 +210,8 @@ def _pour(
     batch_ids = np.unique(batches)
     for number, batch in enumerate(batch_ids):
         members = np.flatnonzero(batches == batch)
+        plan = None if compaction is None else compaction.next_batch()
+        inflation = 0.0 if plan is None else plan.inflation
         spawn = [_spawn_pose(bodies[i], top) for i in members]
         reach = max(pos[2] + float(np.linalg.norm(bodies[i].vertices, axis=1).max())
                     for i, (pos, _) in zip(members, spawn))
@@ -208,13 +219,19 @@ def _pour(
             wall_top = _build_tube(client, tube, material, wall_top, reach + 1.0, inset)
         active = []
         for i, (pos, quat) in zip(members, spawn):
-            shape = body_shapes[i]
+            shape = body_shapes[i] if inflation == 0 else _shape_for(
+                client, bodies[i], shapes, material, options.max_hull_vertices, inflation)
             body_id = _create_dynamic(client, shape, bodies[i].mass, pos, quat, material)
+            if plan is not None and plan.settle_friction != material.friction:
+                client.changeDynamics(body_id, -1, lateralFriction=plan.settle_friction)
             if not options.allow_sleeping:
                 client.changeDynamics(body_id, -1,
                                       activationState=client.ACTIVATION_STATE_DISABLE_SLEEPING)
             active.append((body_id, shape))
-        steps, settled = _run_batch(client, [a for a, _ in active], settle, options.fixed_steps)
+        if plan is not None and plan.compacts and options.fixed_steps is None:
+            steps, settled = _compact(client, [a for a, _ in active], plan, material, settle)
+        else:
+            steps, settled = _run_batch(client, [a for a, _ in active], settle, options.fixed_steps)
         for i, (body_id, shape) in zip(members, active):
             positions[i], quaternions[i] = _local_pose(client, body_id, shape)
             client.removeBody(body_id)
@@ -223,6 +240,8 @@ def _pour(
             locked[static] = rotation.apply(shape.hull_vertices) + positions[i]
             top = max(top, float(locked[static][:, 2].max()))
         _retire_buried(client, locked, tube.inner_radius, largest)
+        if compaction is not None:
+            compaction.observe(members, positions[members], quaternions[members])
         steps_per_batch.append(steps)
         settled_per_batch.append(settled)
         if not settled:
@@ -315,14 +334,23 @@ def _spawn_pose(body: Body, top: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _shape_for(
     client: Client, body: Body, cache: dict[bytes, _Shape], material: Material,
-    max_vertices: int | None,
+    max_vertices: int | None, inflation: float = 0.0,
 ) -> _Shape:
-    """Collision shape and inertial frame of `body`, shared by identical geometries."""
+    """Collision shape and inertial frame of `body`, shared by identical geometries.
+
+    With `inflation` > 0 the collider is the grain inflated by that fraction of its
+    size about its centre of mass (a spacing shell, :mod:`.compaction`); mass,
+    inertia and the pose of the local origin stay those of the true grain.
+    """
     vertices = np.ascontiguousarray(body.vertices, dtype=np.float64)
     faces = np.ascontiguousarray(body.faces, dtype=np.int64)
-    key = vertices.tobytes() + faces.tobytes() + np.float64(body.mass).tobytes()
+    key = vertices.tobytes() + faces.tobytes() + np.float64(body.mass).tobytes() + np.float64(inflation).tobytes()
     if key in cache:
         return cache[key]
+    true_vertices = vertices
+    if inflation > 0:
+        centre = np.asarray(body.center_mass, dtype=np.float64)
+        vertices = centre + (vertices - centre) * (1.0 + inflation)
     hull = convex_hull(vertices)
     if material.collision_shape == "decomposition":
         parts = _decomposed_parts(client, vertices, faces)
@@ -330,7 +358,7 @@ def _shape_for(
         parts = [simplify_hull(hull, max_vertices)]
     shrunk = [shrink_hull(part, material.collision_margin) for part in parts]
     shape_id = _collision_shape(client, shrunk)
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    mesh = trimesh.Trimesh(true_vertices, faces, process=False)
     inertia = np.asarray(mesh.moment_inertia) * (body.mass / mesh.volume)
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
@@ -341,7 +369,7 @@ def _shape_for(
         inertial_quat=Rotation.from_matrix(axes).as_quat(),
         inertia_diagonal=np.maximum(moments, 1e-12),
         hull_vertices=np.asarray(hull.vertices),
-        protrusion=protrusion(vertices, shrunk),
+        protrusion=protrusion(true_vertices, shrunk),
         inradius=max(0.0, float(np.einsum("fi,fi->f", hull.face_normals,
                                           hull.triangles[:, 0] - body.center_mass).min())),
     )
@@ -457,6 +485,25 @@ def _run_batch(
         if step >= settle.min_steps and quiet >= settle.quiet_steps:
             return step, True
     return settle.max_steps, False
+
+
+def _compact(
+    client: Client, body_ids: list[int], plan: BatchCompaction, material: Material, settle: SettleCriteria
+) -> tuple[int, bool]:
+    """Settle a batch with compaction (:mod:`.compaction`); (steps, settled) as :func:`_run_batch`.
+
+    The batch (created at ``plan.settle_friction``) falls until it moves slower than
+    :data:`~synthpack.physics.compaction.FALL_QUIET` times the settle thresholds (at
+    most :data:`~synthpack.physics.compaction.FALL_STEPS` steps); then it gets the
+    material's friction back and settles by `settle`.
+    """
+    fall = replace(settle, max_steps=min(settle.max_steps, FALL_STEPS),
+                   linear_speed=settle.linear_speed * FALL_QUIET, angular_speed=settle.angular_speed * FALL_QUIET)
+    steps, _ = _run_batch(client, body_ids, fall, None)
+    for body in body_ids:
+        client.changeDynamics(body, -1, lateralFriction=material.friction)
+    final, settled = _run_batch(client, body_ids, replace(settle, min_steps=0), None)
+    return steps + final, settled
 
 
 def _is_quiet(client: Client, body_ids: list[int], settle: SettleCriteria) -> bool:

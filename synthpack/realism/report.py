@@ -46,7 +46,8 @@ from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfi
                             specimen_patches)
 from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
-from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance, solid_fraction
+from ..source.specimen import solid_fraction
+from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance
 
 logger = logging.getLogger(__name__)
 

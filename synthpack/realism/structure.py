@@ -23,7 +23,8 @@ view those are the grains not cut by the border, as in the particle library.
 * **Coordination number**: the number of other grains a grain shares at least
   one voxel face with.
 * **Solid fraction**: the fraction of the region's voxels that belong to a grain
-  (porosity = 1 - solid fraction).
+  (porosity = 1 - solid fraction; `synthpack.source.specimen.solid_fraction`, the
+  one the source statistics measure too).
 """
 
 from __future__ import annotations
@@ -46,7 +47,6 @@ __all__ = [
     "fabric_eigenvalues",
     "grain_table",
     "ks_distance",
-    "solid_fraction",
 ]
 
 
@@ -64,22 +64,6 @@ def ks_distance(a: np.ndarray, b: np.ndarray) -> float:
         In [0, 1]: 0 for identical samples, 1 for samples that do not overlap.
     """
     return float(stats.ks_2samp(np.asarray(a, dtype=float), np.asarray(b, dtype=float)).statistic)
-
-
-def solid_fraction(labels: np.ndarray, region: np.ndarray) -> float:
-    """Fraction of the `region` voxels that belong to a grain (``labels > 0``).
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (Z, Y, X)
-    region : ndarray of bool, shape (Z, Y, X)
-
-    Returns
-    -------
-    float
-        In [0, 1]; the porosity is one minus it.
-    """
-    return float(np.count_nonzero(labels[region] > 0) / np.count_nonzero(region))
 
 
 def coordination_numbers(labels: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from .psf import fit_edge_spread
 from .pore_histogram import measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
 from .scanner import measure_scanner
-from .specimen import specimen_mask
+from .specimen import solid_fraction, specimen_mask
 from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
@@ -101,6 +101,12 @@ class SourceStatistics:
     wall_intensity, wall_thickness, wall_gap : float or None
         The container wall around the specimen: intensity (intensity units), thickness
         and gap between the specimen and its inner face (voxels); None where there is none.
+    solid_fraction : float or None
+        Bulk solid fraction: the fraction of the specimen's voxels
+        (`~synthpack.source.specimen.specimen_mask`) that are grain
+        (`~synthpack.source.specimen.solid_fraction`), dimensionless; the default
+        target of a pour (``pour.target_solid_fraction: source``). None for a
+        library of an older synthpack.
     """
 
     pore_mean: float
@@ -125,6 +131,7 @@ class SourceStatistics:
     wall_intensity: float | None = None
     wall_thickness: float | None = None
     wall_gap: float | None = None
+    solid_fraction: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -218,6 +225,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
+                                  solid_fraction=solid_fraction(scan.labels, specimen),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics

@@ -1,0 +1,106 @@
+"""Packing to a target solid fraction (synthpack.physics.compaction): reached, reported, reproducible."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from synthpack.config import PackConfig
+from synthpack.errors import SynthpackInputError
+from synthpack.library import ParticleLibrary
+from synthpack.physics import PourConfig, Tube, get_engine, pour
+from synthpack.physics.compaction import TARGET_TOLERANCE, BatchCompaction, resolve_target
+from synthpack.samples import sample_scan
+from synthpack.source.specimen import solid_fraction, specimen_mask
+
+
+@pytest.fixture(scope="module")
+def small_library() -> ParticleLibrary:
+    """The 'small' sample's library (many small grains)."""
+    return ParticleLibrary.from_scan(sample_scan("small", seed=0), workers=1, progress=False)
+
+
+def _narrow_tube(library: ParticleLibrary, n: int, radius: float) -> Tube:
+    """A tube `radius` median diameters wide, so a small pour still has a bulk region."""
+    return Tube.for_library(library, n, inner_radius=radius * float(np.median(library.equivalent_diameters)),
+                            packing_fraction=0.3)
+
+
+@pytest.mark.parametrize("sample, target", [("large", 0.57), ("small", 0.58)])
+def test_a_target_above_the_free_pour_is_reached(sample, target, large_library, small_library):
+    library = large_library if sample == "large" else small_library
+    tube = _narrow_tube(library, 150, 2.5)
+    free = pour(library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=None)
+    packed = pour(library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=target)
+    assert free.checks.packing_fraction < target - TARGET_TOLERANCE  # the free pour is looser
+    assert abs(packed.checks.packing_fraction - target) <= TARGET_TOLERANCE
+    assert packed.checks.target_reached is True and packed.checks.target_packing_fraction == target
+    assert packed.checks.n_outside == 0
+    assert max(packed.checks.compaction["knobs"]) > 0  # compacted, not spaced
+
+
+def test_a_target_below_the_free_pour_is_reached_with_spaced_grains(large_library):
+    tube = _narrow_tube(large_library, 150, 2.5)
+    packed = pour(large_library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=0.30)
+    assert abs(packed.checks.packing_fraction - 0.30) <= TARGET_TOLERANCE
+    assert packed.checks.target_reached is True
+    assert min(packed.checks.compaction["knobs"]) < 0  # spaced shells
+    assert packed.checks.max_grain_penetration_voxels < 1.0  # rendered at their true size: apart, not overlapping
+    assert packed.checks.n_outside == 0
+
+
+def test_an_impossible_target_is_reported_not_hidden(large_library, caplog):
+    tube = _narrow_tube(large_library, 120, 2.5)
+    with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
+        placements = pour(large_library, 120, 40, seed=0, container=tube, progress=False, target_solid_fraction=0.75)
+    checks = placements.checks
+    assert checks.target_reached is False and checks.target_packing_fraction == 0.75
+    assert checks.packing_fraction < 0.75 - TARGET_TOLERANCE
+    assert "NOT reached" in caplog.text and "0.750" in caplog.text
+    record = checks.to_dict()
+    assert record["target_reached"] is False and record["compaction"]["knobs"]
+    assert placements.parameters["target_solid_fraction"] == 0.75
+    assert "reached=False" in checks.summary()
+
+
+def test_same_seed_same_placements_with_compaction(large_library):
+    runs = [pour(large_library, 40, 20, seed=3, progress=False, target_solid_fraction=0.6) for _ in range(2)]
+    np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
+    np.testing.assert_array_equal(runs[0].quaternions, runs[1].quaternions)
+
+
+def test_the_source_target_is_the_source_scans_bulk_solid_fraction(large_scan, large_library):
+    measured = solid_fraction(large_scan.labels, specimen_mask(large_scan.labels))
+    assert large_library.statistics.solid_fraction == pytest.approx(measured)
+    assert resolve_target("source", large_library, get_engine("pybullet")) == pytest.approx(measured)
+
+
+def test_an_engine_without_compaction_pours_freely_for_source_and_refuses_a_number(large_library, caplog):
+    blender = get_engine("blender")
+    with caplog.at_level(logging.INFO, logger="synthpack.physics.compaction"):
+        assert resolve_target("source", large_library, blender) is None
+    assert "free pour" in caplog.text
+    with pytest.raises(SynthpackInputError, match="cannot pack"):
+        resolve_target(0.5, large_library, blender)
+    with pytest.raises(SynthpackInputError, match="pour.target_solid_fraction"):
+        PourConfig(engine="blender", target_solid_fraction=0.5)
+    assert PourConfig(engine="blender").target_solid_fraction == "source"
+
+
+@pytest.mark.parametrize("value, expected", [("source", "source"), (None, None), ("none", None), (0.55, 0.55)])
+def test_the_config_takes_source_a_number_or_none(value, expected):
+    config = PackConfig.from_dict({"pour": {"target_solid_fraction": value}})
+    assert config.pour.target_solid_fraction == expected
+
+
+@pytest.mark.parametrize("value", [1.5, 0.0, "dense", True])
+def test_a_bad_target_is_refused_with_the_key(value):
+    with pytest.raises(SynthpackInputError, match="target_solid_fraction"):
+        PackConfig.from_dict({"pour": {"target_solid_fraction": value}})
+
+
+def test_the_knob_compacts_above_zero_and_spaces_below():
+    dense, free, loose = (BatchCompaction.from_knob(k, friction=0.6) for k in (1.0, 0.0, -0.2))
+    assert dense.compacts and dense.settle_friction < 0.6 and dense.inflation == 0
+    assert not free.compacts and free.settle_friction == 0.6 and free.inflation == 0
+    assert not loose.compacts and loose.inflation == pytest.approx(0.2)
