@@ -53,6 +53,7 @@ def pour(
     settle: SettleCriteria | None = None,
     progress: bool = True,
     engine_options: Mapping[str, Any] | None = None,
+    indices: Sequence[int] | None = None,
 ) -> Placements:
     """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
 
@@ -88,6 +89,9 @@ def pour(
         ``convex_decomposition``, ``max_hull_vertices``, ``fixed_steps``) or
         :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
         ``blend_file``). They are recorded in ``Placements.parameters``.
+    indices : sequence of int, optional
+        The library index of each grain, in pouring order, instead of drawing
+        them (see :func:`~synthpack.physics.plan.make_plan`).
 
     Returns
     -------
@@ -98,7 +102,7 @@ def pour(
     ------
     SynthpackInputError
         For a bad count, batch size, seed, engine, option, material, settle
-        criterion, scale, size class or tube, or an engine that cannot run here.
+        criterion, scale, size class, tube or indices, or an engine that cannot run here.
     """
     n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
     chosen = get_engine(engine)
@@ -111,7 +115,7 @@ def pour(
     tube = _tube(library, n_particles, container, high)
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
-                     size_classes=size_classes)
+                     size_classes=size_classes, indices=indices)
     length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float)))
     mass_unit = float(np.median([library[i].mass for i in range(len(library))]))
     bodies = _bodies(library, plan, length, mass_unit)
