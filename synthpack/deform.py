@@ -269,8 +269,10 @@ def deform_particle(particle: Particle, ffd: LatticeFFD, background: float) -> P
     scale = ratio ** (1.0 / 3.0)
     vertices = centre + scale * (vertices - centre)
 
-    # a generous grid over the deformed grain, in the deformed (not yet re-centred) frame
-    lo = vertices.min(axis=0) - _MARGIN * spacing_xyz
+    # a generous grid over the deformed grain, in the deformed (not yet re-centred) frame, on the
+    # source crop's voxel lattice (so that no deformation resamples nothing)
+    first = -(np.asarray(particle.mask.shape, dtype=float)[::-1] - 1.0) / 2.0 * spacing_xyz
+    lo = first + spacing_xyz * (np.floor((vertices.min(axis=0) - first) / spacing_xyz) - _MARGIN)
     shape_xyz = np.ceil((vertices.max(axis=0) + _MARGIN * spacing_xyz - lo) / spacing_xyz).astype(int) + 1
     sources = _inverse_on_grid(ffd, lambda q: centre + (q - centre) / scale, lo, spacing_xyz, shape_xyz)
     source_shape_zyx = np.asarray(particle.mask.shape, dtype=float)
