@@ -1,6 +1,6 @@
 """The pack configuration: every parameter of ``synthpack generate``, validated.
 
-A configuration is plain YAML (or a dict) with four sections; every key is
+A configuration is plain YAML (or a dict) with these sections; every key is
 optional and falls back to the default shown by ``synthpack generate
 --print-config``::
 
