@@ -6,8 +6,8 @@ optional and falls back to the default shown by ``synthpack generate
 
     seed: 0
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
-    pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     grains: {deform: {strength: 0.0, lattice: 3}}
+    pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {model: measured, ...}}
     postprocess: calibrated       # or match_source, generic, none, or a list of artefact transforms
 

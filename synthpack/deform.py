@@ -78,8 +78,8 @@ _STREAM = 0xFFD
 class Deform:
     """Free-form deformation of the grains: the ``grains.deform`` section of a pack config.
 
-    ``strength: 0`` (the default) leaves the library's grains as they are: the pack is
-    byte for byte the one without this section.
+    ``strength: 0`` (the default) leaves the library's grains as they are: volumes,
+    labels and placements are byte for byte those of a synthpack without deformation.
     """
 
     strength: float = setting(0.0, in_range(0.0, 0.5),
