@@ -267,8 +267,8 @@ def _given_indices(
     given = np.asarray(indices)
     if classes is not None:
         raise SynthpackInputError("give either indices or size_classes, not both.")
-    if given.shape != (n,) or not np.issubdtype(given.dtype, np.integer) or (
-            n and (given.min() < 0 or given.max() >= n_library)):
+    if given.shape != (n,) or not np.issubdtype(given.dtype, np.integer) or given.min() < 0 \
+            or given.max() >= n_library:
         raise SynthpackInputError(
             f"indices must be {n} whole numbers in [0, {n_library}) (a library index per grain), "
             f"got shape {given.shape} of {given.dtype}."
