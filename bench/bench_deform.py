@@ -11,8 +11,9 @@ post-processing: only the labels are measured), measures every complete grain ce
 in each pack's bulk with the realism report's grain table
 (`synthpack.realism.structure.grain_table`, on the rendered labels) and prints a
 Markdown table: medians, and the Kolmogorov-Smirnov distance to the source scan's grain
-table, of sphericity and elongation (the grains of all seeds pooled), with the share of
-deformations damped to avoid a fold and the seconds spent deforming per grain.
+table, of sphericity and elongation, and their interquartile ranges (the spread of the
+shapes; the grains of all seeds pooled), with the share of deformations damped to avoid a
+fold and the seconds spent deforming per grain.
 """
 
 from __future__ import annotations
@@ -62,14 +63,20 @@ def main() -> None:
             per_grain = seconds / (args.grains * len(args.seeds))
             rows.append((f"{strength:g}", len(sphericity), sphericity, elongation, f"{np.mean(damped):.0%}",
                          f"{per_grain:.3f}"))
-    print(f"| strength | grains measured | sphericity median | KS sphericity | elongation median | "
-          f"KS elongation | damped | s/grain deforming |")
+    print("| strength | grains measured | sphericity median (IQR) | KS sphericity | elongation median (IQR) | "
+          "KS elongation | damped | s/grain deforming |")
     print("|---|---|---|---|---|---|---|---|")
     for name, n, sphericity, elongation, damped, seconds in rows:
         ks_s = "" if name == "source" else f"{ks_distance(sphericity, source.sphericity):.3f}"
         ks_e = "" if name == "source" else f"{ks_distance(elongation, source.elongation):.3f}"
-        print(f"| {name} | {n} | {np.median(sphericity):.3f} | {ks_s} | {np.median(elongation):.3f} | {ks_e} | "
+        print(f"| {name} | {n} | {_spread(sphericity)} | {ks_s} | {_spread(elongation)} | {ks_e} | "
               f"{damped} | {seconds} |")
+
+
+def _spread(values: np.ndarray) -> str:
+    """``median (interquartile range)``."""
+    q1, median, q3 = np.percentile(values, [25, 50, 75])
+    return f"{median:.3f} ({q3 - q1:.3f})"
 
 
 if __name__ == "__main__":
