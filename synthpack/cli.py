@@ -26,8 +26,9 @@ from ._atomic import Output, check_output, remove_stale_staging
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
 from .deform import Deform
+from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
-from .errors import PackBuildError, SynthpackInputError
+from .errors import ContainmentError, PackBuildError, SynthpackInputError
 
 logger = logging.getLogger("synthpack")
 
@@ -35,7 +36,7 @@ __all__ = ["main"]
 
 _ENGINE_CHOICES = tuple(ENGINES)
 #: The `pour` command's options that are `PourConfig` settings (validated by it).
-_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "tube_radius", "tube_height")
+_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "collision_shape", "tube_radius", "tube_height")
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack._atomic.check_output`).
@@ -154,6 +155,7 @@ def _load_config(args: argparse.Namespace):
     config = load_config(args.config)
     pour = {key: value for key, value in (
         ("n_particles", args.n_particles), ("batch_size", args.batch_size), ("engine", args.engine),
+        ("collision_shape", args.collision_shape),
     ) if value is not None}
     changes = {"pour": pour} if pour else {}
     if args.seed is not None:
@@ -268,7 +270,7 @@ def _cmd_pour(args: argparse.Namespace) -> None:
         container = Tube.for_library(library, settings.n_particles, inner_radius=settings.tube_radius,
                                      height=settings.tube_height)
     placements = pour(library, settings.n_particles, settings.batch_size, engine=settings.engine, seed=args.seed,
-                      container=container)
+                      container=container, material=settings.material())
     placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks
     packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
@@ -378,6 +380,8 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--n-particles", type=int, help="grains per pack (config pour.n_particles)")
     generate.add_argument("--batch-size", type=int, help="grains per batch (config pour.batch_size)")
     generate.add_argument("--engine", choices=_ENGINE_CHOICES, help="rigid-body engine (config pour.engine)")
+    generate.add_argument("--collision-shape", choices=COLLISION_SHAPES,
+                          help=help_of(PourConfig, "collision_shape") + " (config pour.collision_shape)")
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--deform-strength", type=float, metavar="S",
                           help=help_of(Deform, "strength") + " (config grains.deform.strength)")
@@ -429,9 +433,10 @@ def _add_pour_command(commands: Any) -> None:
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
     pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
-    for name, kind in (("n_particles", int), ("batch_size", int), ("engine", str)):
+    choices = {"engine": _ENGINE_CHOICES, "collision_shape": COLLISION_SHAPES}
+    for name, kind in (("n_particles", int), ("batch_size", int), ("engine", str), ("collision_shape", str)):
         pour.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(PourConfig, name),
-                          help=help_of(PourConfig, name), **({"choices": _ENGINE_CHOICES} if name == "engine" else {}))
+                          help=help_of(PourConfig, name), **({"choices": choices[name]} if name in choices else {}))
     pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     for name in ("tube_radius", "tube_height"):
         pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
@@ -511,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SynthpackInputError as error:
         print(f"synthpack: error: {error}", file=sys.stderr)
         return 2
-    except PackBuildError as error:
+    except (PackBuildError, ContainmentError) as error:
         print(f"synthpack: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as interrupt:  # generate says what it kept

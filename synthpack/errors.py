@@ -58,3 +58,12 @@ class PackInputError(PackBuildError, SynthpackInputError):
     The command-line interface reports it as input errors are: one line on
     stderr, exit code 2.
     """
+
+
+class ContainmentError(RuntimeError):
+    """A pour left grains outside its tube or above its rim, so no pack is made of it.
+
+    Raised by :func:`synthpack.physics.pour` after its retry (see there); the message
+    says how many grains and what to change. The command-line interface prints it as
+    one line and exits with 1.
+    """

@@ -28,7 +28,6 @@ from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
 from .partial_volume import PartialVolume
 from .physics import Placements, Tube, pour
-from .physics.engine import Material
 from .physics.registry import get_engine
 from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
 from .reconstruct import Background, Grid, pose_maps, reconstruct
@@ -162,6 +161,7 @@ def build_pack(
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        wall=render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
     )
@@ -179,7 +179,7 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 @dataclass(frozen=True)
 class _Render:
     """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
-    the partial volume (None: whole voxels)."""
+    the partial volume (None: whole voxels), the wall's inner and outer radius (physical units)."""
 
     grid: Grid
     clean: Any
@@ -187,6 +187,7 @@ class _Render:
     background: Background
     contested: int
     partial_volume: PartialVolume | None
+    wall: tuple[float, float]
 
 
 def _pour(
@@ -204,7 +205,7 @@ def _pour(
     placements = pour(
         poured, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
         seed=seed, container=_tube(library, config), scale=scale,
-        material=Material(friction=pour_config.friction, restitution=pour_config.restitution),
+        material=pour_config.material(),
         progress=progress, engine_options=pour_config.engine_options,
         indices=None if grains is None else np.arange(len(poured)),
     )
@@ -225,21 +226,22 @@ def _render(
         grains.particles, np.arange(len(placements)))
     tube = placements.tube
     chunks = tuple(config.chunks)
-    grid = Grid.covering(tube.outer_radius, -tube.base_thickness, placements.checks.fill_height,
+    background = Background.from_source(library.statistics, config)
+    wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
+    grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=config.margin)
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in particles], placed,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
                      reach=partial_volume.reach if partial_volume else 1.0)
-    background = Background.from_source(library.statistics, config)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
-        tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness),
+        tube=(wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
         partial_volume=partial_volume,
     )
-    return _Render(grid, clean, labels, background, contested, partial_volume)
+    return _Render(grid, clean, labels, background, contested, partial_volume, wall)
 
 
 def _postprocess(

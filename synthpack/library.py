@@ -47,7 +47,7 @@ _FORMAT = "synthpack-particle-library"
 #: A library folder; an earlier one (``library.json``) is replaced, anything else is refused.
 LIBRARY_OUTPUT = Output("particle library", marker="library.json")
 #: Raised whenever what a library holds on disk changes; a library of another version must be rebuilt.
-_FORMAT_VERSION = 3
+_FORMAT_VERSION = 4
 _REBUILD = "rebuild it with `synthpack library build`"
 _TABLE_COLUMNS = (
     "index", "label", "z0", "y0", "x0", "z1", "y1", "x1", "voxel_count",
@@ -61,20 +61,18 @@ def _mesh_arrays(args: tuple[np.ndarray, tuple[float, float, float], int | None]
     return mesh.vertices, mesh.faces
 
 
-def _without_slices(scan: Scan, exclude: tuple[int, int], axis: int) -> Scan:
-    """A copy of `scan` without the slices ``exclude[0] <= i < exclude[1]`` along `axis`."""
+def _check_exclude(shape: tuple[int, ...], exclude: tuple[int, int], axis: int) -> tuple[int, int]:
+    """`exclude` as ints, checked to be a non-empty range of slices along `axis` that leaves some."""
     if axis not in (0, 1, 2):
         raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis!r}")
     start, stop = (int(v) for v in exclude)
-    n = scan.shape[axis]
+    n = shape[axis]
     if not 0 <= start < stop <= n or stop - start == n:
         raise SynthpackInputError(
             f"exclude_slices {exclude} must be a non-empty range start < stop inside the {n} slices along "
             f"axis {axis} that leaves some slices, e.g. synthpack.split.central_block({n})"
         )
-    block = np.arange(start, stop)
-    return Scan(np.delete(scan.tomogram, block, axis), np.delete(scan.labels, block, axis),
-                voxel_size=scan.voxel_size, unit=scan.unit, source=scan.source)
+    return start, stop
 
 
 class ParticleLibrary(Sequence[Particle]):
@@ -170,8 +168,9 @@ class ParticleLibrary(Sequence[Particle]):
         workers = (os.cpu_count() or 1) if workers is None else int(workers)
         if workers < 1:
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")
-        measured = scan if exclude_slices is None else _without_slices(scan, exclude_slices, axis)
-        statistics = measure_source(measured)
+        if exclude_slices is not None:
+            exclude_slices = _check_exclude(scan.shape, exclude_slices, axis)
+        statistics = measure_source(scan, exclude_slices, axis)
         crops = extract_particles(
             scan, min_voxels=min_voxels, include_border=include_border,
             background=statistics.pore_mean,

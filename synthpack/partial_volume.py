@@ -21,20 +21,27 @@ Used as they are, that rim would be blurred twice (by the scan, then by the pack
 point-spread function). So the crop is prepared once: every voxel of its mask
 within `rim` voxels of the boundary, and every voxel outside it, takes the value
 of the nearest voxel deeper than `rim` (the grain's interior texture, extrapolated
-outwards); a grain too thin to have such voxels uses its deepest ones.
+outwards); a grain too thin to have such voxels uses its deepest ones. The
+preparation is in the grain's own frame, before any pose, so a run prepares each
+library grain once: `PartialVolume.prepare` keeps what it made (up to
+`CACHE_BYTES`, found again by the crop's content) for the next pack.
 """
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
 
+from .source.edges import signed_distance
 from .source.statistics import SourceStatistics
 
-__all__ = ["FAR", "PAD", "PartialVolume", "PreparedCrop", "RIM_QUANTILE"]
+__all__ = ["CACHE_BYTES", "FAR", "PAD", "PartialVolume", "PreparedCrop", "RIM_QUANTILE"]
 
 #: Voxels of padding around each prepared crop, so the ramp and a shift of up to
 #: ``PAD - 1`` voxels outwards stay inside it.
@@ -43,6 +50,8 @@ PAD = 3
 RIM_QUANTILE = 1.645
 #: Signed distance (voxels) to read beyond a prepared crop: far outside.
 FAR = -float(PAD + 1)
+#: Bytes of prepared crops kept for later renders in this process (the least recently used go first).
+CACHE_BYTES = 1 << 28
 
 
 class PreparedCrop(NamedTuple):
@@ -114,7 +123,10 @@ class PartialVolume:
         return {"shift": self.shift, "rim": self.rim}
 
     def prepare(self, tomogram: np.ndarray, mask: np.ndarray) -> PreparedCrop:
-        """A grain's crop prepared for the render (see `PreparedCrop`).
+        """A grain's crop prepared for the render (see `PreparedCrop`), read-only.
+
+        A crop prepared before in this process with the same partial volume (same
+        bytes of `tomogram` and `mask`) is returned from the cache (see `CACHE_BYTES`).
 
         Parameters
         ----------
@@ -123,10 +135,19 @@ class PartialVolume:
         mask : ndarray of bool, same shape
             Its mask (not empty).
         """
+        key = (self, _digest(tomogram, mask))
+        prepared = _PREPARED.get(key)
+        if prepared is None:
+            prepared = self._prepare(tomogram, mask)
+            for array in prepared:
+                array.flags.writeable = False
+            _PREPARED.put(key, prepared)
+        return prepared
+
+    def _prepare(self, tomogram: np.ndarray, mask: np.ndarray) -> PreparedCrop:
+        """`prepare` without the cache."""
         padded = np.pad(mask, PAD)
-        inside = ndimage.distance_transform_edt(padded)
-        outside = ndimage.distance_transform_edt(~padded)
-        distance = np.where(padded, inside - 0.5, 0.5 - outside).astype(np.float32)
+        distance = signed_distance(padded)
         interior = distance > self.rim
         if not interior.any():
             interior = distance >= distance.max()
@@ -138,3 +159,45 @@ class PartialVolume:
         """Occupancy ``clip(distance - shift + 1/2, 0, 1)`` of voxels at signed `distance` (voxels), float32."""
         out = np.asarray(distance, dtype=np.float32) - np.float32(self.shift - 0.5)
         return np.clip(out, 0.0, 1.0, out=out)
+
+
+def _digest(*arrays: np.ndarray) -> bytes:
+    """A digest of the dtypes, shapes and bytes of `arrays` (the cache's key)."""
+    digest = hashlib.blake2b(digest_size=20)
+    for array in arrays:
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype.str}{array.shape}".encode())
+        digest.update(array.view(np.uint8).reshape(-1) if array.size else b"")
+    return digest.digest()
+
+
+class _Cache:
+    """Prepared crops by key, the least recently used dropped beyond `limit` bytes; safe across threads."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self._entries: OrderedDict[tuple, PreparedCrop] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple) -> PreparedCrop | None:
+        """The crop stored under `key` (now the most recently used), or None."""
+        with self._lock:
+            prepared = self._entries.get(key)
+            if prepared is not None:
+                self._entries.move_to_end(key)
+            return prepared
+
+    def put(self, key: tuple, prepared: PreparedCrop) -> None:
+        """Store `prepared` under `key`, then drop the least recently used beyond the limit."""
+        with self._lock:
+            if key in self._entries:
+                return
+            self._entries[key] = prepared
+            self._bytes += sum(array.nbytes for array in prepared)
+            while self._bytes > self.limit and self._entries:
+                _, dropped = self._entries.popitem(last=False)
+                self._bytes -= sum(array.nbytes for array in dropped)
+
+
+_PREPARED = _Cache(CACHE_BYTES)

@@ -10,8 +10,10 @@ manifest:
                   fitted in the pack's bulk region (`bulk_region`; `~synthpack.artefacts.calibrate`):
                   a Gaussian PSF that gives the source's edge spread, then noise with the
                   source's noise power spectrum in grains and pores, less what the clean pack
-                  already holds; the fit is recorded under ``calibration`` (the render's
-                  partial volume, also fitted to the source, under ``partial_volume``). Where
+                  already holds, then the source's cupping and rings where it shows them
+                  (measured, fixed, about the tube axis); all recorded under ``calibration``
+                  (the render's partial volume, also fitted to the source, under
+                  ``partial_volume``; its tube wall under ``wall``). Where
                   it cannot be fitted (the source's edges or noise spectrum were not measured,
                   the pack has no bulk region, or its bulk no edges), ``match_source`` instead,
                   with a warning, and the reason recorded under ``postprocess_fallback``
@@ -138,10 +140,12 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
     n_rings = len(statistics.nps_pores or statistics.nps_grains)
     spectra = {phase: tuple(measured) if measured is not None else tuple(white_ring_powers(levels[phase] ** 2, n_rings))
                for phase, measured in (("grains", statistics.nps_grains), ("pores", statistics.nps_pores))}
+    rings = None if statistics.ring_radii is None else (
+        statistics.ring_radii, statistics.ring_amplitudes, statistics.ring_width)
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
             "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
             "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
-            "grain_level": statistics.grain_mean}
+            "grain_level": statistics.grain_mean, "cupping_strength": statistics.cupping_strength, "rings": rings}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:

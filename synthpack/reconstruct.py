@@ -153,11 +153,16 @@ class Background:
         The source's pore spread: the Gaussian texture's amplitude (0: flat pores, whatever the texture).
     wall : float or None
         Intensity of the tube wall; None draws no wall.
+    wall_thickness : float or None
+        Thickness of the drawn wall, voxels (the source's measured wall); None: the tube's own.
     texture : PoreTexture
         The pore texture's settings.
     pore_spectrum : tuple of float or None
         The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`), which the
         measured texture is drawn from; None: the Gaussian texture.
+    pore_quantiles : tuple of float or None
+        The source's pore histogram shape (`~synthpack.source.SourceStatistics.pore_quantiles`), which
+        the measured texture's values are mapped onto (`PoreTexture.histogram`); None: Gaussian values.
     """
 
     pore_mean: float
@@ -165,23 +170,47 @@ class Background:
     wall: float | None = None
     texture: PoreTexture = PoreTexture()
     pore_spectrum: tuple[float, ...] | None = None
+    pore_quantiles: tuple[float, ...] | None = None
+    wall_thickness: float | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
         """The background of a pack of grains from a source scan: the one place it is derived.
 
-        Pore level, spread and spectrum are the source's. The wall is
-        `WALL_FRACTION` of the way from pore to grain level unless
-        ``config.wall_intensity`` sets it; ``config.wall = False`` draws none.
+        Pore level, spread, spectrum and histogram shape are the source's. The wall has the
+        intensity ``config.wall_intensity`` if set, else the source's measured wall's
+        (`~synthpack.source.SourceStatistics.wall_intensity`), else `WALL_FRACTION` of
+        the way from pore to grain level; the source's measured wall's thickness, else
+        the tube's; ``config.wall = False`` draws none.
         """
-        wall = config.wall_intensity if config.wall_intensity is not None else (
-            statistics.pore_mean + WALL_FRACTION * statistics.contrast)
+        if config.wall_intensity is not None:
+            wall = config.wall_intensity
+        elif statistics.wall_intensity is not None:
+            wall = statistics.wall_intensity
+        else:
+            wall = statistics.pore_mean + WALL_FRACTION * statistics.contrast
         return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture,
-                   statistics.pore_spectrum)
+                   statistics.pore_spectrum, statistics.pore_quantiles,
+                   statistics.wall_thickness if config.wall else None)
+
+    def wall_radii(self, inner: float, outer: float, voxel: float) -> tuple[float, float]:
+        """The drawn wall's inner and outer radius for a tube of `inner` and `outer` radius (physical units).
+
+        The outer radius is ``inner + wall_thickness * voxel`` where the source's wall was
+        measured (`voxel`: the lateral voxel size), else the tube's `outer`.
+        """
+        return inner, outer if self.wall_thickness is None else inner + self.wall_thickness * voxel
+
+    def wall_record(self, radii: tuple[float, float]) -> dict | None:
+        """The drawn wall for the manifest: intensity, inner and outer radius (`radii`, physical units); None: none."""
+        if self.wall is None:
+            return None
+        return {"intensity": float(self.wall), "inner_radius": float(radii[0]), "outer_radius": float(radii[1]),
+                "measured": self.wall_thickness is not None}
 
     def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
         """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""
-        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum)
+        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum, self.pore_quantiles)
 
     def texture_density(self) -> np.ndarray:
         """The pore texture's power spectral density on its tile's FFT grid (see `PoreTexture.density`).
@@ -193,7 +222,7 @@ class Background:
 
     def texture_record(self, seed: int) -> dict:
         """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
-        return self.texture.record(self.pore_std, self.pore_spectrum, seed)
+        return self.texture.record(self.pore_std, self.pore_spectrum, seed, self.pore_quantiles)
 
 
 @dataclass(frozen=True)
@@ -348,6 +377,7 @@ def prepare_crops(
     crops: Sequence[tuple[np.ndarray, np.ndarray]],
     partial_volume: PartialVolume | None = None,
     used: Sequence[int] | None = None,
+    threads: int = 1,
 ) -> list[RenderCrop | None]:
     """Crops as :func:`render_chunk` takes them (see `RenderCrop`).
 
@@ -357,22 +387,25 @@ def prepare_crops(
         Clean crop (float32, shape (nz, ny, nx)) and mask (bool, same shape) of every
         library particle.
     partial_volume : PartialVolume, optional
-        Prepare the crops for the partial-volume render (`PartialVolume.prepare`);
-        None: whole voxels.
+        Prepare the crops for the partial-volume render (`PartialVolume.prepare`, which
+        keeps them for the next render); None: whole voxels.
     used : sequence of int, optional
         Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
+    threads : int
+        Threads preparing crops (SciPy's distance transforms release the GIL).
     """
-    wanted = set(range(len(crops)) if used is None else (int(i) for i in used))
-    prepared: list[RenderCrop | None] = []
-    for index, (tomogram, mask) in enumerate(crops):
-        if index not in wanted:
-            prepared.append(None)
-            continue
+    wanted = sorted(set(range(len(crops)) if used is None else (int(i) for i in used)))
+
+    def prepare(index: int) -> RenderCrop:
+        tomogram, mask = crops[index]
         padded_mask = np.pad(mask.astype(np.float32), 1)
         if partial_volume is None:
-            prepared.append(RenderCrop(padded_mask, tomogram, None))
-        else:
-            prepared.append(RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask)))
+            return RenderCrop(padded_mask, tomogram, None)
+        return RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask))
+
+    prepared: list[RenderCrop | None] = [None] * len(crops)
+    for index, crop in bounded_map(prepare, wanted, threads):
+        prepared[index] = crop
     return prepared
 
 
@@ -550,7 +583,7 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index))
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers)
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box

@@ -54,7 +54,7 @@ def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
     assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == dataclasses.asdict(PoreTexture())
     statistics = large_library.statistics
     assert small_pack.manifest["pore_texture"] == {
-        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "seed": 11,
+        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "histogram": True, "seed": 11,
         "amplitude": pytest.approx(float(np.sqrt(PoreTexture().density(statistics.pore_std,
                                                                        statistics.pore_spectrum).mean())))}
     smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"cutoff": 0.05}}), seed=11,

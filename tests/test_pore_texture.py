@@ -8,6 +8,7 @@ from scipy import ndimage
 
 from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.source.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
     frequency_radius,
@@ -94,10 +95,10 @@ def test_texture_has_the_spectrum_it_is_drawn_from():
     assert measured[beyond].max() < 1e-6 * measured.max()
 
 
-def _empty_render(texture: PoreTexture, spectrum, seed: int, chunks) -> np.ndarray:
+def _empty_render(texture: PoreTexture, spectrum, seed: int, chunks, quantiles=None) -> np.ndarray:
     grid = Grid((40, 48, 56), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
-    background = Background(5.0, 1.0, texture=texture, pore_spectrum=spectrum)
+    background = Background(5.0, 1.0, texture=texture, pore_spectrum=spectrum, pore_quantiles=quantiles)
     return reconstruct([], maps, grid, background, seed=seed, chunks=chunks)[0]
 
 
@@ -121,3 +122,58 @@ def test_without_a_measured_spectrum_the_texture_is_gaussian(caplog):
     np.testing.assert_array_equal(drawn, gaussian)
     assert texture.record(1.0, None, 3)["model"] == "gaussian"
     assert texture.record(1.0, (1.0, 0.5), 3)["model"] == "measured"
+
+
+def _lognormal_quantiles() -> tuple[float, ...]:
+    """Pore quantiles measured on a skewed, heavy-tailed (log-normal) pore interior seen through holes."""
+    values = np.exp(0.6 * np.random.default_rng(5).standard_normal((64, 64, 64)))
+    return tuple(measure_pore_quantiles(values, _holes((64, 64, 64))))
+
+
+def _standardized_quantiles(values: np.ndarray) -> np.ndarray:
+    return measure_pore_quantiles(values, np.ones(values.shape, bool))
+
+
+def test_quantile_mapping_recovers_a_non_gaussian_marginal():
+    quantiles = _lognormal_quantiles()
+    assert quantiles[len(quantiles) // 2] == 0.0 and np.all(np.diff(quantiles) >= 0)
+    spectrum = tuple(np.ones(29))  # white below the cutoff: many independent values in one tile
+    texture = PoreTexture(cutoff=0.3, rolloff=0.1, tile=64)
+    box = (np.zeros(3, int), np.full(3, 64))
+    mapped = texture.sample(*box, 7, 1.0, spectrum, quantiles).astype(np.float64)
+    gaussian = texture.sample(*box, 7, 1.0, spectrum).astype(np.float64)
+    expected = np.sqrt(texture.density(1.0, spectrum).mean())
+    assert mapped.std() == pytest.approx(expected, rel=1e-5)  # the variance is kept
+    assert np.median(mapped) == pytest.approx(0.0, abs=0.01 * expected)
+    middle = np.abs(QUANTILE_SCORES) <= 2.5
+    np.testing.assert_allclose(_standardized_quantiles(mapped)[middle], np.asarray(quantiles)[middle], atol=0.04)
+    # the Gaussian texture has the wrong shape: the log-normal's lower tail is much shorter
+    assert np.abs(_standardized_quantiles(gaussian) - quantiles)[middle].max() > 0.3
+    # the map is monotonic: the field's order, and so its correlations, are kept
+    assert np.all(np.diff(mapped.ravel()[np.lexsort((mapped.ravel(), gaussian.ravel()))]) >= 0)
+    assert texture.record(1.0, spectrum, 7, quantiles)["histogram"] is True
+    assert PoreTexture(histogram=False).record(1.0, spectrum, 7, quantiles)["histogram"] is False
+    assert PoreTexture(model="gaussian").record(1.0, spectrum, 7, quantiles)["histogram"] is False
+
+
+def test_mapped_texture_is_chunking_independent_and_seeded():
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    quantiles = _lognormal_quantiles()
+    texture = PoreTexture(tile=32)
+    whole = _empty_render(texture, spectrum, 3, (40, 48, 56), quantiles)
+    np.testing.assert_array_equal(whole, _empty_render(texture, spectrum, 3, (7, 11, 13), quantiles))
+    assert whole.tobytes() == _empty_render(texture, spectrum, 3, (40, 48, 56), quantiles).tobytes()
+    assert not np.array_equal(whole, _empty_render(texture, spectrum, 4, (40, 48, 56), quantiles))
+    assert not np.array_equal(whole, _empty_render(texture, spectrum, 3, (40, 48, 56)))
+    # histogram: false draws the Gaussian values
+    np.testing.assert_array_equal(_empty_render(PoreTexture(tile=32, histogram=False), spectrum, 3, (40, 48, 56),
+                                                quantiles), _empty_render(texture, spectrum, 3, (40, 48, 56)))
+
+
+def test_too_little_pore_interior_measures_no_quantiles():
+    values = np.random.default_rng(0).standard_normal((20, 20, 20))
+    mask = np.zeros(values.shape, bool)
+    mask.ravel()[: MIN_QUANTILE_VOXELS - 1] = True
+    assert measure_pore_quantiles(values, mask) is None
+    mask.ravel()[MIN_QUANTILE_VOXELS - 1] = True
+    assert len(measure_pore_quantiles(values, mask)) == len(QUANTILE_SCORES)

@@ -201,3 +201,22 @@ def test_bulk_region_is_the_pour_sub_cylinder():
     assert not cylinder[:2].any() and not cylinder[8:].any()
     with pytest.raises(SynthpackInputError, match="no bulk"):
         bulk_region(shape, (0.0, -10.0, -10.0), (1.0, 1.0, 1.0), {"radius": 1.0, "z_min": 2.0, "z_max": 3.0})
+
+
+def test_calibrated_adds_the_source_cupping_and_rings_about_the_tube_axis_and_records_them(rendered):
+    scanner = dataclasses.replace(STATISTICS, cupping_strength=0.05, cupping_error=0.01, ring_radii=(10.0, 20.0),
+                                  ring_amplitudes=(0.03, -0.02), ring_width=1.5)
+    plain, resolved = _resolve("calibrated", rendered), _resolve("calibrated", rendered, scanner)
+    assert len(plain.pipeline) == 2  # a source without artefacts: blur and noise only
+    fit = resolved.record["calibration"]
+    assert fit["cupping_strength"] == 0.05 and fit["ring_radii"] == [10.0, 20.0]
+    assert fit["ring_amplitudes"] == [0.03, -0.02] and fit["ring_width"] == 1.5
+    *_, cupping, rings = resolved.pipeline
+    assert cupping.strength == 0.05 and rings.radii == (10.0, 20.0) and rings.amplitudes == (0.03, -0.02)
+    clean = rendered[0]
+    difference = rings(clean, 0) - clean  # about the slice centre, (31.5, 31.5): the pack's tube axis
+    sigma = 1.5 / (2 * np.sqrt(2 * np.log(2)))
+    for (y, x), ring, peak in (((31, 21), 10.0, 0.03), ((52, 31), 20.0, -0.02)):
+        r = np.hypot(y - 31.5, x - 31.5)
+        assert difference[16, y, x] == pytest.approx(peak * np.exp(-0.5 * ((r - ring) / sigma) ** 2), abs=1e-3)
+    assert cupping(np.ones_like(clean), 0)[16, 31, 31] == pytest.approx(0.95, abs=0.002)

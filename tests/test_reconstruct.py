@@ -173,12 +173,21 @@ def test_background_from_source_statistics():
     assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)  # no pore spectrum measured
     assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9
     assert Background.from_source(statistics, ReconstructConfig(wall=False)).wall is None
+    walled = dataclasses.replace(statistics, wall_intensity=1.1, wall_thickness=2.5)
+    assert Background.from_source(walled, ReconstructConfig()).wall == 1.1  # the source's measured wall
+    assert Background.from_source(walled, ReconstructConfig(wall_intensity=0.9)).wall == 0.9  # the config wins
+    assert Background.from_source(walled, ReconstructConfig()).wall_radii(40.0, 43.0, 2.0) == (40.0, 45.0)
+    assert background.wall_radii(40.0, 43.0, 2.0) == (40.0, 43.0)  # none measured: the tube's
     assert background.texture_record(seed=5) == {"model": "gaussian", "cutoff": 0.1, "rolloff": 0.1, "sigma": 1.2,
-                                                 "tile": 32, "amplitude": pytest.approx(0.03), "seed": 5}
-    measured = Background.from_source(dataclasses.replace(statistics, pore_spectrum=(1e-3, 5e-4, 1e-4)),
-                                      ReconstructConfig())
+                                                 "tile": 32, "histogram": False, "amplitude": pytest.approx(0.03),
+                                                 "seed": 5}
+    measured = Background.from_source(
+        dataclasses.replace(statistics, pore_spectrum=(1e-3, 5e-4, 1e-4), pore_quantiles=(-1.0, 0.0, 1.0)),
+        ReconstructConfig())
     assert measured.pore_spectrum == (1e-3, 5e-4, 1e-4)
+    assert measured.pore_quantiles == (-1.0, 0.0, 1.0)
     assert measured.texture_record(seed=5)["model"] == "measured"
+    assert measured.texture_record(seed=5)["histogram"] is True
 
 
 def _ball_scene(large_library, n=12):

@@ -19,8 +19,8 @@ Transforms, by config name:
 ``poisson_noise``         `PoissonNoise` (photons): counting noise, variance ~ intensity
 ``gaussian_blur``         `GaussianBlur` (sigma): detector / focal-spot blur
 ``motion_blur``           `MotionBlur` (length, angle): in-slice line kernel
-``ring_artefacts``        `RingArtefacts` (amplitude, n_rings, width, radii)
-``beam_hardening``        `BeamHardening` (strength): radial cupping
+``ring_artefacts``        `RingArtefacts` (amplitude, n_rings, width, radii, amplitudes)
+``beam_hardening``        `BeamHardening` (strength): radial cupping (signed)
 ``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
                           filter_name): projection, photon noise, gain errors, FBP
 ``compose``               `Compose` (transforms)

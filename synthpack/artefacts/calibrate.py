@@ -32,8 +32,18 @@ its cost is fixed and vanishes per voxel on big packs.
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
 
+3. **Scanner artefacts**, where the source shows them
+   (`~synthpack.source.scanner.measure_scanner`), applied last with the source's
+   measured values, fixed: `~synthpack.artefacts.BeamHardening` of the source's
+   cupping strength (relative to the field of view, which for a pack's tube sized
+   from the source's lateral extent is about the source's) and
+   `~synthpack.artefacts.RingArtefacts` at the source's ring radii, amplitudes and
+   width, both about the slice centre, which is the pack's tube axis. Each is a
+   per-slice radial table, so it costs one pass over the volume. Off where the source
+   shows none (None in its statistics).
+
 The fit has no random part; with the pack's seed the noise realisation is
-reproducible too. It records the grid search and every value it matched.
+reproducible too. It records the grid search and every value it matched or applied.
 """
 
 from __future__ import annotations
@@ -54,6 +64,7 @@ from ._base import Compose
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
 from .noise import GaussianNoise
+from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
@@ -121,6 +132,14 @@ class Calibration:
         intensity units (the figures the realism report prints).
     sigmas, fitted_sigmas : list of float
         The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
+    cupping_strength : float or None
+        The source's cupping, applied as `~synthpack.artefacts.BeamHardening`'s strength
+        (dimensionless); None: none applied.
+    ring_radii, ring_amplitudes : list of float or None
+        The source's rings, applied by `~synthpack.artefacts.RingArtefacts`: radii from
+        the tube axis (voxels) and signed peaks (intensity units); None: none applied.
+    ring_width : float or None
+        Their full width at half maximum, voxels.
     """
 
     blur_sigma: float
@@ -142,15 +161,29 @@ class Calibration:
     noise_std: float
     sigmas: list[float]
     fitted_sigmas: list[float]
+    cupping_strength: float | None = None
+    ring_radii: list[float] | None = None
+    ring_amplitudes: list[float] | None = None
+    ring_width: float | None = None
 
     def pipeline(self) -> Compose:
-        """``Compose([GaussianBlur(blur_sigma), ColouredNoise(added_power, levels)])``."""
-        return Compose([
+        """``Compose([GaussianBlur(blur_sigma), ColouredNoise(added_power, levels)])``, then the scanner's artefacts.
+
+        `BeamHardening` where `cupping_strength` is set, `RingArtefacts` where `ring_radii` are.
+        """
+        transforms = [
             GaussianBlur(sigma=self.blur_sigma),
             ColouredNoise(pore_power=self.added_power["pores"], grain_power=self.added_power["grains"],
                           pore_level=self.pore_level, grain_level=self.grain_level,
                           pore_std=self.added_phase_noise["pores"], grain_std=self.added_phase_noise["grains"]),
-        ])
+        ]
+        if self.cupping_strength is not None:
+            transforms.append(BeamHardening(strength=self.cupping_strength))
+        if self.ring_radii is not None:
+            transforms.append(RingArtefacts(amplitude=max(abs(a) for a in self.ring_amplitudes),
+                                            n_rings=len(self.ring_radii), width=self.ring_width,
+                                            radii=self.ring_radii, amplitudes=self.ring_amplitudes))
+        return Compose(transforms)
 
     def to_dict(self) -> dict:
         """JSON-able dict of every field."""
@@ -228,6 +261,8 @@ def calibrate(
     pore_level: float,
     grain_level: float,
     pore_texture: np.ndarray | None = None,
+    cupping_strength: float | None = None,
+    rings: tuple[Sequence[float], Sequence[float], float] | None = None,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
 ) -> Calibration:
@@ -260,6 +295,13 @@ def calibrate(
         Power spectral density of the render's pore texture on the FFT grid of its
         tile (`~synthpack.pore_texture.PoreTexture.density`): the clean pores'
         spectrum where no patch fits in the pack's pore interior.
+    cupping_strength : float, optional
+        The source's cupping (`~synthpack.source.SourceStatistics.cupping_strength`),
+        applied last; None: none.
+    rings : (radii, amplitudes, width), optional
+        The source's rings (`~synthpack.source.SourceStatistics.ring_radii`,
+        ``ring_amplitudes``, ``ring_width``; voxels, intensity units, voxels), applied
+        last; None: none.
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
     max_voxels : int
@@ -317,8 +359,12 @@ def calibrate(
         target_noise=float(target_noise),
         noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
         sigmas=sigmas, fitted_sigmas=fitted,
+        cupping_strength=None if cupping_strength is None else float(cupping_strength),
+        ring_radii=None if rings is None else [float(r) for r in rings[0]],
+        ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
+        ring_width=None if rings is None else float(rings[2]),
     )
     logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "
-                "noise added %s", sigma, spread.sigma, spread.shift, target_sigma, target_shift,
-                {k: float(np.sum(v)) for k, v in added.items()})
+                "noise added %s, cupping %s, rings %s", sigma, spread.sigma, spread.shift, target_sigma, target_shift,
+                {k: float(np.sum(v)) for k, v in added.items()}, cupping_strength, rings)
     return calibration

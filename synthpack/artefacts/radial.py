@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .._arrays import radius_grid
+from ..errors import SynthpackInputError
 from ._base import Transform
 from ._param import IntRange, Param, Range
 
@@ -46,8 +47,9 @@ class RingArtefacts(Transform):
     ring at the pixel's distance from the axis. Here each ring is an additive
     Gaussian profile in ``r`` of full width at half maximum `width`, its
     amplitude ``sign * amplitude * U(0.5, 1)`` with a random sign (brighter or
-    darker ring), at a radius drawn uniformly in ``[0, min(Y, X) / 2]`` (the
-    field of view) unless `radii` fixes them.
+    darker ring) unless `amplitudes` fixes them, at a radius drawn uniformly in
+    ``[0, min(Y, X) / 2]`` (the field of view) unless `radii` fixes them (a scan's
+    measured rings: `~synthpack.source.SourceStatistics.ring_radii`).
 
     Parameters
     ----------
@@ -59,6 +61,9 @@ class RingArtefacts(Transform):
         Ring FWHM in voxels (> 0). Default 1.5.
     radii : list of float or None
         Fixed ring radii in voxels; overrides `n_rings`. Default None.
+    amplitudes : list of float or None
+        Fixed signed ring amplitudes in intensity units, one per radius of `radii`;
+        overrides the random amplitudes and signs (`amplitude` is then unused). Default None.
     p : float
         Probability of applying the transform at a call. Default 1.
     """
@@ -69,6 +74,7 @@ class RingArtefacts(Transform):
         Param("n_rings", kind="int", minimum=0),
         Param("width", minimum=0.0, exclusive_minimum=True),
         Param("radii", kind="floats", minimum=0.0, optional=True, rangeable=False),
+        Param("amplitudes", kind="floats", optional=True, rangeable=False),
     )
 
     def __init__(
@@ -77,10 +83,16 @@ class RingArtefacts(Transform):
         n_rings: IntRange = (3, 10),
         width: Range = 1.5,
         radii: Sequence[float] | None = None,
+        amplitudes: Sequence[float] | None = None,
         *,
         p: float = 1.0,
     ) -> None:
-        super().__init__(amplitude=amplitude, n_rings=n_rings, width=width, radii=radii, p=p)
+        super().__init__(amplitude=amplitude, n_rings=n_rings, width=width, radii=radii, amplitudes=amplitudes, p=p)
+        if self.amplitudes is not None and (self.radii is None or len(self.radii) != len(self.amplitudes)):
+            raise SynthpackInputError(
+                f"parameter 'amplitudes' of {self.name!r} needs one value per ring of 'radii', got "
+                f"{len(self.amplitudes)} amplitudes and radii {self.radii!r}: give both lists, of the same length"
+            )
 
     def _pattern(
         self,
@@ -91,15 +103,19 @@ class RingArtefacts(Transform):
         n_rings: int,
         width: float,
         radii: tuple[float, ...] | None,
+        amplitudes: tuple[float, ...] | None,
     ) -> np.ndarray:
         """The additive ring pattern of one slice of an image of `shape`: float32, (Y, X)."""
         if radii is None:
             ring_radii = rng.uniform(0.0, min(shape[-2:]) / 2.0, size=n_rings)
         else:
             ring_radii = np.asarray(radii, dtype=np.float64)
-        signs = rng.choice([-1.0, 1.0], size=ring_radii.size)
-        amplitudes = amplitude * signs * rng.uniform(0.5, 1.0, size=ring_radii.size)
-        return _ring_pattern(shape, ring_radii, amplitudes, width)
+        if amplitudes is None:
+            signs = rng.choice([-1.0, 1.0], size=ring_radii.size)
+            peaks = amplitude * signs * rng.uniform(0.5, 1.0, size=ring_radii.size)
+        else:
+            peaks = np.asarray(amplitudes, dtype=np.float64)
+        return _ring_pattern(shape, ring_radii, peaks, width)
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
         return image + self._pattern(image.shape, rng, **params)
@@ -119,25 +135,27 @@ class RingArtefacts(Transform):
 
 
 class BeamHardening(Transform):
-    """Cupping: intensities fall off towards the centre of each slice.
+    """Cupping: intensities fall off (or, with a negative strength, rise) towards the centre of each slice.
 
     A polychromatic beam hardens (loses its soft photons) along long paths, so
     rays through the middle of the sample look less attenuating and the
     reconstruction is darker in the centre. Modelled as the radial factor
     ``out = image * (1 - strength * max(1 - (r / R)^2, 0))`` with ``R = min(Y, X) / 2``
     (the field of view): the centre is scaled by ``1 - strength``, the rim of the
-    field of view and everything outside it is unchanged.
+    field of view and everything outside it is unchanged. A scan's measured
+    strength (`~synthpack.source.SourceStatistics.cupping_strength`) is fitted to this form.
 
     Parameters
     ----------
     strength : float or (float, float)
-        Relative darkening of the centre, in [0, 1]. Default 0.05.
+        Relative darkening of the centre, in [-1, 1]: negative for a brighter centre
+        (as a scatter correction or a neutron scan may show). Default 0.05.
     p : float
         Probability of applying the transform at a call. Default 1.
     """
 
     name = "beam_hardening"
-    params = (Param("strength", minimum=0.0, maximum=1.0),)
+    params = (Param("strength", minimum=-1.0, maximum=1.0),)
 
     def __init__(self, strength: Range = 0.05, *, p: float = 1.0) -> None:
         super().__init__(strength=strength, p=p)

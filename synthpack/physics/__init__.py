@@ -5,6 +5,11 @@ converts it to simulation units, runs an engine batch by batch (each batch falls
 settles and is locked before the next enters), converts the poses back to physical
 units, checks the result (:mod:`.checks`) and returns :class:`Placements`.
 
+Containment is guaranteed: a pour that leaves a grain outside the tube is run again
+with twice the solver substeps; if one is still outside, or any grain reaches above
+the rim, :class:`~synthpack.errors.ContainmentError` is raised instead of returning
+a pack with grains outside.
+
 Simulation units: 1 length unit = the library's median equivalent diameter (grains
 are ~1 unit across; gravity 9.81 units/s^2), 1 mass unit = the library's median
 grain mass. The engines are listed in :mod:`.registry`: ``"pybullet"`` (default,
@@ -17,13 +22,13 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..errors import SynthpackInputError
+from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
 from .config import PourConfig
 from .container import Tube
@@ -36,8 +41,12 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "pour", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks",
-    "ENGINES", "get_engine",
+    "ENGINES", "get_engine", "CONTAINMENT_ATTEMPTS",
 ]
+
+#: Runs of a pour before it gives up on containment: the first, then one with
+#: twice the solver substeps.
+CONTAINMENT_ATTEMPTS = 2
 
 
 def pour(
@@ -86,7 +95,7 @@ def pour(
     engine_options : mapping, optional
         The engine's options that differ from its defaults: fields of
         :class:`~synthpack.physics.pybullet_engine.PybulletOptions` (e.g.
-        ``convex_decomposition``, ``max_hull_vertices``, ``fixed_steps``) or
+        ``max_hull_vertices``, ``fixed_steps``, ``allow_sleeping``) or
         :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
         ``blend_file``). They are recorded in ``Placements.parameters``.
     indices : sequence of int, optional
@@ -103,6 +112,9 @@ def pour(
     SynthpackInputError
         For a bad count, batch size, seed, engine, option, material, settle
         criterion, scale, size class, tube or indices, or an engine that cannot run here.
+    ContainmentError
+        When grains end outside the tube even on the retry with twice the substeps,
+        or above its rim (never a pack with grains outside).
     """
     n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
     chosen = get_engine(engine)
@@ -121,11 +133,17 @@ def pour(
     bodies = _bodies(library, plan, length, mass_unit)
     logger.info("Pouring %d grains in %d batches with %s (seed %d)",
                 n_particles, plan.n_batches, chosen.name, seed)
-    result, seconds = _run(chosen, bodies, tube.spec(length), material, settle, options,
-                           plan.n_batches, progress)
-
-    positions = np.asarray(result.positions, dtype=float) * length
-    checks = _checks(library, plan, positions, result, tube, length, seconds, seed)
+    for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
+        result, seconds = _run(chosen, bodies, tube.spec(length), material, settle, options,
+                               plan.n_batches, progress)
+        positions = np.asarray(result.positions, dtype=float) * length
+        checks = _checks(library, plan, positions, result, tube, length, seconds, seed)
+        if checks.n_outside == 0 or attempt == CONTAINMENT_ATTEMPTS:
+            break
+        logger.warning("%d grains ended outside the tube; pouring again with %d substeps per step.",
+                       checks.n_outside, 2 * settle.substeps)
+        settle = replace(settle, substeps=2 * settle.substeps)
+    _check_containment(checks, tube)
     parameters = {
         "n_particles": n_particles,
         "batch_size": batch_size,
@@ -138,6 +156,21 @@ def pour(
         "engine_options": {name: getattr(options, name) for name in engine_options or {}},
     }
     return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)
+
+
+def _check_containment(checks: PourChecks, tube: Tube) -> None:
+    """Raise ContainmentError for grains outside the tube or above its rim."""
+    if checks.n_outside:
+        raise ContainmentError(
+            f"{checks.n_outside} grains ended outside the tube (up to "
+            f"{checks.max_wall_penetration_voxels:.2f} voxels into the wall or floor) even with "
+            "twice the solver substeps; use a smaller pour.scale or a smaller time step."
+        )
+    if checks.n_above_rim:
+        raise ContainmentError(
+            f"{checks.n_above_rim} grains reach above the tube's rim (height {tube.height:g}, pack top "
+            f"{checks.fill_height:g}); give a taller pour.tube_height or pour fewer grains."
+        )
 
 
 def _check_request(library: Any, n_particles: Any, batch_size: Any, seed: Any) -> tuple[int, int, int]:

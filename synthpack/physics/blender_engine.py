@@ -144,8 +144,13 @@ class BlenderEngine(Engine):
     Options = BlenderOptions
 
     def check(self, material: Material, settle: SettleCriteria, options: EngineOptions) -> None:
-        """The common checks, Blender's collision-margin and frame limits and the .blend file's folder."""
+        """The common checks, hulls only, Blender's collision-margin and frame limits and the .blend file's folder."""
         super().check(material, settle, options)
+        if material.collision_shape != "hull":
+            raise SynthpackInputError(
+                f"The blender engine collides grains as convex hulls only, not as a "
+                f"{material.collision_shape}; use collision shape 'hull' or the pybullet engine."
+            )
         if not material.collision_margin <= 1:
             raise SynthpackInputError(
                 "Material.collision_margin must be within [0, 1] simulation units, "

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from .._schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
+from .engine import COLLISION_SHAPES, Material, SettleCriteria
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 
@@ -45,8 +46,20 @@ class PourConfig:
     tube_height: float | None = setting(None, positive, "tube height (physical units); default from n_particles")
     friction: float = setting(0.6, non_negative, "friction coefficient")
     restitution: float = setting(0.1, in_range(0.0, 1.0), "restitution (bounciness)")
+    collision_shape: str = setting(
+        Material.collision_shape, one_of(COLLISION_SHAPES),
+        "how grains collide: hull (convex hull) or decomposition (V-HACD convex parts, for concave "
+        "grains; pybullet only, 2-3 s per distinct grain to prepare)",
+    )
     engine_options: dict = setting({}, None, "options of the engine that differ from its defaults, "
                                               "e.g. {max_hull_vertices: 32}")
 
     def __post_init__(self) -> None:
-        get_engine(self.engine).options(self.engine_options, prefix="pour.engine_options.")
+        engine = get_engine(self.engine)
+        engine.check(self.material(), SettleCriteria(),
+                     engine.options(self.engine_options, prefix="pour.engine_options."))
+
+    def material(self) -> Material:
+        """The pour's :class:`~synthpack.physics.engine.Material`: these settings, the rest its defaults."""
+        return Material(friction=self.friction, restitution=self.restitution,
+                        collision_shape=self.collision_shape)

@@ -15,9 +15,22 @@ Choices, and why:
 * Grains collide as their CONVEX HULLS (``GEOM_MESH`` from the hull vertices), as
   rigid bodies in maximal coordinates, simplified to at most ``max_hull_vertices``
   vertices (:mod:`synthpack.physics.hulls`, shared with the Blender engine).
-  ``convex_decomposition=True`` uses a V-HACD decomposition into several convex
-  parts instead, for strongly concave grains (slower to prepare: 2-3 s per distinct
-  grain, measured).
+  ``material.collision_shape == "decomposition"`` uses a V-HACD decomposition into
+  several convex parts instead, for strongly concave grains (slower to prepare: 2-3 s
+  per distinct grain, measured; done once per distinct grain of a pour).
+* Real contacts: Bullet dilates every convex shape by its collision margin (a unit
+  cube of margin m rests at 0.5 + m: measured), so each convex part is shrunk by
+  ``material.collision_margin`` first (:func:`~synthpack.physics.hulls.shrink_hull`)
+  and dilates back onto the hull: grains that touch in the simulation touch.
+* Containment: the simplified hulls (and decompositions) are not exact, so a grain's
+  mesh reaches a little outside its collision shape (up to about 0.4 voxel of a
+  ~20-voxel grain, and 4x that for grains scaled by 4). The tube's colliders are
+  moved inwards by the largest such reach of the pour's grains
+  (:func:`~synthpack.physics.hulls.protrusion`), and the wall is a polygon inscribed
+  in that smaller circle, so a grain resting against the colliders keeps its mesh
+  inside the real tube. Grains have continuous collision detection
+  (``ccdSweptSphereRadius``, half their inradius), against tunnelling when they move
+  fast.
 * Mass and inertia: the body frame is the particle-local frame; the inertial frame
   sits at the mesh's centre of mass, turned to the principal axes of the mesh's
   inertia tensor (uniform density, scaled to the body's mass), passed as
@@ -30,7 +43,8 @@ Choices, and why:
   measured against it on the same pours (150 grains in batches of 50, two seeds):
   both kept every grain inside with at most 0.22 voxel of wall penetration and gave
   the same packing fraction, but the box ring ran 1.3-2x faster (convex-convex
-  contacts instead of convex-triangle ones), so it is the one used. The boxes are
+  contacts instead of convex-triangle ones), so it is the one used. The inner faces
+  are a polygon inscribed in the (inset) circle, its corners on it. The boxes are
   thickened outwards and the floor downwards to at least one unit so a fast grain
   cannot tunnel through. The wall is extended
   above ``tube.height`` as needed to cover each batch's spawn layers, so a grain
@@ -52,14 +66,16 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
 from .._schema import setting
+from ..errors import SynthpackInputError
 from .burial import buried, largest_diameter
 from .engine import (
     Body,
@@ -71,7 +87,7 @@ from .engine import (
     SettleCriteria,
     TubeSpec,
 )
-from .hulls import convex_hull, simplify_hull
+from .hulls import convex_hull, protrusion, shrink_hull, simplify_hull
 
 if TYPE_CHECKING:
     from ._bullet import Client
@@ -95,9 +111,6 @@ class PybulletOptions(EngineOptions):
 
     Attributes
     ----------
-    convex_decomposition : bool
-        Collide grains as V-HACD convex decompositions instead of convex hulls
-        (``max_hull_vertices`` then has no effect).
     allow_sleeping : bool
         Let Bullet put grains that have been nearly still for 2 s to sleep (they wake
         when hit). False keeps every grain of the batch awake, as Blender's rigid
@@ -107,9 +120,6 @@ class PybulletOptions(EngineOptions):
     ``fixed_steps`` and ``record_snapshots``.
     """
 
-    convex_decomposition: bool = setting(
-        False, None, "collide grains as V-HACD convex decompositions instead of convex hulls"
-    )
     allow_sleeping: bool = setting(
         True, None, "let grains that have been nearly still for 2 s sleep until something hits them"
     )
@@ -120,6 +130,18 @@ class PybulletEngine(Engine):
 
     name = "pybullet"
     Options = PybulletOptions
+
+    def options(
+        self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
+    ) -> EngineOptions:
+        """As :meth:`Engine.options`; the former ``convex_decomposition`` option gets a pointer to its successor."""
+        if isinstance(values, Mapping) and "convex_decomposition" in values:
+            raise SynthpackInputError(
+                f"'{prefix}convex_decomposition' is now the collision shape: set pour.collision_shape: "
+                "decomposition in the config, --collision-shape decomposition on the command line, or "
+                "Material(collision_shape='decomposition') in Python."
+            )
+        return super().options(values, prefix)
 
     def _simulate(
         self,
@@ -145,6 +167,8 @@ class _Shape:
     inertial_quat: np.ndarray  # (4,) x, y, z, w: principal axes, local frame
     inertia_diagonal: np.ndarray  # (3,) principal moments for the body's mass
     hull_vertices: np.ndarray  # (H, 3) local frame: for the pack top
+    protrusion: float  # how far the mesh reaches outside the collision shape
+    inradius: float  # distance from the centre of mass to the hull's nearest face
 
 
 def _pour(
@@ -158,14 +182,18 @@ def _pour(
 ) -> EngineResult:
     """Pour `bodies`, batch by batch, on a fresh physics client (see :class:`PybulletEngine`)."""
     _configure(client, settle)
-    wall_top = _build_tube(client, tube, material, 0.0, tube.height)
+    shapes: dict[bytes, _Shape] = {}
+    body_shapes = [_shape_for(client, body, shapes, material, options.max_hull_vertices)
+                   for body in bodies]
+    inset = max(shape.protrusion for shape in shapes.values())
+    logger.debug("Tube colliders inset by %.4f (the grains' largest reach outside their shapes)", inset)
+    wall_top = _build_tube(client, tube, material, 0.0, tube.height, inset)
     n = len(bodies)
     positions = np.zeros((n, 3))
     quaternions = np.zeros((n, 4))
     steps_per_batch: list[int] = []
     settled_per_batch: list[bool] = []
     snapshots: list[tuple[np.ndarray, np.ndarray]] = []
-    shapes: dict[bytes, _Shape] = {}
     locked: dict[int, np.ndarray] = {}  # static body id -> its hull's world vertices
     largest = largest_diameter(b.vertices for b in bodies)
     top = 0.0
@@ -177,11 +205,10 @@ def _pour(
         reach = max(pos[2] + float(np.linalg.norm(bodies[i].vertices, axis=1).max())
                     for i, (pos, _) in zip(members, spawn))
         if reach > wall_top:
-            wall_top = _build_tube(client, tube, material, wall_top, reach + 1.0)
+            wall_top = _build_tube(client, tube, material, wall_top, reach + 1.0, inset)
         active = []
         for i, (pos, quat) in zip(members, spawn):
-            shape = _shape_for(client, bodies[i], shapes, options.convex_decomposition,
-                               options.max_hull_vertices)
+            shape = body_shapes[i]
             body_id = _create_dynamic(client, shape, bodies[i].mass, pos, quat, material)
             if not options.allow_sleeping:
                 client.changeDynamics(body_id, -1,
@@ -244,15 +271,23 @@ def _apply_material(client: Client, body_id: int, material: Material, *, grain: 
     client.changeDynamics(body_id, -1, **options)
 
 
-def _build_tube(client: Client, tube: TubeSpec, material: Material, z0: float, z1: float) -> float:
-    """Add the wall between heights `z0` and `z1` (and the floor when ``z0 == 0``)."""
+def _build_tube(
+    client: Client, tube: TubeSpec, material: Material, z0: float, z1: float, inset: float
+) -> float:
+    """Add the wall between heights `z0` and `z1` (and the floor when ``z0 == 0``).
+
+    The colliders lie `inset` inside the tube: the floor's top face at ``z = inset``,
+    the wall's inner faces a polygon inscribed in the circle of radius
+    ``inner_radius - inset``.
+    """
     thickness = max(tube.wall_thickness, _MIN_COLLIDER_THICKNESS)
     half_height = (z1 - z0) / 2
-    half_width = tube.inner_radius * np.tan(np.pi / WALL_SEGMENTS) * 1.02
+    apothem = (tube.inner_radius - inset) * np.cos(np.pi / WALL_SEGMENTS)
+    half_width = apothem * np.tan(np.pi / WALL_SEGMENTS) * 1.02
     box = client.createCollisionShape(
         client.GEOM_BOX, halfExtents=[thickness / 2, half_width, half_height]
     )
-    centre = tube.inner_radius + thickness / 2
+    centre = apothem + thickness / 2
     for k in range(WALL_SEGMENTS):
         angle = 2 * np.pi * k / WALL_SEGMENTS
         body = client.createMultiBody(
@@ -267,7 +302,7 @@ def _build_tube(client: Client, tube: TubeSpec, material: Material, z0: float, z
         floor = client.createCollisionShape(
             client.GEOM_BOX, halfExtents=[extent, extent, base / 2]
         )
-        body = client.createMultiBody(0.0, floor, -1, basePosition=[0.0, 0.0, -base / 2])
+        body = client.createMultiBody(0.0, floor, -1, basePosition=[0.0, 0.0, inset - base / 2])
         _apply_material(client, body, material, grain=False)
     return z1
 
@@ -279,7 +314,8 @@ def _spawn_pose(body: Body, top: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _shape_for(
-    client: Client, body: Body, cache: dict[bytes, _Shape], decompose: bool, max_vertices: int | None
+    client: Client, body: Body, cache: dict[bytes, _Shape], material: Material,
+    max_vertices: int | None,
 ) -> _Shape:
     """Collision shape and inertial frame of `body`, shared by identical geometries."""
     vertices = np.ascontiguousarray(body.vertices, dtype=np.float64)
@@ -288,11 +324,12 @@ def _shape_for(
     if key in cache:
         return cache[key]
     hull = convex_hull(vertices)
-    if decompose:
-        shape_id = _decomposed_shape(client, vertices, faces)
+    if material.collision_shape == "decomposition":
+        parts = _decomposed_parts(client, vertices, faces)
     else:
-        collider = np.asarray(simplify_hull(hull, max_vertices).vertices)
-        shape_id = client.createCollisionShape(client.GEOM_MESH, vertices=collider.tolist())
+        parts = [simplify_hull(hull, max_vertices)]
+    shrunk = [shrink_hull(part, material.collision_margin) for part in parts]
+    shape_id = _collision_shape(client, shrunk)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     inertia = np.asarray(mesh.moment_inertia) * (body.mass / mesh.volume)
     moments, axes = np.linalg.eigh(inertia)
@@ -304,13 +341,16 @@ def _shape_for(
         inertial_quat=Rotation.from_matrix(axes).as_quat(),
         inertia_diagonal=np.maximum(moments, 1e-12),
         hull_vertices=np.asarray(hull.vertices),
+        protrusion=protrusion(vertices, shrunk),
+        inradius=max(0.0, float(np.einsum("fi,fi->f", hull.face_normals,
+                                          hull.triangles[:, 0] - body.center_mass).min())),
     )
     cache[key] = shape
     return shape
 
 
-def _decomposed_shape(client: Client, vertices: np.ndarray, faces: np.ndarray) -> int:
-    """Collision shape from a V-HACD convex decomposition of the mesh."""
+def _decomposed_parts(client: Client, vertices: np.ndarray, faces: np.ndarray) -> list[trimesh.Trimesh]:
+    """The convex parts of a V-HACD decomposition of the mesh (pybullet's ``vhacd``)."""
     from ._bullet import silenced_stdout
 
     with tempfile.TemporaryDirectory(prefix="synthpack-vhacd-") as tmp:
@@ -318,7 +358,36 @@ def _decomposed_shape(client: Client, vertices: np.ndarray, faces: np.ndarray) -
         trimesh.Trimesh(vertices, faces, process=False).export(source)
         with silenced_stdout():  # V-HACD prints its progress from C
             client.vhacd(source, target, os.path.join(tmp, "log.txt"))
-        return client.createCollisionShape(client.GEOM_MESH, fileName=target)
+        with open(target) as obj:
+            lines = obj.read().splitlines()
+    parts: list[list[list[float]]] = []
+    for line in lines:  # "o convex_k" starts part k; its "v x y z" lines follow
+        if line.startswith("o "):
+            parts.append([])
+        elif line.startswith("v ") and parts:
+            parts[-1].append([float(v) for v in line.split()[1:4]])
+    return [convex_hull(np.array(part)) for part in parts if len(part) >= 4]
+
+
+def _collision_shape(client: Client, parts: list[np.ndarray]) -> int:
+    """One collision shape made of the convex hulls of `parts` (vertex arrays, local frame).
+
+    pybullet takes a single convex hull from a vertex list; several parts go through
+    an OBJ file of one object per part, which it loads as a compound of convex hulls.
+    """
+    if len(parts) == 1:
+        return client.createCollisionShape(client.GEOM_MESH, vertices=parts[0].tolist())
+    with tempfile.TemporaryDirectory(prefix="synthpack-parts-") as tmp:
+        path = os.path.join(tmp, "parts.obj")
+        with open(path, "w") as obj:
+            first = 1  # OBJ numbers vertices from 1, across objects
+            for k, part in enumerate(parts):
+                hull = convex_hull(part)
+                obj.write(f"o part_{k}\n")
+                obj.writelines(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in hull.vertices)
+                obj.writelines(f"f {a + first} {b + first} {c + first}\n" for a, b, c in hull.faces)
+                first += len(hull.vertices)
+        return client.createCollisionShape(client.GEOM_MESH, fileName=path)
 
 
 def _create_dynamic(
@@ -336,7 +405,8 @@ def _create_dynamic(
     )
     # The mass must be repeated: for maximal-coordinate bodies pybullet otherwise
     # resets it to 0 when the inertia is changed (measured with pybullet 3.2.x).
-    client.changeDynamics(body, -1, mass=mass, localInertiaDiagonal=shape.inertia_diagonal.tolist())
+    client.changeDynamics(body, -1, mass=mass, localInertiaDiagonal=shape.inertia_diagonal.tolist(),
+                          ccdSweptSphereRadius=0.5 * shape.inradius)
     _apply_material(client, body, material, grain=True)
     return body
 

@@ -12,7 +12,9 @@ from .edges import edge_profile, edge_width, signed_distance
 from .noise import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
+from .pore_histogram import measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
+from .scanner import measure_scanner
 from .specimen import specimen_mask
 from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
 
@@ -77,6 +79,28 @@ class SourceStatistics:
         averaged over 3D shells ``k = 0, 1, ...`` at ``k / PORE_SPECTRUM_SIZE``
         cycles per voxel, intensity units squared times voxels cubed; the pack's
         pore texture is drawn from it. None where the pore interior is too small.
+    pore_quantiles : tuple of float or None
+        Shape of the pore interior's intensity histogram: quantiles of ``(I - median) / std``
+        at the probabilities of `~synthpack.source.pore_histogram.QUANTILE_SCORES`
+        (`~synthpack.source.pore_histogram.measure_pore_quantiles`), dimensionless; the
+        measured pore texture's values are mapped onto it. None where the pore interior is too small.
+    scan_axis : (float, float) or None
+        ``(y, x)`` of the scan's rotation axis in every slice, voxels
+        (`~synthpack.source.scanner.rotation_axis`); None for an empty specimen.
+    cupping_strength : float or None
+        `~synthpack.artefacts.BeamHardening` strength of the scan's cupping (dimensionless,
+        < 0 for a brighter centre), `~synthpack.source.scanner.measure_scanner`; None where
+        not significant.
+    cupping_error : float or None
+        Its standard error (also when not significant); None where not measured.
+    ring_radii, ring_amplitudes : tuple of float or None
+        Radius (voxels from the axis) and signed peak (intensity units) of each ring
+        artefact found; None where none is.
+    ring_width : float or None
+        The rings' common full width at half maximum, voxels; None with `ring_radii`.
+    wall_intensity, wall_thickness, wall_gap : float or None
+        The container wall around the specimen: intensity (intensity units), thickness
+        and gap between the specimen and its inner face (voxels); None where there is none.
     """
 
     pore_mean: float
@@ -91,6 +115,16 @@ class SourceStatistics:
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
     pore_spectrum: tuple[float, ...] | None = None
+    pore_quantiles: tuple[float, ...] | None = None
+    scan_axis: tuple[float, float] | None = None
+    cupping_strength: float | None = None
+    cupping_error: float | None = None
+    ring_radii: tuple[float, ...] | None = None
+    ring_amplitudes: tuple[float, ...] | None = None
+    ring_width: float | None = None
+    wall_intensity: float | None = None
+    wall_thickness: float | None = None
+    wall_gap: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -124,13 +158,20 @@ class SourceStatistics:
         return cls(**{name: tuple(value) if isinstance(value, list) else value for name, value in data.items()})
 
 
-def measure_source(scan: Scan) -> SourceStatistics:
-    """Measure every `SourceStatistics` field of `scan`.
+def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int = 0) -> SourceStatistics:
+    """Measure every `SourceStatistics` field of `scan`, inside its specimen.
 
     Parameters
     ----------
     scan : Scan
         Tomogram and labels (0 = pore, > 0 = grain).
+    exclude : (start, stop), optional
+        Slices ``start <= i < stop`` along `axis` that no figure may read (a held-out
+        test block, `~synthpack.split.central_block`): they are taken out of the
+        specimen region every measure is restricted to, so the scan keeps its
+        geometry (the rotation axis, the wall's radius) whatever the `axis`.
+    axis : int
+        Axis of `exclude` (0, 1 or 2).
 
     Returns
     -------
@@ -142,7 +183,13 @@ def measure_source(scan: Scan) -> SourceStatistics:
     SynthpackInputError
         If the noise cannot be estimated (no grain or pore interior to measure it in).
     """
-    specimen = specimen_mask(scan.labels)
+    whole = specimen_mask(scan.labels)
+    specimen = whole
+    if exclude is not None:
+        block = [slice(None)] * 3
+        block[axis] = slice(*exclude)
+        specimen = whole.copy()
+        specimen[tuple(block)] = False
     levels = estimate_phases(scan, region=specimen)
     noise = estimate_noise(scan.tomogram, scan.labels, region=specimen)
     distance = signed_distance(scan.labels)
@@ -156,14 +203,21 @@ def measure_source(scan: Scan) -> SourceStatistics:
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
                for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen).items() if spectrum is not None}
-    pore_spectrum = measure_pore_spectrum(scan.tomogram, phase_interiors(distance, specimen)["pores"])
+    pore_interior = phase_interiors(distance, specimen)["pores"]
+    pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
     if pore_spectrum is None:
         logger.warning("the source's pore spectrum cannot be measured (too little pore interior): packs get the "
                        "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
+    pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
+    if pore_quantiles is not None:
+        spectra["pore_quantiles"] = tuple(float(q) for q in pore_quantiles)
+    scanner = measure_scanner(scan.tomogram, scan.labels, whole, distance, pore_level=levels.pore_mean,
+                              grain_level=levels.grain_mean, region=specimen)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
-                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra)
+                                  noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
+                                  **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
     return statistics
