@@ -25,6 +25,7 @@ from . import __version__
 from ._atomic import Output, check_output, remove_stale_staging
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
+from .deform import Deform
 from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
 from .errors import ContainmentError, PackBuildError, SynthpackInputError
@@ -161,6 +162,8 @@ def _load_config(args: argparse.Namespace):
     changes = {"pour": pour} if pour else {}
     if args.seed is not None:
         changes["seed"] = args.seed
+    if args.deform_strength is not None:
+        changes["grains"] = {"deform": dict(vars(config.grains.deform), strength=args.deform_strength)}
     if args.calibrate:
         changes["postprocess"] = "calibrated"
     return config.replace(**changes) if changes else config
@@ -387,6 +390,8 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--target-solid-fraction", type=_target_option, metavar="TARGET",
                           help=help_of(PourConfig, "target_solid_fraction").replace("(default", "(config default"))
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
+    generate.add_argument("--deform-strength", type=float, metavar="S",
+                          help=help_of(Deform, "strength") + " (config grains.deform.strength)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
     generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff",
                           help="volume format (default tiff); zarr packs are written chunk by chunk, "

@@ -1,18 +1,19 @@
 """The pack configuration: every parameter of ``synthpack generate``, validated.
 
-A configuration is plain YAML (or a dict) with four sections; every key is
+A configuration is plain YAML (or a dict) with these sections; every key is
 optional and falls back to the default shown by ``synthpack generate
 --print-config``::
 
     seed: 0
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
+    grains: {deform: {strength: 0.0, lattice: 3}}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {model: measured, ...}}
     postprocess: calibrated       # or match_source, generic, none, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
-are written once: :class:`~synthpack.library.LibraryConfig`,
-:class:`~synthpack.physics.PourConfig` and
+are written once: :class:`~synthpack.library.LibraryConfig`, :class:`GrainsConfig` (with
+:class:`~synthpack.deform.Deform`), :class:`~synthpack.physics.PourConfig` and
 :class:`~synthpack.reconstruct.ReconstructConfig` (with its sub-section
 :class:`~synthpack.pore_texture.PoreTexture`). What each ``postprocess`` value
 means is resolved by :func:`~synthpack.postprocess.resolve_postprocessing`; the
@@ -37,6 +38,7 @@ import yaml
 
 from ._schema import build, default_of, non_negative, setting
 from .artefacts import from_config
+from .deform import Deform
 from .errors import SynthpackInputError
 from .library import LibraryConfig
 from .physics.config import PourConfig
@@ -47,6 +49,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "PackConfig",
+    "GrainsConfig",
     "LibraryConfig",
     "PourConfig",
     "ReconstructConfig",
@@ -74,11 +77,23 @@ def _warn_deprecated_postprocess(default: str) -> None:
 
 
 @dataclass(frozen=True)
+class GrainsConfig:
+    """How the grains of a pack are made from the library's: the ``grains`` section.
+
+    ``deform`` is a sub-section: the free-form deformation of each placed grain
+    (:class:`~synthpack.deform.Deform`; off by default).
+    """
+
+    deform: Deform = field(default_factory=Deform)
+
+
+@dataclass(frozen=True)
 class PackConfig:
     """Everything that defines a synthetic pack; the same config gives the same pack."""
 
     seed: int = setting(0, non_negative, "run seed; pack k uses a seed derived from it and k")
     library: LibraryConfig = field(default_factory=LibraryConfig)
+    grains: GrainsConfig = field(default_factory=GrainsConfig)
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
     postprocess: str | list = setting(

@@ -22,6 +22,7 @@ from ._atomic import check_output
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from .artefacts.blockwise import apply_blockwise
 from .config import PackConfig, ReconstructConfig
+from .deform import PackGrains, pack_grains
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
@@ -142,10 +143,14 @@ def build_pack(
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
+    grains = None
+    if config.grains.deform.strength > 0:
+        with _timed(timings, "deform"):
+            grains = pack_grains(library, config.pour.n_particles, config.grains.deform, seed)
     with _timed(timings, "pour"):
-        placements = _pour(library, config, seed, progress)
+        placements = _pour(library, config, seed, progress, grains)
     with _timed(timings, "reconstruct"):
-        render = _render(library, placements, config.reconstruct, seed, threads, allocate)
+        render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains)
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
@@ -188,25 +193,41 @@ class _Render:
     wall: tuple[float, float]
 
 
-def _pour(library: ParticleLibrary, config: PackConfig, seed: int, progress: bool) -> Placements:
-    """The pour (paper 3.3) of ``config.pour`` with `seed`."""
+def _pour(
+    library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None,
+) -> Placements:
+    """The pour (paper 3.3) of ``config.pour`` with `seed`.
+
+    With `grains`, placement ``k`` pours ``grains.particles[k]`` (a deformed grain, in its
+    own frame); the placements name its library grain (``indices``) and record how it
+    was made (``grains``). The tube is the library's either way.
+    """
     pour_config = config.pour
     scale = pour_config.scale if isinstance(pour_config.scale, (int, float)) else tuple(pour_config.scale)
+    poured = library if grains is None else grains.particles
     placements = pour(
-        library, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
+        poured, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
         seed=seed, container=_tube(library, config), scale=scale,
         material=pour_config.material(),
         progress=progress, engine_options=pour_config.engine_options,
         target_solid_fraction=pour_config.target_solid_fraction,
+        indices=None if grains is None else np.arange(len(poured)),
     )
+    if grains is not None:
+        placements = dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
     return placements
 
 
 def _render(
     library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
-    threads: int | None, allocate: Allocate,
+    threads: int | None, allocate: Allocate, grains: PackGrains | None,
 ) -> _Render:
-    """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays."""
+    """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
+
+    Placement ``k``'s grain is ``library[placements.indices[k]]``, or ``grains.particles[k]`` with `grains`.
+    """
+    particles, placed = (library, placements.indices) if grains is None else (
+        grains.particles, np.arange(len(placements)))
     tube = placements.tube
     chunks = tuple(config.chunks)
     background = Background.from_source(library.statistics, config)
@@ -214,11 +235,11 @@ def _render(
     grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=config.margin)
     partial_volume = config.partial_volume_of(library.statistics)
-    maps = pose_maps([p.mask for p in library], placements.indices,
+    maps = pose_maps([p.mask for p in particles], placed,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
                      reach=partial_volume.reach if partial_volume else 1.0)
     clean, labels, contested = reconstruct(
-        [(p.tomogram, p.mask) for p in library], maps, grid, background,
+        [(p.tomogram, p.mask) for p in particles], maps, grid, background,
         tube=(wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),

@@ -208,7 +208,7 @@ class ParticleLibrary(Sequence[Particle]):
 
     def __getitem__(self, index):  # type: ignore[override]
         if isinstance(index, slice):
-            return self._subset(self.particles[index])
+            return self.with_particles(self.particles[index])
         return self.particles[index]
 
     def __iter__(self) -> Iterator[Particle]:
@@ -238,7 +238,7 @@ class ParticleLibrary(Sequence[Particle]):
                 f"this library spans {self.equivalent_diameters.min():.4g}-"
                 f"{self.equivalent_diameters.max():.4g} {self.unit}"
             )
-        return self._subset(keep)
+        return self.with_particles(keep)
 
     def size_distribution(self, edges: Sequence[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Particle counts per equivalent-diameter class.
@@ -271,9 +271,11 @@ class ParticleLibrary(Sequence[Particle]):
             lines.append(f"{lo:>11.4g} - {hi:<10.4g}  {n:5d}  {'#' * int(round(40 * n / counts.max()))}")
         return "\n".join(lines)
 
-    def _subset(self, particles: list[Particle]) -> ParticleLibrary:
+    def with_particles(self, particles: Sequence[Particle]) -> ParticleLibrary:
+        """A library of `particles` with this one's voxel size, unit, density, statistics, source and settings
+        (a subset, or grains made from these, e.g. by `synthpack.deform`)."""
         return ParticleLibrary(
-            particles, voxel_size=self.voxel_size, unit=self.unit, density=self.density,
+            list(particles), voxel_size=self.voxel_size, unit=self.unit, density=self.density,
             statistics=self.statistics, source_shape=self.source_shape, source=self.source,
             settings=self.settings,
         )

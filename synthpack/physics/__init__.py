@@ -64,6 +64,7 @@ def pour(
     progress: bool = True,
     engine_options: Mapping[str, Any] | None = None,
     target_solid_fraction: float | str | None = PourConfig.target_solid_fraction,
+    indices: Sequence[int] | None = None,
 ) -> Placements:
     """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
 
@@ -108,6 +109,9 @@ def pour(
         freely for ``"source"`` and refuses a number. The reached value is in the
         checks (``target_reached`` False, and a warning, when it is more than
         :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
+    indices : sequence of int, optional
+        The library index of each grain, in pouring order, instead of drawing
+        them (see :func:`~synthpack.physics.plan.make_plan`).
 
     Returns
     -------
@@ -118,7 +122,7 @@ def pour(
     ------
     SynthpackInputError
         For a bad count, batch size, seed, engine, option, material, settle
-        criterion, scale, size class, tube or target, or an engine that cannot run here.
+        criterion, scale, size class, tube, target or indices, or an engine that cannot run here.
     ContainmentError
         When grains end outside the tube even on the retry with twice the substeps,
         or above its rim (never a pack with grains outside).
@@ -135,7 +139,7 @@ def pour(
     tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
-                     size_classes=size_classes)
+                     size_classes=size_classes, indices=indices)
     length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float)))
     mass_unit = float(np.median([library[i].mass for i in range(len(library))]))
     bodies = _bodies(library, plan, length, mass_unit)

@@ -21,8 +21,10 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["Placements", "FORMAT_VERSION"]
 
-#: Version of the JSON layout written by :meth:`Placements.save`.
-FORMAT_VERSION = 1
+#: Version of the JSON layout written by :meth:`Placements.save`: 2 adds ``grains`` (deformed grains).
+#: Placements without it are written as version 1, byte for byte as before, and both are read.
+FORMAT_VERSION = 2
+_READ_VERSIONS = (1, 2)
 _FORMAT = "synthpack.placements"
 
 
@@ -43,7 +45,8 @@ class Placements:
 
     Positions are in physical units (the library's ``unit``) in the world frame
     (x, y, z; z up the tube axis, inner floor at z = 0) and locate each grain's
-    particle-LOCAL ORIGIN (the centre of its crop box). Rotations map local to world
+    particle-LOCAL ORIGIN (the centre of its crop box; of the deformed grain's crop box
+    when `grains` is set). Rotations map local to world
     coordinates; the grain's mesh is scaled by ``scales`` about its local origin
     before it is rotated.
 
@@ -74,6 +77,13 @@ class Placements:
         size_classes, material, settle, length_scale, engine options.
     checks : PourChecks
         Quality checks and engine statistics.
+    grains : dict or None
+        None: placement ``i`` is library grain ``indices[i]`` as it is. Otherwise
+        (JSON-able) how each placement's grain was made from library grain
+        ``indices[i]``: e.g. the free-form deformation record of
+        `synthpack.deform.PackGrains.record` (method, strength, lattice, and per
+        placement a seed and a damping factor), which redoes it
+        (`synthpack.deform.redo_grains`).
     snapshots : list of (numpy.ndarray, numpy.ndarray) or None
         Diagnostic, only when asked for and NOT saved: per batch k, positions (n_k, 3)
         and quaternions (n_k, 4) of the grains of batches 0..k right after batch k
@@ -92,6 +102,7 @@ class Placements:
     engine: str
     parameters: dict[str, Any]
     checks: PourChecks
+    grains: dict[str, Any] | None = None
     snapshots: list[tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -161,10 +172,10 @@ class Placements:
         return np.column_stack([(z - oz) / dz, (y - oy) / dy, (x - ox) / dx])
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able dictionary (without `snapshots`)."""
-        return {
+        """JSON-able dictionary (without `snapshots`); version 1 (no ``grains`` key) when `grains` is None."""
+        data = {
             "format": _FORMAT,
-            "version": FORMAT_VERSION,
+            "version": FORMAT_VERSION if self.grains is not None else 1,
             "unit": self.unit,
             "voxel_size": list(self.voxel_size),
             "seed": self.seed,
@@ -178,6 +189,9 @@ class Placements:
             "scales": self.scales.tolist(),
             "batches": self.batches.tolist(),
         }
+        if self.grains is not None:
+            data["grains"] = self.grains
+        return data
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         """Write the placements as JSON, atomically (temporary name, then rename).
@@ -218,10 +232,10 @@ class Placements:
             ) from None
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise SynthpackInputError(f"{source} is not a synthpack placements file.")
-        if data.get("version") != FORMAT_VERSION:
+        if data.get("version") not in _READ_VERSIONS:
             raise SynthpackInputError(
                 f"{source} has placements format version {data.get('version')!r}; this "
-                f"synthpack reads version {FORMAT_VERSION}: pour again."
+                f"synthpack reads versions {', '.join(map(str, _READ_VERSIONS))}: pour again."
             )
         try:
             return cls(
@@ -237,6 +251,7 @@ class Placements:
                 engine=str(data["engine"]),
                 parameters=dict(data["parameters"]),
                 checks=PourChecks.from_dict(data["checks"]),
+                grains=data.get("grains"),
             )
         except (KeyError, TypeError, ValueError) as error:
             raise SynthpackInputError(

@@ -145,6 +145,7 @@ def make_plan(
     seed: int = 0,
     scale: float | Sequence[float] = 1.0,
     size_classes: Sequence[Sequence[float]] | None = None,
+    indices: Sequence[int] | None = None,
 ) -> PourPlan:
     """Draw the grains, orientations, scales and spawn points of a pour.
 
@@ -173,6 +174,10 @@ def make_plan(
         Scale factor, or a range to draw it uniformly from, per grain.
     size_classes : sequence of (d_min, d_max, fraction), optional
         Target size distribution by number; see :func:`parse_size_classes`.
+    indices : sequence of int, optional
+        The library index of each grain, in pouring order (`n_particles` of them),
+        instead of drawing them, e.g. one grain made for each placement
+        (`synthpack.deform`); not with `size_classes`.
 
     Returns
     -------
@@ -181,12 +186,16 @@ def make_plan(
     Raises
     ------
     SynthpackInputError
-        For an empty size class, or a tube too narrow for the largest grain.
+        For an empty size class, a tube too narrow for the largest grain, or `indices`
+        that are not `n_particles` library indices (or come with `size_classes`).
     """
     rng = np.random.default_rng(seed)
     low, high = parse_scale(scale)
     classes = parse_size_classes(size_classes)
-    indices = _draw_indices(library, n_particles, classes, rng)
+    if indices is None:
+        indices = _draw_indices(library, n_particles, classes, rng)
+    else:
+        indices = _given_indices(indices, n_particles, len(library), classes)
     quaternions = Rotation.random(n_particles, random_state=rng).as_quat(scalar_first=True)
     quaternions *= np.where(quaternions[:, :1] < 0, -1.0, 1.0)
     scales = rng.uniform(low, high, n_particles) if high > low else np.full(n_particles, low)
@@ -249,6 +258,22 @@ def _draw_indices(
             )
         chosen.append(rng.choice(members, size=count, replace=True) if count else members[:0])
     return rng.permutation(np.concatenate(chosen)).astype(np.int64)
+
+
+def _given_indices(
+    indices: Sequence[int], n: int, n_library: int, classes: list[tuple[float, float, float]] | None,
+) -> np.ndarray:
+    """`indices` as int64, checked: `n` of them, each a library index; not with size classes."""
+    given = np.asarray(indices)
+    if classes is not None:
+        raise SynthpackInputError("give either indices or size_classes, not both.")
+    if given.shape != (n,) or not np.issubdtype(given.dtype, np.integer) or given.min() < 0 \
+            or given.max() >= n_library:
+        raise SynthpackInputError(
+            f"indices must be {n} whole numbers in [0, {n_library}) (a library index per grain), "
+            f"got shape {given.shape} of {given.dtype}."
+        )
+    return given.astype(np.int64)
 
 
 def _largest_remainder(fractions: Sequence[float], n: int) -> np.ndarray:
