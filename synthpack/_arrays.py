@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import SynthpackInputError
 
-__all__ = ["SLAB_VOXELS", "as_image", "radius_grid", "slabs"]
+__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "radius_grid", "slabs"]
 
 #: Noise is drawn (and measured) in slabs of at most this many voxels along axis 0, so
 #: the extra memory it needs is bounded whatever the volume's size.
@@ -51,21 +51,56 @@ def slabs(shape: tuple[int, ...], max_voxels: int = SLAB_VOXELS) -> Iterator[sli
         yield slice(start, min(start + step, shape[0]))
 
 
-def radius_grid(shape: tuple[int, ...]) -> np.ndarray:
-    """Distance (voxels) of each pixel of a slice from the slice centre.
+def radius_grid(shape: tuple[int, ...], centre: tuple[float, float] | None = None) -> np.ndarray:
+    """Distance (voxels) of each pixel of a slice from the slice centre (or `centre`).
 
     Parameters
     ----------
     shape : tuple of int
         The image shape; its last two axes (Y, X) are the slice.
+    centre : (float, float), optional
+        ``(y, x)`` of the rotation axis; default the slice centre ``((Y-1)/2, (X-1)/2)``.
 
     Returns
     -------
     ndarray of float32, shape (Y, X)
-        ``hypot(y - (Y-1)/2, x - (X-1)/2)``: the distance from the rotation axis,
-        which passes through the centre of every slice along axis 0.
+        ``hypot(y - cy, x - cx)``: the distance from the rotation axis, which passes
+        through the same point of every slice along axis 0.
     """
     ny, nx = shape[-2:]
-    y = np.arange(ny, dtype=np.float32) - (ny - 1) / 2
-    x = np.arange(nx, dtype=np.float32) - (nx - 1) / 2
+    cy, cx = ((ny - 1) / 2, (nx - 1) / 2) if centre is None else centre
+    y = np.arange(ny, dtype=np.float32) - np.float32(cy)
+    x = np.arange(nx, dtype=np.float32) - np.float32(cx)
     return np.hypot(y[:, None], x[None, :])
+
+
+def cupping_factor(
+    shape: tuple[int, ...], strength: float, keep: str = "rim", centre: tuple[float, float] | None = None
+) -> np.ndarray:
+    """The radial intensity factor of beam-hardening cupping on one slice.
+
+    ``1 - strength * max(1 - (r / R)^2, 0)`` with ``R = min(Y, X) / 2`` (the field
+    of view) and ``r`` the distance from the rotation axis (`radius_grid`); with
+    ``keep="mean"`` divided by its mean over the field of view, ``1 - strength / 2``.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image shape; its last two axes (Y, X) are the slice.
+    strength : float
+        Relative darkening of the axis against the rim, in [-1, 1].
+    keep : {"rim", "mean"}
+        What the factor leaves unchanged: the rim of the field of view or the mean inside it.
+    centre : (float, float), optional
+        ``(y, x)`` of the rotation axis; default the slice centre.
+
+    Returns
+    -------
+    ndarray of float32, shape (Y, X)
+    """
+    r = radius_grid(shape, centre)
+    radius = np.float32(min(shape[-2:]) / 2.0)
+    factor = 1.0 - np.float32(strength) * np.clip(1.0 - (r / radius) ** 2, 0.0, 1.0)
+    if keep == "mean":
+        factor /= np.float32(1.0 - strength / 2.0)
+    return factor.astype(np.float32)

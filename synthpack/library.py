@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
+from ._arrays import cupping_factor
 from ._atomic import Output, atomic_directory
 from ._schema import in_range, positive, setting
 from .errors import SynthpackInputError
@@ -73,6 +74,15 @@ def _check_exclude(shape: tuple[int, ...], exclude: tuple[int, int], axis: int) 
             f"axis {axis} that leaves some slices, e.g. synthpack.split.central_block({n})"
         )
     return start, stop
+
+
+def _without_cupping(scan: Scan, statistics: SourceStatistics) -> Scan:
+    """`scan` with its measured cupping divided out (mean level kept); `scan` itself where it shows none."""
+    if statistics.cupping_strength is None:
+        return scan
+    factor = cupping_factor(scan.shape, statistics.cupping_strength, "mean", statistics.scan_axis)
+    logger.info("crops cut with the scan's cupping (strength %.3f) divided out", statistics.cupping_strength)
+    return Scan(scan.tomogram / factor, scan.labels, voxel_size=scan.voxel_size, unit=scan.unit, source=scan.source)
 
 
 class ParticleLibrary(Sequence[Particle]):
@@ -156,6 +166,10 @@ class ParticleLibrary(Sequence[Particle]):
             library, e.g. the test block of the paper's split
             (`synthpack.split.central_block`): particles with any voxel in them are
             dropped, and the intensity statistics come from the other slices only.
+            Where the scan shows cupping (`SourceStatistics.cupping_strength`), the
+            crops are cut from the scan with its cupping divided out (keeping the
+            mean level), so a grain does not carry the darkening of where it lay; the
+            calibrated post-processing puts the cupping back where the pack has it.
         axis : {0, 1, 2}
             Axis of `exclude_slices`.
 
@@ -172,7 +186,7 @@ class ParticleLibrary(Sequence[Particle]):
             exclude_slices = _check_exclude(scan.shape, exclude_slices, axis)
         statistics = measure_source(scan, exclude_slices, axis)
         crops = extract_particles(
-            scan, min_voxels=min_voxels, include_border=include_border,
+            _without_cupping(scan, statistics), min_voxels=min_voxels, include_border=include_border,
             background=statistics.pore_mean,
         )
         if exclude_slices is not None:

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from synthpack.errors import SynthpackInputError
+from synthpack._arrays import cupping_factor
 from synthpack.library import ParticleLibrary
+from synthpack.particles import extract_particles
 from synthpack.scan import Scan
 from synthpack.source import measure_source
 from synthpack.split import central_block
@@ -154,3 +156,25 @@ def test_exclude_slices_keeps_the_test_block_out_of_the_library(large_scan, axis
 def test_exclude_slices_must_leave_some_slices(large_scan):
     with pytest.raises(SynthpackInputError, match="central_block"):
         ParticleLibrary.from_scan(large_scan, workers=1, progress=False, exclude_slices=(0, 128))
+
+
+def test_crops_of_a_cupped_scan_are_cut_with_the_cupping_divided_out(large_scan):
+    strength = 0.15
+    factor = cupping_factor(large_scan.shape, strength)
+    cupped = Scan(large_scan.tomogram * factor, large_scan.labels, voxel_size=large_scan.voxel_size)
+    library = ParticleLibrary.from_scan(cupped, workers=1, progress=False, target_faces=200)
+    assert library.statistics.cupping_strength == pytest.approx(strength, abs=0.03)
+
+    def level_ratio(scan: Scan, crops) -> float:
+        """Median grain level near the axis over that near the rim of the field of view."""
+        ny, nx = scan.shape[1:]
+        radius = [np.hypot((c.bbox[1] + c.bbox[4]) / 2 - (ny - 1) / 2, (c.bbox[2] + c.bbox[5]) / 2 - (nx - 1) / 2)
+                  for c in crops]
+        levels = np.array([np.median(c.tomogram[c.mask]) for c in crops])
+        inner, outer = np.asarray(radius) < np.percentile(radius, 30), np.asarray(radius) > np.percentile(radius, 70)
+        return float(np.median(levels[inner]) / np.median(levels[outer]))
+
+    raw = extract_particles(cupped, min_voxels=50, background=library.statistics.pore_mean)
+    assert level_ratio(cupped, raw) < 0.95  # the cupping darkens the grains near the axis
+    assert level_ratio(cupped, library) == pytest.approx(level_ratio(large_scan, extract_particles(
+        large_scan, min_voxels=50, background=library.statistics.pore_mean)), abs=0.02)

@@ -36,7 +36,9 @@ its cost is fixed and vanishes per voxel on big packs.
    (`~synthpack.source.scanner.measure_scanner`), applied last with the source's
    measured values, fixed: `~synthpack.artefacts.BeamHardening` of the source's
    cupping strength (relative to the field of view, which for a pack's tube sized
-   from the source's lateral extent is about the source's) and
+   from the source's lateral extent is about the source's), keeping the mean level
+   (``keep="mean"``: the pack's phase levels are the source's medians, which hold
+   its cupping averaged over the field already) and
    `~synthpack.artefacts.RingArtefacts` at the source's ring radii, amplitudes and
    width, both about the slice centre, which is the pack's tube axis. Each is a
    per-slice radial table, so it costs one pass over the volume. Off where the source
@@ -134,7 +136,7 @@ class Calibration:
         The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
     cupping_strength : float or None
         The source's cupping, applied as `~synthpack.artefacts.BeamHardening`'s strength
-        (dimensionless); None: none applied.
+        (dimensionless), keeping the mean level; None: none applied.
     ring_radii, ring_amplitudes : list of float or None
         The source's rings, applied by `~synthpack.artefacts.RingArtefacts`: radii from
         the tube axis (voxels) and signed peaks (intensity units); None: none applied.
@@ -178,7 +180,7 @@ class Calibration:
                           pore_std=self.added_phase_noise["pores"], grain_std=self.added_phase_noise["grains"]),
         ]
         if self.cupping_strength is not None:
-            transforms.append(BeamHardening(strength=self.cupping_strength))
+            transforms.append(BeamHardening(strength=self.cupping_strength, keep="mean"))
         if self.ring_radii is not None:
             transforms.append(RingArtefacts(amplitude=max(abs(a) for a in self.ring_amplitudes),
                                             n_rings=len(self.ring_radii), width=self.ring_width,

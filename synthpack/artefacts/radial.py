@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .._arrays import radius_grid
+from .._arrays import cupping_factor, radius_grid
 from ..errors import SynthpackInputError
 from ._base import Transform
 from ._param import IntRange, Param, Range
@@ -145,31 +145,32 @@ class BeamHardening(Transform):
     field of view and everything outside it is unchanged. A scan's measured
     strength (`~synthpack.source.SourceStatistics.cupping_strength`) is fitted to this form.
 
+    With ``keep="mean"`` the factor is divided by its mean over the field of view,
+    ``1 - strength / 2``, so the mean level inside it is kept: for a synthetic volume
+    whose phase levels are already the source's averages over its field (cupping
+    included), so that the cupping is not counted twice.
+
     Parameters
     ----------
     strength : float or (float, float)
         Relative darkening of the centre, in [-1, 1]: negative for a brighter centre
         (as a scatter correction or a neutron scan may show). Default 0.05.
+    keep : {"rim", "mean"}
+        What the factor leaves unchanged: the rim of the field of view (default) or
+        the mean level inside it.
     p : float
         Probability of applying the transform at a call. Default 1.
     """
 
     name = "beam_hardening"
-    params = (Param("strength", minimum=-1.0, maximum=1.0),)
+    params = (Param("strength", minimum=-1.0, maximum=1.0),
+              Param("keep", kind="choice", choices=("rim", "mean"), rangeable=False))
 
-    def __init__(self, strength: Range = 0.05, *, p: float = 1.0) -> None:
-        super().__init__(strength=strength, p=p)
+    def __init__(self, strength: Range = 0.05, *, keep: str = "rim", p: float = 1.0) -> None:
+        super().__init__(strength=strength, keep=keep, p=p)
 
-    @staticmethod
-    def _factor(shape: tuple[int, ...], strength: float) -> np.ndarray:
-        """The cupping factor of one slice of an image of `shape`: float32, (Y, X)."""
-        r = radius_grid(shape)
-        radius = min(shape[-2:]) / 2.0
-        factor = 1.0 - np.float32(strength) * np.clip(1.0 - (r / np.float32(radius)) ** 2, 0.0, 1.0)
-        return factor.astype(np.float32)
-
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float) -> np.ndarray:
-        return image * self._factor(image.shape, strength)
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float, keep: str) -> np.ndarray:
+        return image * cupping_factor(image.shape, strength, keep)
 
     def _transform_block(
         self,
@@ -180,9 +181,10 @@ class BeamHardening(Transform):
         shape: tuple[int, int, int],
         *,
         strength: float,
+        keep: str,
     ) -> np.ndarray:
         """The block times its part of the whole slice's factor."""
-        return block * self._factor(shape, strength)[_window(origin, block.shape)]
+        return block * cupping_factor(shape, strength, keep)[_window(origin, block.shape)]
 
 
 def _window(origin: Sequence[int], shape: Sequence[int]) -> tuple[slice, slice]:
