@@ -3,6 +3,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 import pytest
 import yaml
 from PIL import Image
@@ -85,11 +86,16 @@ def test_round_trip_of_pack_slices_gives_back_the_grains(export, pack_dir):
         if not path.name.startswith("syn_"):
             continue
         index = int(path.stem.rsplit("_s", 1)[1])
-        scores += grain_dice_of_slice(path.read_text(), labels[index], min_area=10).values()
+        dice = grain_dice_of_slice(path.read_text(), labels[index], min_area=10)
+        scores += dice.values()
+        for grain, score in dice.items():
+            if score < 0.99:  # a polygon has no holes: only a part with a hole may differ, by its hole
+                part = labels[index] == grain
+                hole = np.count_nonzero(ndimage.binary_fill_holes(part)) - np.count_nonzero(part)
+                assert hole > 0 and score >= 2 * part.sum() / (2 * part.sum() + hole) - 0.02
     assert len(scores) > 300
     assert np.mean(scores) >= 0.99
     assert np.mean(np.array(scores) == 1.0) > 0.95  # exact outlines: only parts with holes differ
-    assert min(scores) > 0.8
     assert sum(summary.images.values()) == pack.shape[0] + 20
     assert sum(summary.instances.values()) == sum(len(p.read_text().splitlines()) for p in label_files(out))
 
