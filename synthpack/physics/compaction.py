@@ -297,7 +297,9 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
 
     A target missed by more than :data:`TARGET_TOLERANCE` is logged as a warning that
     says which way and why (too dense for the shapes, or too loose for the largest
-    spacing), and ``checks.target_reached`` is False.
+    spacing), and ``checks.target_reached`` is False. A pack too shallow for a bulk
+    region cannot be measured: ``target_reached`` stays None and the log says so at
+    INFO level (not a failure: small test pours and previews are shallow).
     """
     if target is None:
         return checks
@@ -305,7 +307,7 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     checks.compaction = None if controller is None else controller.record()
     reached = checks.packing_fraction
     if math.isnan(reached):
-        logger.warning("Target packing fraction %.3f: the pack is too shallow for a bulk region, so "
+        logger.info("Target packing fraction %.3f: the pack is too shallow for a bulk region, so "
                        "whether it was reached is unknown; pour more grains.", target)
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
