@@ -9,7 +9,7 @@ optional and falls back to the default shown by ``synthpack generate
     grains: {deform: {strength: 0.0, lattice: 3}}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {model: measured, ...}}
-    postprocess: calibrated       # or match_source, generic, none, or a list of artefact transforms
+    postprocess: calibrated       # or match_source, generic, randomised, none, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.LibraryConfig`, :class:`GrainsConfig` (with
@@ -62,7 +62,7 @@ _DEPRECATED_POSTPROCESS = "default"
 
 
 def _valid_postprocess(value: str | list) -> bool:
-    """'calibrated', 'match_source', 'generic', 'none' or a valid list of artefact transforms"""
+    """'calibrated', 'match_source', 'generic', 'randomised', 'none' or a valid list of artefact transforms"""
     if isinstance(value, list):
         from_config(value)  # a bad pipeline raises with the transform's own message
         return True
@@ -101,7 +101,8 @@ class PackConfig:
         "'calibrated' (blur and noise fitted to the source scan's edge width and noise level; where that "
         "cannot be fitted, match_source with a warning), 'match_source' (Gaussian noise up to the source's "
         "noise level), 'generic' (light blur, weak rings and noise of 3-8% of the contrast, fitted to nothing), "
-        "'none', or a list of artefact transforms",
+        "'randomised' (blur, noise level and colour, cupping, rings, contrast and gamma drawn per pack within "
+        "wide ranges about the calibrated values), 'none', or a list of artefact transforms",
     )
 
     def __post_init__(self) -> None:

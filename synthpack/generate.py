@@ -155,7 +155,7 @@ def build_pack(
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
             grid=render.grid, packing_region=placements.checks.packing_region,
-            pore_texture=render.background.texture_density(),
+            pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
         )
         tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks)
     grid = render.grid

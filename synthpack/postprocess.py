@@ -24,9 +24,27 @@ manifest:
 ``generic``       `~synthpack.artefacts.generic_postprocessing` scaled to the magnitude of the
                   source's grain-pore contrast: light blur, weak rings half the time, Gaussian
                   noise of 3-8 % of the contrast; fitted to nothing
+``randomised``    domain randomisation (in the spirit of SynthSeg): every pack draws its own
+                  image formation, from the pack's seed, within wide ranges about the
+                  ``calibrated`` values (about ``match_source``'s noise and no artefacts where
+                  the fit is not possible): see `RANDOMISED_RANGES` and below; the centre and
+                  every drawn value recorded under ``randomised``
 ``none``          nothing (an empty pipeline)
 a list            artefact transforms (`~synthpack.artefacts.from_config`)
 ================  ===========================================================================
+
+``randomised`` draws, per pack (`RANDOMISED_RANGES`; ``c`` is the calibrated value, ``C``
+the source's grain-pore contrast), and applies in this order:
+
+- blur: a Gaussian PSF of sigma ``U(0.5, 2) * max(c, 0.5)`` voxels;
+- noise: its level ``U(0.5, 2)`` times the calibrated added noise (standard deviation,
+  per phase); its colour the calibrated spectrum or white, half the time each;
+- cupping: strength ``c + U(-0.1, 0.1)`` (``c`` = 0 where the source shows none),
+  keeping the mean level;
+- rings: ``U(0, 10)`` rings at random radii, amplitude up to ``U(0, 2)`` times the
+  source's largest ring (at least 2% of ``C``), FWHM ``U(1, 3)`` voxels;
+- contrast and gamma (`~synthpack.artefacts.ContrastGamma` between the source's
+  phase levels): contrast ``U(0.7, 1.3)``, gamma log-uniform in ``[2/3, 3/2]``.
 
 The mode a pack got is recorded under ``postprocess_mode`` (``custom`` for a list).
 Grains may be brighter or darker than pores: every mode works with the signed
@@ -46,7 +64,20 @@ from typing import Any
 
 import numpy as np
 
-from .artefacts import Compose, calibrate, from_config, generic_postprocessing, noise_to_add
+from .artefacts import (
+    BeamHardening,
+    Calibration,
+    ColouredNoise,
+    Compose,
+    ContrastGamma,
+    GaussianBlur,
+    GaussianNoise,
+    RingArtefacts,
+    calibrate,
+    from_config,
+    generic_postprocessing,
+    noise_to_add,
+)
 from .errors import SynthpackInputError
 from .reconstruct import Grid
 from .source.noise import estimate_noise
@@ -60,13 +91,25 @@ __all__ = [
     "NOISE_SAMPLE_VOXELS",
     "POSTPROCESS_MODES",
     "Postprocessing",
+    "RANDOMISED_RANGES",
     "bulk_region",
     "check_postprocess",
     "resolve_postprocessing",
 ]
 
 #: The named post-processing modes; a list of artefact transforms is the alternative.
-POSTPROCESS_MODES = ("calibrated", "match_source", "generic", "none")
+POSTPROCESS_MODES = ("calibrated", "match_source", "generic", "randomised", "none")
+#: The ranges ``randomised`` draws from, per pack (see the module docstring): factors on the calibrated
+#: value (``blur_factor``, ``noise_factor``, ``ring_factor``), offsets (``cupping_offset``), absolute values
+#: (``n_rings``, ``ring_width`` voxels, ``contrast``, ``gamma``), floors (``min_blur`` voxels,
+#: ``min_ring_amplitude`` as a fraction of the contrast) and the chance of white noise (``white_noise``).
+RANDOMISED_RANGES = {
+    "blur_factor": (0.5, 2.0), "min_blur": 0.5,
+    "noise_factor": (0.5, 2.0), "white_noise": 0.5,
+    "cupping_offset": (-0.1, 0.1),
+    "n_rings": (0, 10), "ring_factor": (0.0, 2.0), "min_ring_amplitude": 0.02, "ring_width": (1.0, 3.0),
+    "contrast": (0.7, 1.3), "gamma": (2.0 / 3.0, 1.5),
+}
 #: ``match_source`` measures the clean pack's noise on at most about this many central voxels.
 NOISE_SAMPLE_VOXELS = 1 << 24
 #: A bulk region needs at least this many voxels to be measured.
@@ -99,10 +142,11 @@ def _warn_once(message: str) -> None:
     logger.warning(message)
 
 
-def _fallback(reason: str) -> None:
-    """Warn, once, that ``calibrated`` falls back to ``match_source`` because of `reason`."""
-    _warn_once(f"postprocess: calibrated cannot be fitted ({reason}): using match_source, Gaussian noise "
-               "up to the source's noise level, without fitted blur")
+def _fallback(reason: str, mode: str = "calibrated") -> None:
+    """Warn, once, that `mode` cannot be fitted because of `reason` and what it does instead."""
+    instead = ("using match_source, Gaussian noise up to the source's noise level, without fitted blur"
+               if mode == "calibrated" else "drawing about match_source's noise level, white, and a 0.5 voxel blur")
+    _warn_once(f"postprocess: {mode} cannot be fitted ({reason}): {instead}")
 
 
 def _uncalibratable(statistics: SourceStatistics) -> str | None:
@@ -160,10 +204,10 @@ def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> 
         For a value that is neither one of `POSTPROCESS_MODES` nor a list.
     """
     _check_mode(postprocess)
-    if postprocess == "calibrated":
+    if postprocess in ("calibrated", "randomised"):
         reason = _uncalibratable(statistics)
         if reason is not None:
-            _fallback(reason)
+            _fallback(reason, postprocess)
 
 
 def resolve_postprocessing(
@@ -175,6 +219,7 @@ def resolve_postprocessing(
     grid: Grid,
     packing_region: dict[str, float],
     pore_texture: np.ndarray | None = None,
+    seed: int = 0,
 ) -> Postprocessing:
     """The post-processing of one rendered pack (see the module docstring for the modes).
 
@@ -196,6 +241,9 @@ def resolve_postprocessing(
     pore_texture : ndarray of float64, shape (T, T, T), optional
         The render's pore texture density (`~synthpack.reconstruct.Background.texture_density`),
         for ``calibrated`` (`~synthpack.artefacts.calibrate`).
+    seed : int
+        What ``randomised`` draws the pack's image formation with (the pack's own seed,
+        or one derived from it); unused by the other modes.
 
     Returns
     -------
@@ -213,28 +261,103 @@ def resolve_postprocessing(
         return Postprocessing(generic_postprocessing(contrast=statistics.contrast), {"postprocess_mode": "generic"})
     if postprocess == "none":
         return Postprocessing(Compose([]), {"postprocess_mode": "none"})
-    fallback = None
-    if postprocess == "calibrated":
-        fallback = _uncalibratable(statistics)
-        if fallback is None:
-            try:
-                region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
-                calibration = calibrate(clean, labels, region, pore_texture=pore_texture,
-                                        **_calibration_targets(statistics))
-            except SynthpackInputError as error:
-                fallback = f"this pack: {error}"
-            else:
-                return Postprocessing(calibration.pipeline(),
-                                      {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()})
-        _fallback(fallback)
+    calibration, fallback = None, None
+    if postprocess in ("calibrated", "randomised"):
+        calibration, fallback = _fit(statistics, clean, labels, grid, packing_region, pore_texture)
+        if calibration is not None and postprocess == "calibrated":
+            return Postprocessing(calibration.pipeline(),
+                                  {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()})
+        if fallback is not None:
+            _fallback(fallback, postprocess)
+    matched = None if calibration is not None else _matched_noise(statistics, clean, labels)
+    if postprocess == "randomised":
+        result = _randomised(statistics, calibration, matched, seed)
+    else:
+        result = Postprocessing(Compose([GaussianNoise(std=matched["noise_std"])]),
+                                {"postprocess_mode": "match_source", "noise_match": matched})
+    if fallback is not None:
+        result.record["postprocess_fallback"] = fallback
+    return result
+
+
+def _fit(statistics: SourceStatistics, clean: Any, labels: Any, grid: Grid, packing_region: dict[str, float],
+         pore_texture: np.ndarray | None) -> tuple[Calibration | None, str | None]:
+    """``(calibration, None)``, or ``(None, why not)`` where the pack cannot be calibrated."""
+    fallback = _uncalibratable(statistics)
+    if fallback is not None:
+        return None, fallback
+    try:
+        region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
+        return calibrate(clean, labels, region, pore_texture=pore_texture, **_calibration_targets(statistics)), None
+    except SynthpackInputError as error:
+        return None, f"this pack: {error}"
+
+
+def _matched_noise(statistics: SourceStatistics, clean: Any, labels: Any) -> dict[str, float]:
+    """``match_source``'s record: the source's and the clean pack's noise level, and the std to add."""
     window = _central_slab(labels.shape)
     clean_noise = estimate_noise(clean[window], labels[window]).std
     noise = noise_to_add(statistics.noise_std, clean_noise)
-    record: dict[str, Any] = {"postprocess_mode": "match_source", "noise_match": {
-        "target_noise": float(statistics.noise_std), "clean_noise": float(clean_noise), "noise_std": float(noise.std)}}
-    if fallback is not None:
-        record["postprocess_fallback"] = fallback
-    return Postprocessing(Compose([noise]), record)
+    return {"target_noise": float(statistics.noise_std), "clean_noise": float(clean_noise),
+            "noise_std": float(noise.std)}
+
+
+def _draw_randomised(rng: np.random.Generator) -> dict[str, Any]:
+    """One pack's draws from `RANDOMISED_RANGES` (all of them, always in this order)."""
+    ranges = RANDOMISED_RANGES
+    log_gamma = rng.uniform(*np.log(ranges["gamma"]))
+    return {
+        "blur_factor": float(rng.uniform(*ranges["blur_factor"])),
+        "noise_factor": float(rng.uniform(*ranges["noise_factor"])),
+        "white_noise": bool(rng.random() < ranges["white_noise"]),
+        "cupping_offset": float(rng.uniform(*ranges["cupping_offset"])),
+        "n_rings": int(rng.integers(ranges["n_rings"][0], ranges["n_rings"][1] + 1)),
+        "ring_factor": float(rng.uniform(*ranges["ring_factor"])),
+        "ring_width": float(rng.uniform(*ranges["ring_width"])),
+        "contrast": float(rng.uniform(*ranges["contrast"])),
+        "gamma": float(np.exp(log_gamma)),
+    }
+
+
+def _randomised(statistics: SourceStatistics, calibration: Calibration | None, matched: dict | None,
+                seed: int) -> Postprocessing:
+    """``randomised``: a pipeline drawn with `seed` about `calibration` (or, without it, `matched` noise)."""
+    ranges = RANDOMISED_RANGES
+    drawn = _draw_randomised(np.random.default_rng(seed))
+    levels = {"pore_level": float(statistics.pore_mean), "grain_level": float(statistics.grain_mean)}
+    rings = statistics.ring_amplitudes
+    centre = {
+        "blur_sigma": calibration.blur_sigma if calibration is not None else 0.0,
+        "noise_std": calibration.noise_std if calibration is not None else matched["noise_std"],
+        "cupping_strength": float(statistics.cupping_strength or 0.0),
+        "ring_amplitude": max(max((abs(a) for a in rings), default=0.0) if rings else 0.0,
+                              ranges["min_ring_amplitude"] * abs(statistics.contrast)),
+    }
+    factor = drawn["noise_factor"]
+    white = drawn["white_noise"] or calibration is None
+    if white:
+        noise = GaussianNoise(std=factor * centre["noise_std"])
+    else:
+        added = calibration.added_phase_noise
+        noise = ColouredNoise(
+            pore_power=[factor**2 * v for v in calibration.added_power["pores"]],
+            grain_power=[factor**2 * v for v in calibration.added_power["grains"]],
+            pore_std=None if added["pores"] is None else factor * added["pores"],
+            grain_std=None if added["grains"] is None else factor * added["grains"], **levels)
+    pipeline = Compose([
+        GaussianBlur(sigma=drawn["blur_factor"] * max(centre["blur_sigma"], ranges["min_blur"])),
+        noise,
+        BeamHardening(strength=float(np.clip(centre["cupping_strength"] + drawn["cupping_offset"], -0.9, 0.9)),
+                      keep="mean"),
+        RingArtefacts(amplitude=drawn["ring_factor"] * centre["ring_amplitude"], n_rings=drawn["n_rings"],
+                      width=drawn["ring_width"]),
+        ContrastGamma(contrast=drawn["contrast"], gamma=drawn["gamma"], **levels),
+    ])
+    record = {"seed": int(seed), "ranges": {k: list(v) if isinstance(v, tuple) else v for k, v in ranges.items()},
+              "centre": centre, "drawn": {**drawn, "white_noise": white}, "pipeline": pipeline.to_config(),
+              "calibration": calibration.to_dict() if calibration is not None else None,
+              "noise_match": matched}
+    return Postprocessing(pipeline, {"postprocess_mode": "randomised", "randomised": record})
 
 
 def _central_slab(shape: tuple[int, ...], max_voxels: int = NOISE_SAMPLE_VOXELS) -> tuple[slice, ...]:

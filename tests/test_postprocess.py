@@ -168,8 +168,14 @@ def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_
         for postprocess in [*POSTPROCESS_MODES, []]:
             check_postprocess(postprocess, unmeasured)  # nothing refused
         resolved = _resolve("calibrated", rendered, unmeasured)
-    (warning,) = [r.getMessage() for r in caplog.records]  # once, though checked and resolved
+        randomised = _resolve("randomised", rendered, unmeasured)
+    warning, randomised_warning = [r.getMessage() for r in caplog.records]  # once each, though checked and resolved
     assert "calibrated cannot be fitted" in warning and "edge width" in warning and "match_source" in warning
+    assert "randomised cannot be fitted" in randomised_warning
+    assert randomised.record["postprocess_mode"] == "randomised" and "edge width" in randomised.record[
+        "postprocess_fallback"]
+    assert randomised.record["randomised"]["centre"]["noise_std"] == resolved.record["noise_match"]["noise_std"]
+    assert "gaussian_noise" in [t.name for t in randomised.pipeline]
     assert resolved.record["postprocess_mode"] == "match_source"
     assert "edge width" in resolved.record["postprocess_fallback"]
     assert [t.name for t in resolved.pipeline] == ["gaussian_noise"]
@@ -223,3 +229,50 @@ def test_calibrated_adds_the_source_cupping_and_rings_about_the_tube_axis_and_re
     # the pack's levels are the source's averages already: the factor keeps the mean in the field of view
     assert factor[31, 31] == pytest.approx(0.95 / 0.975, abs=0.002)
     assert factor[np.hypot(*np.indices(factor.shape) - 31.5) < 32].mean() == pytest.approx(1.0, abs=0.003)
+
+
+def _randomised(rendered, seed):
+    clean, labels, grid = rendered
+    resolved = resolve_postprocessing("randomised", STATISTICS, clean=clean, labels=labels, grid=grid,
+                                      packing_region=EVERYWHERE, seed=seed)
+    return resolved, resolved.pipeline(clean, seed)
+
+
+def test_randomised_is_seeded_and_differs_between_packs(rendered):
+    first, image = _randomised(rendered, 1)
+    again, image_again = _randomised(rendered, 1)
+    other, other_image = _randomised(rendered, 2)
+    assert first.record == again.record and image.tobytes() == image_again.tobytes()
+    assert first.record["postprocess_mode"] == "randomised"
+    assert first.record["randomised"]["drawn"] != other.record["randomised"]["drawn"]
+    assert image.tobytes() != other_image.tobytes()
+
+
+def test_randomised_draws_within_its_ranges_about_the_calibrated_values(rendered):
+    calibrated = _resolve("calibrated", rendered).record["calibration"]
+    ranges = postprocess_module.RANDOMISED_RANGES
+    for seed in range(6):
+        record = _randomised(rendered, seed)[0].record["randomised"]
+        drawn, centre = record["drawn"], record["centre"]
+        assert centre["blur_sigma"] == pytest.approx(calibrated["blur_sigma"])
+        assert centre["noise_std"] == pytest.approx(calibrated["noise_std"])
+        steps = {step["name"]: step for step in record["pipeline"]}
+        assert set(steps) == {"gaussian_blur", "coloured_noise" if not drawn["white_noise"] else "gaussian_noise",
+                              "beam_hardening", "ring_artefacts", "contrast_gamma"}
+        low, high = ranges["blur_factor"]
+        base = max(centre["blur_sigma"], ranges["min_blur"])
+        assert low * base <= steps["gaussian_blur"]["sigma"] <= high * base
+        assert ranges["contrast"][0] <= steps["contrast_gamma"]["contrast"] <= ranges["contrast"][1]
+        assert ranges["gamma"][0] <= steps["contrast_gamma"]["gamma"] <= ranges["gamma"][1]
+        if drawn["white_noise"]:
+            assert steps["gaussian_noise"]["std"] == pytest.approx(drawn["noise_factor"] * centre["noise_std"])
+
+
+def test_contrast_gamma_keeps_the_levels_with_gamma_and_stretches_about_their_midpoint():
+    from synthpack.artefacts import ContrastGamma
+
+    image = np.array([[0.2, 0.5, 0.8]], np.float32)
+    bent = ContrastGamma(gamma=2.0, pore_level=0.2, grain_level=0.8)(image, 0)
+    assert bent == pytest.approx(np.array([[0.2, 0.2 + 0.6 * 0.25, 0.8]]), abs=1e-6)
+    stretched = ContrastGamma(contrast=1.5, pore_level=0.8, grain_level=0.2)(image, 0)  # darker grains
+    assert stretched == pytest.approx(np.array([[0.05, 0.5, 0.95]]), abs=1e-6)

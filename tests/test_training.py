@@ -8,11 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from synthpack.io import read_label_image, write_label_image
 from synthpack.library import ParticleLibrary
-from synthpack.split import central_block
+from synthpack.split import VAL_FRACTION, central_block, slice_splits
+from training.arms import budget_slices
 from training.evaluate import score
+from training.experiment import ExperimentConfig
+from training.stats import paired_bootstrap
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,14 +71,97 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
         assert (smoke / name).stat().st_size > 0
     rows = list(csv.DictReader((smoke / "results.csv").open()))
     arms = {row["arm"] for row in rows}
-    assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn", "small+syn-nopp"}
+    assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn", "small+syn-nopp",
+                    "large:syn", "large:syn-rand", "large@5", "large@5+syn"}
     assert {(row["arm"], row["test_set"]) for row in rows} == {(a, t) for a in arms for t in ("large", "small")}
     for row in rows:
         assert 0.0 <= float(row["dice"]) <= 1.0
         assert int(row["n_slices"]) == 26  # central 20% of 128 slices
     report = (smoke / "report.md").read_text()
-    for heading in ("Table 1", "Table 2", "(94.5%)", "(88.8%)"):
+    for heading in ("Table 1", "Table 2", "(94.5%)", "(88.8%)", "Synthetic packs alone", "Label efficiency",
+                    "large+syn − large |", "large:syn-rand − large:syn |", "large@5+syn − large@5 |"):
         assert heading in report
+    assert (smoke / "label_efficiency.png").stat().st_size > 0
+    comparisons = json.loads((smoke / "results.json").read_text())["comparisons"]
+    assert {(c["a"], c["b"]) for c in comparisons} >= {("large:syn", "large"), ("large@5+syn", "large@5")}
+    for c in comparisons:
+        assert c["low"] <= c["difference"] <= c["high"] and c["n_slices"] == 26
+
+
+def _train_list(smoke, arm):
+    data = yaml.safe_load((smoke / "data" / arm / "data.yaml").read_text())
+    return [Path(line) for line in Path(data["train"]).read_text().splitlines()], data
+
+
+@pytest.mark.slow
+def test_new_arms_train_on_packs_alone_or_on_their_label_budget_and_validate_on_real_slices(smoke):
+    for arm, export in (("large:syn", "large+syn"), ("large:syn-rand", "large+syn-rand")):
+        images, data = _train_list(smoke, arm)
+        assert images and all(p.name.startswith("syn_") and p.is_file() for p in images)
+        assert data["val"] == "images/val" and Path(data["path"]).name == export
+    real_slices = slice_splits(128, VAL_FRACTION)["train"]
+    for arm, with_packs in (("large@5", False), ("large@5+syn", True)):
+        images, data = _train_list(smoke, arm)
+        real = [p for p in images if p.name.startswith("real_")]
+        assert len(real) == 5 and all(int(p.stem.rsplit("_s", 1)[1]) in real_slices for p in real)
+        assert any(p.name.startswith("syn_") for p in images) == with_packs
+        assert data["test"] == "images/test"
+    manifest = json.loads((smoke / "packs-randomised" / "large" / "pack_0000" / "manifest.json").read_text())
+    assert manifest["postprocess_mode"] == "randomised" and manifest["randomised"]["drawn"]
+
+
+@pytest.mark.parametrize("n_slices", [20, 37, 100, 128, 301])
+def test_label_budget_slices_never_include_a_test_or_val_slice(n_slices):
+    parts = slice_splits(n_slices, VAL_FRACTION)
+    forbidden = set(parts["test"]) | set(parts["val"])
+    for k in range(len(parts["train"]) + 1):
+        chosen = budget_slices(n_slices, k, VAL_FRACTION)
+        assert len(set(chosen.tolist())) == len(chosen) == k
+        assert not forbidden & set(chosen.tolist())
+        if k >= 2:  # spread over the whole training part, on both sides of the test block
+            assert chosen[0] == parts["train"][0] and chosen[-1] == parts["train"][-1]
+
+
+def _counts(rng, dice, n_seeds=3, n_slices=26):
+    true = rng.integers(200, 400, size=(n_seeds, n_slices))
+    hit = np.clip(rng.normal(dice, 0.03, size=true.shape), 0, 1)
+    intersection = (hit * true).astype(np.int64)
+    return np.stack([intersection, true, true], axis=-1)
+
+
+def test_bootstrap_interval_contains_zero_for_identical_arms_and_excludes_it_for_different_ones():
+    rng = np.random.default_rng(1)
+    a, b = _counts(rng, 0.80), _counts(rng, 0.80)
+    same = paired_bootstrap(a, a.copy())
+    assert same.low <= 0 <= same.high and same.difference == 0
+    alike = paired_bootstrap(a, b)  # two arms of the same quality: noise only
+    assert alike.low <= 0 <= alike.high
+    better = paired_bootstrap(_counts(rng, 0.90), b)
+    assert better.excludes_zero and better.low > 0.05
+    assert paired_bootstrap(a, b, seed=3) == paired_bootstrap(a, b, seed=3)
+
+
+def test_an_optional_real_scan_without_its_files_is_skipped_with_a_message(tmp_path, caplog):
+    config = tmp_path / "c.yaml"
+    config.write_text(yaml.safe_dump({"real": {
+        "large": {"sample": "large"},
+        "gone": {"tomogram": str(tmp_path / "no.tif"), "labels": str(tmp_path / "no_labels.tif"), "optional": True}},
+        "synthetic": {"scans": {"gone": {"pour": {"n_particles": 10}}}}}))
+    with caplog.at_level("WARNING", logger="training.experiment"):
+        loaded = ExperimentConfig.load(config)
+    assert list(loaded.real) == ["large"] and "gone" not in loaded.packs
+    assert "real scan gone skipped" in caplog.text and "no.tif" in caplog.text
+    assert "gone" not in " ".join(loaded.arms)
+
+
+def test_the_cpu_config_runs_every_arm_over_three_seeds_with_the_concrete_scan_where_present():
+    config = ExperimentConfig.load("cpu")
+    assert len(config.seeds) >= 3 and config.budgets
+    present = (ROOT.parent / "shared" / "data" / "concrete" / "concrete_neutron.tif").is_file()
+    assert ("concrete" in config.real) == present
+    names = config.arms
+    for scan in config.real:
+        assert {scan, scan + "+syn", scan + ":syn", scan + ":syn-rand", f"{scan}@{config.budgets[0]}+syn"} <= set(names)
 
 
 @pytest.mark.slow

@@ -14,9 +14,16 @@ offline
 train
     One YOLO segmentation training from a ``.yaml`` model.
 evaluate
-    Predictions of the test slices as label images; Dice and mAP50.
+    Predictions of the test slices as label images; Dice (pooled and per slice) and mAP50.
+arms
+    The training arms (real, + packs, packs alone, randomised packs, label budgets) and
+    the training lists of those that take part of an export.
+stats
+    Paired bootstrap intervals of a difference in Dice over test slices and seeds.
+report
+    The report's tables (the paper's layout, with intervals), comparisons and charts.
 experiment
-    The paper's experiment matrix, report and chart.
+    The experiment: config, data, training and scoring of every arm, resumable.
 
 Importing the package imports nothing else: `training.offline.offline_ultralytics`
 must run before anything imports ``ultralytics``.

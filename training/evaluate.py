@@ -1,6 +1,6 @@
 """Score a trained YOLO segmentation model on the test slices of a `synthpack export-yolo` folder.
 
-Three figures per test set:
+Three figures per test set (and the per-slice foreground counts behind the Dice):
 
 - **Dice**: foreground Dice of the predicted against the true particle masks
   (paper eq. 12), pooled over every pixel of the test slices (and the mean of the
@@ -93,15 +93,21 @@ def score(predictions: str | os.PathLike, truth: str | os.PathLike) -> dict:
     -------
     dict
         ``dice`` and ``instance_dice`` (pooled over the slices), ``dice_mean_of_slices``,
-        ``n_slices``, ``n_true``, ``n_pred``, ``n_matched``.
+        ``n_slices``, ``n_true``, ``n_pred``, ``n_matched``, and ``slices``: per slice (in
+        name order) its ``file``, ``dice`` and foreground pixels ``fg_intersection``,
+        ``fg_pred``, ``fg_true`` (what `training.stats.paired_bootstrap` resamples).
     """
-    summary = evaluate_folders(predictions, truth).summary
+    report = evaluate_folders(predictions, truth)
+    summary = report.summary
     return {
         "dice": summary["pooled"]["dice"],
         "instance_dice": summary["pooled"]["instance_dice_micro"],
         "dice_mean_of_slices": summary["mean_of_rows"]["dice"],
         "n_slices": summary["n_rows"],
         "n_true": summary["n_true"], "n_pred": summary["n_pred"], "n_matched": summary["n_matched"],
+        "slices": [{"file": row["file"], "dice": row["dice"], "fg_intersection": stats.fg_intersection,
+                    "fg_pred": stats.fg_pred, "fg_true": stats.fg_true}
+                   for row, stats in zip(report.rows, report.stats)],
     }
 
 

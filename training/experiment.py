@@ -6,25 +6,34 @@ For every real scan of the config (by default the built-in ``large`` and
 1. build a particle library from its TRAINING slices only (particles reaching
    the central 20% test block along ``axis`` are dropped, and the intensity
    statistics skip that block: `ParticleLibrary.from_scan(exclude_slices=...)`);
-2. generate the synthetic packs from that library (`synthpack.generate_packs`);
-3. export three YOLO datasets that share the real scan's train/val/test slices
-   and intensity window: ``<scan>`` (real only), ``<scan>+syn`` (real + the packs'
-   post-processed tomograms) and ``<scan>+syn-nopp`` (real + the packs' clean
-   tomograms, the paper's "without post-processing" arm).
+2. generate the synthetic packs from that library (`synthpack.generate_packs`),
+   calibrated and, for the ``syn-rand`` arms, with ``postprocess: randomised``;
+3. export the YOLO datasets that share the real scan's train/val/test slices and
+   intensity window: ``<scan>`` (real only), ``<scan>+syn`` (real + the packs'
+   post-processed tomograms), ``<scan>+syn-nopp`` (real + the packs' clean
+   tomograms, the paper's "without post-processing" arm) and ``<scan>+syn-rand``
+   (real + the randomised packs); arms that train on part of an export get a
+   training list of their own (`training.arms`: packs alone, label budgets).
 
-Then every arm is trained from scratch once per seed (`training.train.train`)
-and scored on the test slices of EVERY real scan (`training.evaluate.evaluate`):
-foreground Dice, matched-instance Dice and Ultralytics' mask mAP50. The run folder gets
-``results.csv`` (one row per arm, seed and test set), ``results.json``,
-``report.md`` (Tables 1 and 2 laid out as in the paper, the paper's figures beside
-ours) and ``dice.png``.
+Then every arm (`training.arms.ARM_KINDS`) is trained from scratch once per seed
+(`training.train.train`) and scored on the test slices of EVERY real scan
+(`training.evaluate.evaluate`): foreground Dice, matched-instance Dice and
+Ultralytics' mask mAP50, with per-slice foreground counts. The run folder gets
+``results.csv`` (one row per arm, seed and test set), ``results.json`` (with every
+comparison), ``report.md`` (`training.report`: Tables 1 and 2 laid out as in the
+paper with the paper's figures beside ours, the packs-alone and label-efficiency
+tables, each comparison's paired difference with its bootstrap 95% interval),
+``dice.png`` and ``label_efficiency.png``.
+
+A ``real`` entry marked ``optional: true`` whose files are absent (the concrete
+scan of the ``cpu`` config on a fresh clone) is left out with a logged message.
 
 Each stage is skipped when its output is complete, so an interrupted run resumes.
 
 Run from the checkout root::
 
     python -m training.experiment --config smoke --out runs/smoke     # minutes, CPU
-    python -m training.experiment --config cpu --out runs/cpu         # under an hour on 2 cores
+    python -m training.experiment --config cpu --out runs/cpu         # hours on 2 cores
     python -m training.experiment --config paper --out runs/paper     # GPU
 """
 
@@ -36,16 +45,14 @@ import io
 import json
 import logging
 import os
-import platform
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from synthpack import __version__
 from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export.yolo import export_yolo
@@ -56,28 +63,20 @@ from synthpack.samples import SAMPLE_NAMES, sample_scan
 from synthpack.scan import Scan
 from synthpack.split import central_block
 
-from .evaluate import evaluate
+from .arms import ARM_KINDS, EXPORT_SUFFIXES, Arm, make_arms, subset_dataset
+from .evaluate import evaluate, score, write_scores
 from .offline import offline_ultralytics
+from .report import compare_arms, report_markdown, save_chart, save_label_efficiency
 from .train import TrainSettings, resolve_device, train
 
 logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 
-#: The paper's Dice scores (%), by training set, then test set (Tables 1 and 2).
-PAPER_DICE = {
-    "large": {"large": 94.5, "small": 77.0},
-    "large+syn": {"large": 96.0, "small": 80.1},
-    "large+syn-nopp": {"large": 94.9, "small": 76.9},
-    "small": {"large": 92.4, "small": 90.1},
-    "small+syn": {"large": 94.8, "small": 90.9},
-    "small+syn-nopp": {"large": 92.4, "small": 88.8},
-}
-
-#: Arm suffixes: real only, real + synthetic, real + synthetic without post-processing.
-ARM_KINDS = {"": "real only", "+syn": "real + synthetic", "+syn-nopp": "real + synthetic w/o post-processing"}
-RESULT_COLUMNS = ("arm", "train_scan", "kind", "seed", "test_set", "dice", "dice_mean_of_slices", "instance_dice",
-                  "mask_map50", "n_slices", "n_true", "n_pred", "n_matched", "train_seconds")
+RESULT_COLUMNS = ("arm", "train_scan", "kind", "budget", "seed", "test_set", "dice", "dice_mean_of_slices",
+                  "instance_dice", "mask_map50", "n_slices", "n_true", "n_pred", "n_matched", "train_seconds")
+#: Relative paths of ``real:`` entries are taken from the checkout root.
+CHECKOUT = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -89,18 +88,28 @@ class ExperimentConfig:
     name : str
     real : dict
         Scan name -> ``{"sample": "large", "seed": 0}`` or
-        ``{"tomogram": path, "labels": path, "voxel_size": ..., "unit": ...}``.
+        ``{"tomogram": path, "labels": path, "voxel_size": ..., "unit": ..., "optional": bool}``
+        (relative paths from the checkout root). An ``optional`` entry whose files are
+        absent is left out, with a logged message.
     axis : int
         Slicing axis of the split, the library's excluded block and the exports.
     n_packs : int
         Synthetic packs per real scan.
     packs : dict
-        Scan name -> PackConfig of its packs.
+        Scan name -> PackConfig of its packs (``syn-rand`` packs take it with
+        ``postprocess: randomised``).
     train : TrainSettings
     seeds : list of int
         Training seeds; every arm is trained once per seed.
     conf : float
         Confidence threshold of the predicted instances.
+    kinds : dict
+        Arm kind (`training.arms.ARM_KINDS`) -> the real scans it is run for
+        (config ``arms:``: a list of kinds for every scan, or kind -> ``all`` or a
+        list of scans; default every kind for every scan).
+    budgets : list of int
+        The label budgets K of the ``budget`` arms (config ``budgets:``; ``all``, the
+        whole training part, is the ``real`` and ``syn`` arms themselves).
     """
 
     name: str
@@ -111,6 +120,8 @@ class ExperimentConfig:
     train: TrainSettings
     seeds: list
     conf: float
+    kinds: dict = field(default_factory=dict)
+    budgets: list = field(default_factory=list)
 
     @classmethod
     def load(cls, config: str | os.PathLike) -> ExperimentConfig:
@@ -124,11 +135,12 @@ class ExperimentConfig:
         data = yaml.safe_load(path.read_text()) or {}
         synthetic = data.get("synthetic", {})
         common = PackConfig.from_dict(synthetic.get("pack", {}))
-        real = data.get("real", {"large": {"sample": "large"}, "small": {"sample": "small"}})
+        listed = data.get("real", {"large": {"sample": "large"}, "small": {"sample": "small"}})
         per_scan = synthetic.get("scans", {})
-        unknown = sorted(set(per_scan) - set(real))
+        unknown = sorted(set(per_scan) - set(listed))
         if unknown:
             raise SynthpackInputError(f"synthetic.scans names unknown scans {unknown}: use names of 'real'")
+        real = {name: spec for name, spec in listed.items() if _present(name, spec)}
         return cls(
             name=data.get("name", path.stem), real=real, axis=int(data.get("axis", 0)),
             n_packs=int(synthetic.get("n_packs", 1)),
@@ -136,20 +148,64 @@ class ExperimentConfig:
             train=TrainSettings.from_dict(data.get("train", {})),
             seeds=[int(s) for s in data.get("seeds", [0])],
             conf=float(data.get("evaluate", {}).get("conf", 0.25)),
+            kinds=_kinds(data.get("arms"), list(listed), list(real)),
+            budgets=_budgets(data.get("budgets", [])),
         )
 
     @property
-    def arms(self) -> list[str]:
-        """Training sets, e.g. ``large``, ``large+syn``, ``large+syn-nopp``, ``small``, ..."""
-        return [name + kind for name in self.real for kind in ARM_KINDS]
+    def arm_list(self) -> list[Arm]:
+        """Every training set, scan by scan (`training.arms.make_arms`)."""
+        return make_arms(self.kinds, self.budgets)
 
-    def arm_parts(self, arm: str) -> tuple[str, str]:
-        """``(real scan name, kind)`` of an arm, e.g. ``("large", "real + synthetic")``."""
-        for name in self.real:
-            for suffix, kind in ARM_KINDS.items():
-                if arm == name + suffix:
-                    return name, kind
-        raise KeyError(arm)
+    @property
+    def arms(self) -> list[str]:
+        """Names of the training sets, e.g. ``large``, ``large+syn``, ``large:syn``, ``large@5+syn``, ..."""
+        return [arm.name for arm in self.arm_list]
+
+
+def _present(name: str, spec: dict) -> bool:
+    """Whether a ``real`` entry is to be run: False (logged) for an ``optional`` one whose files are absent."""
+    if not spec.get("optional"):
+        return True
+    missing = [str(_path(spec[key])) for key in ("tomogram", "labels") if key in spec and not _path(spec[key]).exists()]
+    if missing:
+        logger.warning("real scan %s skipped: %s not found (an optional entry; put the data there to include it)",
+                       name, ", ".join(missing))
+    return not missing
+
+
+def _path(value: str) -> Path:
+    """A ``real`` entry's path: relative ones from the checkout root."""
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else CHECKOUT / path
+
+
+def _kinds(value: list | dict | None, listed: list[str], present: list[str]) -> dict[str, list[str]]:
+    """The config's ``arms`` as kind -> scans (those present), checked."""
+    if value is None:
+        value = list(ARM_KINDS)
+    if isinstance(value, list):
+        value = {kind: "all" for kind in value}
+    if not isinstance(value, dict):
+        raise SynthpackInputError(f"arms must be a list of arm kinds or a mapping kind -> scans, got {value!r}")
+    kinds = {}
+    for kind, scans in value.items():
+        if kind not in ARM_KINDS:
+            raise SynthpackInputError(f"unknown arm kind {kind!r}: use {', '.join(ARM_KINDS)}")
+        scans = listed if scans == "all" else list(scans)
+        unknown = sorted(set(scans) - set(listed))
+        if unknown:
+            raise SynthpackInputError(f"arms.{kind} names unknown scans {unknown}: use names of 'real' or all")
+        kinds[kind] = [scan for scan in scans if scan in present]
+    return kinds
+
+
+def _budgets(value: list) -> list[int]:
+    """The config's ``budgets``: positive slice counts, ``all`` dropped (it is the ``real`` and ``syn`` arms)."""
+    budgets = [k for k in value if k != "all"]
+    if not all(isinstance(k, int) and not isinstance(k, bool) and k > 0 for k in budgets):
+        raise SynthpackInputError(f"budgets must be positive numbers of real slices or all, got {value!r}")
+    return sorted(set(budgets))
 
 
 def read_real_scan(spec: dict) -> Scan:
@@ -159,203 +215,143 @@ def read_real_scan(spec: dict) -> Scan:
             raise SynthpackInputError(f"unknown sample {spec['sample']!r}: use one of {', '.join(SAMPLE_NAMES)}")
         return sample_scan(spec["sample"], seed=int(spec.get("seed", 0)))
     if "tomogram" in spec and "labels" in spec:
-        return read_scan(spec["tomogram"], spec["labels"], voxel_size=spec.get("voxel_size"), unit=spec.get("unit"))
+        return read_scan(_path(spec["tomogram"]), _path(spec["labels"]), voxel_size=spec.get("voxel_size"),
+                         unit=spec.get("unit"))
     raise SynthpackInputError(f"real scan entry {spec} needs 'sample: large|small' or 'tomogram' and 'labels'")
 
 
+def _library(config: ExperimentConfig, name: str, scan: Scan, out: Path) -> ParticleLibrary:
+    """The particle library of the training slices of `scan` (built once, then loaded)."""
+    library_dir = out / "libraries" / name
+    if (library_dir / "library.json").is_file():
+        return ParticleLibrary.load(library_dir)
+    block = central_block(scan.shape[config.axis])
+    library = ParticleLibrary.from_scan(scan, **vars(config.packs[name].library), exclude_slices=block,
+                                        axis=config.axis, progress=False)
+    library.save(library_dir)
+    return library
+
+
 def prepare_data(config: ExperimentConfig, out: Path) -> dict[str, Path]:
-    """Libraries, packs and YOLO exports of every real scan; returns arm -> export folder."""
-    exports = {}
+    """Libraries, packs, YOLO exports and arm datasets of every real scan; returns arm -> ``data.yaml``.
+
+    Exports (``data/<scan><suffix>``, `training.arms.EXPORT_SUFFIXES`) share the real
+    scan's train/val/test slices and intensity window; only those some arm needs are made.
+    """
+    arms = config.arm_list
+    data = {}
     for name, spec in config.real.items():
+        own = [arm for arm in arms if arm.scan == name]
+        needed = {arm.export for arm in own} | {"real"}  # every scan's real export holds its test slices
         scan = read_real_scan(spec)
-        library_dir = out / "libraries" / name
-        if (library_dir / "library.json").is_file():
-            library = ParticleLibrary.load(library_dir)
-        else:
-            block = central_block(scan.shape[config.axis])
-            library = ParticleLibrary.from_scan(scan, **vars(config.packs[name].library), exclude_slices=block,
-                                                axis=config.axis, progress=False)
-            library.save(library_dir)
+        library = _library(config, name, scan, out)
         logger.info("%s: %d particles from the training slices", name, len(library))
-        packs = generate_packs(library, out / "packs" / name, config.n_packs, config.packs[name],
-                               source=f"experiment scan {name}", progress=False)
-        arms = {name: dict(real=[scan], split="paper"),
-                name + "+syn": dict(real=[scan], packs=packs, split="real-test"),
-                name + "+syn-nopp": dict(real=[scan], packs=packs, split="real-test", postprocess=False)}
-        for arm, options in arms.items():
-            exports[arm] = out / "data" / arm
-            if not (exports[arm] / "export.json").is_file():
-                export_yolo(exports[arm], axis=config.axis, progress=False, **options)
-    return exports
+        packs = {}
+        if needed & {"syn", "syn-nopp"}:
+            packs["calibrated"] = generate_packs(library, out / "packs" / name, config.n_packs, config.packs[name],
+                                                 source=f"experiment scan {name}", progress=False)
+        if "syn-rand" in needed:
+            packs["randomised"] = generate_packs(
+                library, out / "packs-randomised" / name, config.n_packs,
+                config.packs[name].replace(postprocess="randomised"),
+                source=f"experiment scan {name}, randomised", progress=False)
+        options = {"real": dict(real=[scan], split="paper"),
+                   "syn": dict(real=[scan], packs=packs.get("calibrated"), split="real-test"),
+                   "syn-nopp": dict(real=[scan], packs=packs.get("calibrated"), split="real-test", postprocess=False),
+                   "syn-rand": dict(real=[scan], packs=packs.get("randomised"), split="real-test")}
+        exports = {}
+        for export in sorted(needed):
+            exports[export] = out / "data" / (name + EXPORT_SUFFIXES[export])
+            if not (exports[export] / "export.json").is_file():
+                export_yolo(exports[export], axis=config.axis, progress=False, **options[export])
+        data[name] = exports["real"] / "data.yaml"  # the test set of scan `name`
+        for arm in own:
+            if arm.whole_export:
+                data[arm.name] = exports[arm.export] / "data.yaml"
+            else:
+                subset_dataset(exports[arm.export], out / "data" / arm.name, arm)
+                data[arm.name] = out / "data" / arm.name / "data.yaml"
+    return data
 
 
 def _done(path: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def run_arms(config: ExperimentConfig, out: Path, exports: dict[str, Path]) -> list[dict]:
-    """Train every arm once per seed and score it on every real scan's test slices."""
-    rows = []
+def _scores(folder: Path, weights: Path, test_data: Path, config: ExperimentConfig, config_dir: Path) -> dict:
+    """The scores of `weights` on a test set: evaluated once, then read back.
+
+    Scores of an earlier run without per-slice counts get them from its predictions.
+    """
+    scores = _done(folder / "scores.json")
+    if scores is None:
+        return evaluate(weights, test_data.parent, folder, imgsz=config.train.imgsz, conf=config.conf,
+                        device=config.train.device, config_dir=config_dir)
+    if "slices" not in scores:
+        scores.update(slices=score(folder / "pred", test_data.parent / "truth" / "test")["slices"])
+        write_scores(folder, scores)
+    return scores
+
+
+def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path]) -> tuple[list[dict], dict]:
+    """Train every arm once per seed and score it on every real scan's test slices.
+
+    Returns
+    -------
+    rows : list of dict
+        One per arm, seed and test set (`RESULT_COLUMNS`).
+    slices : dict
+        ``(arm, seed, test set)`` -> per-slice ``[intersection, pred, true]`` foreground
+        pixels, int64 (N, 3), slices in name order (for `training.stats.paired_bootstrap`).
+    """
+    rows, slices = [], {}
     config_dir = out / "ultralytics"
-    for arm in config.arms:
-        train_scan, kind = config.arm_parts(arm)
+    for arm in config.arm_list:
         for seed in config.seeds:
-            run = out / "runs" / arm / f"seed{seed}"
+            run = out / "runs" / arm.name / f"seed{seed}"
             record = _done(run / "train.json")
             if record is None:
                 start = time.perf_counter()
-                logger.info("training %s, seed %d", arm, seed)
+                logger.info("training %s, seed %d", arm.name, seed)
                 settings = TrainSettings(**{**vars(config.train), "seed": seed})
-                train(exports[arm] / "data.yaml", run, settings, config_dir=config_dir)
+                train(data[arm.name], run, settings, config_dir=config_dir)
                 record = _done(run / "train.json")
-                logger.info("trained %s in %.0f s", arm, time.perf_counter() - start)
+                logger.info("trained %s in %.0f s", arm.name, time.perf_counter() - start)
             for test_set in config.real:
-                folder = out / "eval" / arm / f"seed{seed}" / test_set
-                scores = _done(folder / "scores.json") or evaluate(
-                    run / "weights" / "best.pt", exports[test_set], folder, imgsz=config.train.imgsz,
-                    conf=config.conf, device=config.train.device, config_dir=config_dir)
-                rows.append({"arm": arm, "train_scan": train_scan, "kind": kind,
-                             "seed": seed, "test_set": test_set, "train_seconds": round(record["seconds"], 1),
+                scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, run / "weights" / "best.pt",
+                                 data[test_set], config, config_dir)
+                slices[(arm.name, seed, test_set)] = np.array(
+                    [[s["fg_intersection"], s["fg_pred"], s["fg_true"]] for s in scores["slices"]], dtype=np.int64)
+                rows.append({"arm": arm.name, "train_scan": arm.scan, "kind": arm.description,
+                             "budget": arm.real_slices if arm.kind == "budget" else "", "seed": seed,
+                             "test_set": test_set, "train_seconds": round(record["seconds"], 1),
                              **{key: scores[key] for key in RESULT_COLUMNS if key in scores}})
-                logger.info("%s seed %d on %s: Dice %.3f", arm, seed, test_set, scores["dice"])
-    return rows
+                logger.info("%s seed %d on %s: Dice %.3f", arm.name, seed, test_set, scores["dice"])
+    return rows, slices
 
 
-def summarise(rows: list[dict]) -> dict:
-    """(arm, test set) -> mean and sample standard deviation over seeds of each score."""
-    table: dict = {}
-    for row in rows:
-        table.setdefault((row["arm"], row["test_set"]), []).append(row)
-    summary = {}
-    for key, group in table.items():
-        summary[key] = {"n_seeds": len(group)}
-        for score in ("dice", "instance_dice", "mask_map50"):
-            values = np.array([r[score] for r in group], dtype=float)
-            summary[key][score] = float(values.mean())
-            summary[key][score + "_sd"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
-    return summary
-
-
-def _cell(summary: dict, arm: str, test_set: str, score: str = "dice") -> str:
-    entry = summary.get((arm, test_set))
-    if entry is None:
-        return "-"
-    text = f"{100 * entry[score]:.1f}%"
-    if entry["n_seeds"] > 1:
-        text += f" ± {100 * entry[score + '_sd']:.1f}"
-    paper = PAPER_DICE.get(arm, {}).get(test_set) if score == "dice" else None
-    return text + (f" ({paper:.1f}%)" if paper is not None else "")
-
-
-def _table(summary: dict, arms: list[str], test_sets: list[str], score: str = "dice") -> list[str]:
-    lines = ["| training set | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
-             "|---|" + "---|" * len(test_sets)]
-    lines += [f"| {arm} | " + " | ".join(_cell(summary, arm, t, score) for t in test_sets) + " |" for arm in arms]
-    return lines
-
-
-def _dataset_lines(config: ExperimentConfig, out: Path) -> list[str]:
-    lines = ["| training set | train images | val images | test images |", "|---|---|---|---|"]
-    for arm in config.arms:
-        images = json.loads((out / "data" / arm / "export.json").read_text())["images"]
-        lines.append(f"| {arm} ({config.arm_parts(arm)[1]}) | {images['train']} | "
-                     f"{images['val']} | {images['test']} |")
-    return lines
-
-
-def report_markdown(config: ExperimentConfig, rows: list[dict], out: Path, seconds: float, device: str) -> str:
-    """The report: settings, datasets, Tables 1 and 2 with the paper's figures, every score."""
-    summary = summarise(rows)
-    tests = list(config.real)
-    table1 = [name + kind for name in config.real for kind in ("", "+syn")]
-    table2 = [name + kind for name in config.real for kind in ("+syn", "+syn-nopp")]
-    t = config.train
-    lines = [
-        f"# Augmentation experiment `{config.name}`",
-        "",
-        f"synthpack {__version__}; {t.model} from scratch (no pretrained weights) at {t.imgsz} px, {t.epochs} "
-        f"epoch{'s' if t.epochs != 1 else ''}, batch {t.batch}, optimizer {t.optimizer} (lr0 {t.lr0}), device `{device}` "
-        f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores); training seeds "
-        f"{', '.join(map(str, config.seeds))}; {config.n_packs} synthetic pack(s) per real scan, built from "
-        f"its training slices only; slices along axis {config.axis}; confidence threshold {config.conf}; "
-        f"total {seconds / 60:.1f} min.",
-        "",
-        "Cells: foreground Dice on the test set (central 20% of the slices of that real scan), pooled over its "
-        "slices" + (", mean ± sample standard deviation over the seeds" if len(config.seeds) > 1 else "")
-        + "; the paper's figure in brackets where the scan names match the paper's (large, small).",
-        "",
-        "## Datasets",
-        "",
-        "Real slices are split as in the paper (central 20% test; validation: the training slices next to "
-        "the test block); synthetic slices are all training slices.",
-        "",
-        *_dataset_lines(config, out),
-        "",
-        "## Table 1: real data alone and with synthetic packs",
-        "",
-        *_table(summary, table1, tests),
-        "",
-        "## Table 2: synthetic packs with and without post-processing",
-        "",
-        *_table(summary, table2, tests),
-        "",
-        "## Matched-instance Dice (IoU >= 0.5, unmatched instances count 0)",
-        "",
-        *_table(summary, config.arms, tests, "instance_dice"),
-        "",
-        "## Ultralytics mask mAP50",
-        "",
-        *_table(summary, config.arms, tests, "mask_map50"),
-        "",
-        "Every row (arm, seed, test set) is in `results.csv`; the chart is `dice.png`.",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def save_chart(config: ExperimentConfig, rows: list[dict], path: Path) -> None:
-    """Grouped bars of the Dice of every arm on every test set, the paper's figures as black marks."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    summary = summarise(rows)
-    arms, tests = config.arms, list(config.real)
-    width = 0.8 / len(arms)
-    fig, ax = plt.subplots(figsize=(2.5 + 1.8 * len(tests), 4))
-    for k, arm in enumerate(arms):
-        x = np.arange(len(tests)) + (k - (len(arms) - 1) / 2) * width
-        means = [100 * summary[(arm, t)]["dice"] for t in tests]
-        errors = [100 * summary[(arm, t)]["dice_sd"] for t in tests]
-        ax.bar(x, means, width, yerr=errors if len(config.seeds) > 1 else None, label=arm)
-        paper = [PAPER_DICE.get(arm, {}).get(t, np.nan) for t in tests]
-        ax.plot(x, paper, "k_", markersize=12, label="paper" if k == 0 else None)
-    ax.set_xticks(np.arange(len(tests)), [f"test: {t}" for t in tests])
-    ax.set_ylabel("foreground Dice (%)")
-    ax.set_ylim(0, 100)
-    ax.set_title(f"{config.name}: {config.train.model}, {config.train.epochs} epochs")
-    ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
-
-
-def write_results(config: ExperimentConfig, rows: list[dict], out: Path, seconds: float, device: str) -> None:
-    """``results.csv``, ``results.json``, ``report.md`` and ``dice.png`` in `out`."""
+def write_results(config: ExperimentConfig, rows: list[dict], slices: dict, out: Path, seconds: float,
+                  device: str) -> None:
+    """``results.csv``, ``results.json``, ``report.md``, ``dice.png`` and ``label_efficiency.png`` in `out`."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=RESULT_COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
+    comparisons = compare_arms(config, slices)
     texts = {
         "results.csv": buffer.getvalue(),
-        "results.json": json.dumps({"config": config.name, "rows": rows, "seconds": seconds}, indent=1),
-        "report.md": report_markdown(config, rows, out, seconds, device),
+        "results.json": json.dumps({"config": config.name, "rows": rows, "seconds": seconds,
+                                    "comparisons": [c.to_dict() for c in comparisons]}, indent=1),
+        "report.md": report_markdown(config, rows, comparisons, out, seconds, device),
     }
     for name, text in texts.items():
         with atomic_file(out / name) as staging:
             staging.write_text(text)
     with atomic_file(out / "dice.png") as staging:
         save_chart(config, rows, staging)
+    if config.budgets:
+        with atomic_file(out / "label_efficiency.png") as staging:
+            save_label_efficiency(config, rows, out, staging)
 
 
 def run(config: str | os.PathLike | ExperimentConfig, out: str | os.PathLike) -> list[dict]:
@@ -365,10 +361,10 @@ def run(config: str | os.PathLike | ExperimentConfig, out: str | os.PathLike) ->
     out.mkdir(parents=True, exist_ok=True)
     offline_ultralytics(out / "ultralytics")
     start = time.perf_counter()
-    exports = prepare_data(config, out)
-    rows = run_arms(config, out, exports)
+    data = prepare_data(config, out)
+    rows, slices = run_arms(config, out, data)
     seconds = time.perf_counter() - start
-    write_results(config, rows, out, seconds, resolve_device(config.train.device))
+    write_results(config, rows, slices, out, seconds, resolve_device(config.train.device))
     logger.info("report in %s (%.1f min)", out / "report.md", seconds / 60)
     return rows
 

@@ -21,6 +21,8 @@ Transforms, by config name:
 ``motion_blur``           `MotionBlur` (length, angle): in-slice line kernel
 ``ring_artefacts``        `RingArtefacts` (amplitude, n_rings, width, radii, amplitudes)
 ``beam_hardening``        `BeamHardening` (strength): radial cupping (signed)
+``contrast_gamma``        `ContrastGamma` (contrast, gamma, pore_level, grain_level): the
+                          intensity response between the two phase levels
 ``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
                           filter_name): projection, photon noise, gain errors, FBP
 ``compose``               `Compose` (transforms)
@@ -40,6 +42,7 @@ from .blur import GaussianBlur, MotionBlur, line_kernel
 from .calibrate import Calibration, calibrate, noise_to_add
 from .coloured_noise import ColouredNoise
 from .ct import CTSimulation
+from .intensity import ContrastGamma
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
 from .presets import generic_postprocessing
 from .radial import BeamHardening, RingArtefacts
@@ -50,6 +53,7 @@ __all__ = [
     "Calibration",
     "ColouredNoise",
     "Compose",
+    "ContrastGamma",
     "GaussianBlur",
     "GaussianNoise",
     "MotionBlur",

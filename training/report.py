@@ -1,0 +1,310 @@
+"""The experiment's report: tables of the paper's layout with intervals, the arm comparisons, the charts.
+
+Cells give the foreground Dice pooled over a test scan's slices, mean ± sample standard
+deviation over the training seeds. Each comparison (`COMPARISONS`) is a paired difference
+of two arms on one test scan, with its bootstrap 95% interval over test slices and seeds
+(`training.stats.paired_bootstrap`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from synthpack import __version__
+
+from .arms import Arm
+from .stats import Difference, paired_bootstrap
+
+__all__ = ["COMPARISONS", "Comparison", "compare_arms", "report_markdown", "save_chart", "save_label_efficiency"]
+
+#: The paper's Dice scores (%), by training set, then test set (Tables 1 and 2).
+PAPER_DICE = {
+    "large": {"large": 94.5, "small": 77.0},
+    "large+syn": {"large": 96.0, "small": 80.1},
+    "large+syn-nopp": {"large": 94.9, "small": 76.9},
+    "small": {"large": 92.4, "small": 90.1},
+    "small+syn": {"large": 94.8, "small": 90.9},
+    "small+syn-nopp": {"large": 92.4, "small": 88.8},
+}
+#: Comparison groups: (group, arm a, arm b) name patterns, ``{s}`` the scan and ``{k}`` a label budget.
+COMPARISONS = (
+    ("table1", "{s}+syn", "{s}"),
+    ("table2", "{s}+syn", "{s}+syn-nopp"),
+    ("synthetic only", "{s}:syn", "{s}"),
+    ("synthetic only", "{s}:syn-rand", "{s}:syn"),
+    ("label budget", "{s}@{k}+syn", "{s}@{k}"),
+    ("label budget", "{s}@{k}+syn", "{s}"),
+)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Arm `a` minus arm `b` on the test slices of `test_set` (`difference`: Dice as a fraction)."""
+
+    group: str
+    a: str
+    b: str
+    test_set: str
+    difference: Difference
+
+    def to_dict(self) -> dict:
+        """JSON-able dict."""
+        return {"group": self.group, "a": self.a, "b": self.b, "test_set": self.test_set,
+                **self.difference.to_dict()}
+
+
+def compare_arms(config, slices: dict) -> list[Comparison]:
+    """Every comparison of `COMPARISONS` whose two arms ran, on every test set, paired by seed and slice.
+
+    `slices`: ``(arm, seed, test set)`` -> per-slice counts (`training.experiment.run_arms`).
+    """
+    arms, seeds = set(config.arms), config.seeds
+    comparisons = []
+    for scan in config.real:
+        for group, a_pattern, b_pattern in COMPARISONS:
+            for k in (config.budgets if "{k}" in a_pattern else [None]):
+                a, b = a_pattern.format(s=scan, k=k), b_pattern.format(s=scan, k=k)
+                if a not in arms or b not in arms:
+                    continue
+                for test_set in config.real:
+                    counts = [np.stack([slices[(arm, seed, test_set)] for seed in seeds]) for arm in (a, b)]
+                    comparisons.append(Comparison(group, a, b, test_set, paired_bootstrap(*counts)))
+    return comparisons
+
+
+def summarise(rows: list[dict]) -> dict:
+    """(arm, test set) -> mean and sample standard deviation over seeds of each score."""
+    table: dict = {}
+    for row in rows:
+        table.setdefault((row["arm"], row["test_set"]), []).append(row)
+    summary = {}
+    for key, group in table.items():
+        summary[key] = {"n_seeds": len(group)}
+        for name in ("dice", "instance_dice", "mask_map50"):
+            values = np.array([r[name] for r in group], dtype=float)
+            summary[key][name] = float(values.mean())
+            summary[key][name + "_sd"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
+    return summary
+
+
+def _cell(summary: dict, arm: str, test_set: str, score: str = "dice") -> str:
+    entry = summary.get((arm, test_set))
+    if entry is None:
+        return "-"
+    text = f"{100 * entry[score]:.1f}%"
+    if entry["n_seeds"] > 1:
+        text += f" ± {100 * entry[score + '_sd']:.1f}"
+    paper = PAPER_DICE.get(arm, {}).get(test_set) if score == "dice" else None
+    return text + (f" ({paper:.1f}%)" if paper is not None else "")
+
+
+def _table(summary: dict, arms: list[str], test_sets: list[str], score: str = "dice") -> list[str]:
+    lines = ["| training set | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
+             "|---|" + "---|" * len(test_sets)]
+    lines += [f"| {arm} | " + " | ".join(_cell(summary, arm, t, score) for t in test_sets) + " |"
+              for arm in arms if any((arm, t) in summary for t in test_sets)]
+    return lines
+
+
+def _interval(d: Difference) -> str:
+    mark = " *" if d.excludes_zero else ""
+    return f"{100 * d.difference:+.1f} [{100 * d.low:+.1f}, {100 * d.high:+.1f}]{mark}"
+
+
+def _differences(comparisons: list[Comparison], group: str, test_sets: list[str]) -> list[str]:
+    """Rows ``a − b`` of one group: the difference in Dice points with its 95% interval, per test set."""
+    pairs = list(dict.fromkeys((c.a, c.b) for c in comparisons if c.group == group))
+    if not pairs:
+        return []
+    found = {(c.a, c.b, c.test_set): c.difference for c in comparisons}
+    lines = ["| difference (Dice points) | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
+             "|---|" + "---|" * len(test_sets)]
+    lines += [f"| {a} − {b} | " + " | ".join(_interval(found[(a, b, t)]) if (a, b, t) in found else "-"
+                                            for t in test_sets) + " |" for a, b in pairs]
+    return ["", *lines]
+
+
+def _ratios(summary: dict, scans: list[str], test_sets: list[str]) -> list[str]:
+    """``scan:syn`` Dice as a share of ``scan``'s (the real-only arm), per test set (mean over seeds)."""
+    def ratio(a: str, b: str, t: str) -> str:
+        if (a, t) not in summary or (b, t) not in summary or summary[(b, t)]["dice"] == 0:
+            return "-"
+        return f"{100 * summary[(a, t)]['dice'] / summary[(b, t)]['dice']:.0f}%"
+
+    rows = [f"| {s}:syn / {s} | " + " | ".join(ratio(s + ":syn", s, t) for t in test_sets) + " |"
+            for s in scans if any((s + ":syn", t) in summary for t in test_sets)]
+    if not rows:
+        return []
+    return ["", "| share of the real-only Dice | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
+            "|---|" + "---|" * len(test_sets), *rows]
+
+
+def _images(out: Path, arm: str) -> dict:
+    folder = out / "data" / arm
+    record = folder / "dataset.json" if (folder / "dataset.json").is_file() else folder / "export.json"
+    return json.loads(record.read_text())["images"]
+
+
+def _dataset_lines(arms: list[Arm], out: Path) -> list[str]:
+    lines = ["| training set | train images | val images | test images |", "|---|---|---|---|"]
+    for arm in arms:
+        images = _images(out, arm.name)
+        lines.append(f"| {arm.name} ({arm.description}) | {images['train']} | {images['val']} | {images['test']} |")
+    return lines
+
+
+def _budget_lines(config, summary: dict) -> list[str]:
+    """The label-efficiency table: each scan on its own test slices, Dice against the budget K."""
+    columns = ["0", *map(str, config.budgets), "all"]
+    lines = ["| training set (test: its own scan) | " + " | ".join(f"K = {c}" for c in columns) + " |",
+             "|---|" + "---|" * len(columns)]
+    budgeted = {arm.scan for arm in config.arm_list if arm.kind == "budget"}
+    for scan in (s for s in config.real if s in budgeted):
+        for label, plus, zero in (("real", "", None), ("real + synthetic", "+syn", f"{scan}:syn")):
+            names = [zero, *(f"{scan}@{k}{plus}" for k in config.budgets), scan + plus]
+            cells = [_cell(summary, name, scan) if name else "-" for name in names]
+            if any(cell != "-" for cell in cells):
+                lines.append(f"| {scan}, {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out: Path, seconds: float,
+                    device: str) -> str:
+    """The report: settings, datasets, Tables 1 and 2 with the paper's figures and the intervals, the new arms."""
+    summary = summarise(rows)
+    tests = list(config.real)
+    names = set(config.arms)
+    pick = lambda *suffixes: [s + x for s in config.real for x in suffixes if s + x in names]  # noqa: E731
+    t = config.train
+    lines = [
+        f"# Augmentation experiment `{config.name}`",
+        "",
+        f"synthpack {__version__}; {t.model} from scratch (no pretrained weights) at {t.imgsz} px, {t.epochs} "
+        f"epoch{'s' if t.epochs != 1 else ''}, batch {t.batch}, optimizer {t.optimizer} (lr0 {t.lr0}), "
+        f"device `{device}` "
+        f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores); training seeds "
+        f"{', '.join(map(str, config.seeds))}; {config.n_packs} synthetic pack(s) per real scan, built from "
+        f"its training slices only; slices along axis {config.axis}; confidence threshold {config.conf}; "
+        f"total {seconds / 60:.1f} min.",
+        "",
+        "Cells: foreground Dice on the test set (central 20% of the slices of that real scan), pooled over its "
+        "slices" + (", mean ± sample standard deviation over the seeds" if len(config.seeds) > 1 else "")
+        + "; the paper's figure in brackets where the scan names match the paper's (large, small). "
+        "Differences: `a − b` in Dice points, paired by test slice and seed, with the bootstrap 95% interval "
+        "over test slices and seeds in brackets; `*` where the interval excludes 0.",
+        "",
+        "## Datasets",
+        "",
+        "Real slices are split as in the paper (central 20% test; validation: the training slices next to "
+        "the test block); synthetic slices are all training slices. Every arm selects its model on the real "
+        "val slices of its scan; `scan@K` arms train on K real training slices spaced evenly over the training "
+        "part (never a val or test slice).",
+        "",
+        *_dataset_lines(config.arm_list, out),
+        "",
+        "## Table 1: real data alone and with synthetic packs",
+        "",
+        *_table(summary, pick("", "+syn"), tests),
+        *_differences(comparisons, "table1", tests),
+        "",
+        "## Table 2: synthetic packs with and without post-processing",
+        "",
+        *_table(summary, pick("+syn", "+syn-nopp"), tests),
+        *_differences(comparisons, "table2", tests),
+    ]
+    alone = [arm for s in config.real if {s + ":syn", s + ":syn-rand"} & names
+             for arm in (s, s + ":syn", s + ":syn-rand") if arm in names]
+    if alone:
+        lines += ["", "## Synthetic packs alone (no real slice in training)", "",
+                  "`scan:syn`: the calibrated packs; `scan:syn-rand`: packs with `postprocess: randomised`.", "",
+                  *_table(summary, alone, tests), *_differences(comparisons, "synthetic only", tests),
+                  *_ratios(summary, tests, tests)]
+    if config.budgets:
+        lines += ["", "## Label efficiency: K real training slices, without and with synthetic packs", "",
+                  "K = 0 with packs is `scan:syn`; K = all is `scan` and `scan+syn`. Chart: "
+                  "`label_efficiency.png`.", "", *_budget_lines(config, summary),
+                  *_differences(comparisons, "label budget", tests)]
+    lines += [
+        "",
+        "## Matched-instance Dice (IoU >= 0.5, unmatched instances count 0)",
+        "",
+        *_table(summary, config.arms, tests, "instance_dice"),
+        "",
+        "## Ultralytics mask mAP50",
+        "",
+        *_table(summary, config.arms, tests, "mask_map50"),
+        "",
+        "Every row (arm, seed, test set) is in `results.csv`, every comparison in `results.json`; the chart "
+        "is `dice.png`.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_chart(config, rows: list[dict], path: Path) -> None:
+    """Grouped bars of the Dice of every arm on every test set, the paper's figures as black marks."""
+    plt = _pyplot()
+    summary = summarise(rows)
+    arms, tests = config.arms, list(config.real)
+    width = 0.8 / len(arms)
+    fig, ax = plt.subplots(figsize=(2.5 + 0.25 * len(arms) * len(tests), 4))
+    for k, arm in enumerate(arms):
+        x = np.arange(len(tests)) + (k - (len(arms) - 1) / 2) * width
+        means = [100 * summary[(arm, t)]["dice"] for t in tests]
+        errors = [100 * summary[(arm, t)]["dice_sd"] for t in tests]
+        ax.bar(x, means, width, yerr=errors if len(config.seeds) > 1 else None, label=arm)
+        paper = [PAPER_DICE.get(arm, {}).get(t, np.nan) for t in tests]
+        ax.plot(x, paper, "k_", markersize=12, label="paper" if k == 0 else None)
+    ax.set_xticks(np.arange(len(tests)), [f"test: {t}" for t in tests])
+    ax.set_ylabel("foreground Dice (%)")
+    ax.set_ylim(0, 100)
+    ax.set_title(f"{config.name}: {config.train.model}, {config.train.epochs} epochs")
+    ax.legend(fontsize=6, loc="lower right", ncol=max(1, len(arms) // 8))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def save_label_efficiency(config, rows: list[dict], out: Path, path: Path) -> None:
+    """Dice on each scan's own test slices against the label budget K, without (dashed) and with packs.
+
+    K = all is drawn at the scan's number of real training slices (its real-only export in
+    `out`), K = 0 with packs is the ``scan:syn`` arm. Error bars: the standard deviation over
+    the seeds.
+    """
+    plt = _pyplot()
+    summary = summarise(rows)
+    n_train = {scan: _images(out, scan)["train"] for scan in config.real}
+    budgeted = [arm.scan for arm in config.arm_list if arm.kind == "budget"]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for index, scan in enumerate(dict.fromkeys(budgeted)):
+        colour = f"C{index}"
+        for plus, zero, style in (("", None, "--"), ("+syn", f"{scan}:syn", "-")):
+            points = [(0, zero)] + [(k, f"{scan}@{k}{plus}") for k in config.budgets] + [(n_train[scan], scan + plus)]
+            points = [(k, summary[(arm, scan)]) for k, arm in points if arm and (arm, scan) in summary]
+            if points:
+                ax.errorbar([k for k, _ in points], [100 * e["dice"] for _, e in points],
+                            yerr=[100 * e["dice_sd"] for _, e in points], fmt=style + "o", color=colour, capsize=3,
+                            label=f"{scan}, real" + (" + synthetic" if plus else " only"))
+    ax.set_xlabel("real training slices K (rightmost: all)")
+    ax.set_ylabel("foreground Dice on the scan's test slices (%)")
+    ax.set_ylim(0, 100)
+    ax.set_title(f"{config.name}: label efficiency, {len(config.seeds)} seed(s)")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
