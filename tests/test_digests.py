@@ -3,7 +3,10 @@
 The digests in ``tests/data/digests.json`` were recorded with synthpack 0.2.0 before the
 architecture refactor (issue 12), and re-recorded for 0.3.0, where the post-processing
 recipe ``default`` became ``generic`` (the same volumes) and the manifests gained the
-resolved post-processing mode. A refactor that does not mean to change behaviour must
+resolved post-processing mode; and for 0.4.0, where packs are poured to the source's solid
+fraction with margin-corrected collision shapes (new placements and labels), the calibrated
+post-processing and the library gained the measured scanner artefacts and pore histogram,
+and the YOLO export's files name the new version. A refactor that does not mean to change behaviour must
 keep them; a change that must change the bytes re-records them with
 ``SYNTHPACK_RECORD_DIGESTS=1 pytest tests/test_digests.py`` and says why in its commit.
 
