@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import tifffile
 
+import synthpack
 from synthpack.cli import main
 from synthpack.io import write_tiff
 from synthpack.library import ParticleLibrary
@@ -109,3 +110,8 @@ def test_library_build_from_huge_sparse_labels_keeps_their_values(tmp_path, blob
     assert code == 0
     assert peak < 64e6
     assert [p.label for p in ParticleLibrary.load(tmp_path / "lib")] == sorted(values)
+
+
+def test_python_dash_m_synthpack_is_the_command_line():
+    run = subprocess.run([sys.executable, "-m", "synthpack", "--version"], capture_output=True, text=True)
+    assert run.returncode == 0 and run.stdout.strip().endswith(synthpack.__version__)
