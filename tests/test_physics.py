@@ -15,6 +15,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.physics import ENGINES, Material, Placements, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, hulls, pybullet_engine
 from synthpack.physics.checks import compute_checks, winding_number
+from synthpack.physics.container import MAX_FILL_ASPECT
 from synthpack.physics.engine import Body, Engine, EngineOptions, TubeSpec
 from synthpack.physics.plan import make_plan
 
@@ -251,6 +252,29 @@ def test_default_tube_fits_the_source_scan_and_the_grains(large_library):
     assert Tube.for_library(large_library, 500, height=123.0).height == 123.0
     with pytest.raises(SynthpackInputError, match="inner_radius must be a finite positive"):
         Tube.for_library(large_library, 500, inner_radius=-1.0)
+
+
+def test_default_tube_follows_the_grain_scale_and_never_stacks_a_tall_column(large_library):
+    unscaled = Tube.for_library(large_library, 200)
+    assert Tube.for_library(large_library, 200, scale=2.0).inner_radius == pytest.approx(2 * unscaled.inner_radius)
+    assert Tube.for_library(large_library, 200, scale=0.5).inner_radius == pytest.approx(unscaled.inner_radius)
+    many = Tube.for_library(large_library, 20_000, scale=2.0)
+    assert many.inner_radius > 2 * unscaled.inner_radius  # widened for the many grains
+    fill = 20_000 * np.mean([p.volume for p in large_library]) * 8 / (0.55 * np.pi * many.inner_radius**2)
+    assert fill <= MAX_FILL_ASPECT * 2 * many.inner_radius * (1 + 1e-9)
+    # a radius given by the user is kept, however tall the fill
+    assert Tube.for_library(large_library, 20_000, inner_radius=unscaled.inner_radius).inner_radius == \
+        pytest.approx(unscaled.inner_radius)
+
+
+def test_grains_scaled_by_2_in_the_default_tube_pour_like_unscaled_ones(large_library):
+    """Simulation units follow the scale: the same pour, twice as large (it took 2x the steps before)."""
+    one, two = (pour(large_library, 40, 20, seed=3, scale=s, progress=False, target_solid_fraction=None)
+                for s in (1.0, 2.0))
+    assert two.parameters["length_scale"] == pytest.approx(2 * one.parameters["length_scale"])
+    assert sum(two.checks.steps_per_batch) == pytest.approx(sum(one.checks.steps_per_batch), rel=0.1)
+    assert two.checks.n_outside == 0 and all(two.checks.settled_per_batch)
+    np.testing.assert_allclose(two.positions, 2 * one.positions, atol=0.5 * 2 * one.parameters["length_scale"])
 
 
 def test_checks_measure_known_overlap_and_packing():

@@ -10,9 +10,11 @@ with twice the solver substeps; if one is still outside, or any grain reaches ab
 the rim, :class:`~synthpack.errors.ContainmentError` is raised instead of returning
 a pack with grains outside.
 
-Simulation units: 1 length unit = the library's median equivalent diameter (grains
-are ~1 unit across; gravity 9.81 units/s^2), 1 mass unit = the library's median
-grain mass. The engines are listed in :mod:`.registry`: ``"pybullet"`` (default,
+Simulation units: 1 length unit = the library's median equivalent diameter times the
+pour's reference scale (the geometric mean of its scale range), so grains are ~1 unit
+across at any scale and a pour of grains scaled by 2 in a tube twice as wide runs the
+same simulation as the unscaled one (gravity 9.81 units/s^2); 1 mass unit = the
+library's median grain mass times the reference scale cubed. The engines are listed in :mod:`.registry`: ``"pybullet"`` (default,
 :mod:`.pybullet_engine`) and ``"blender"`` (:mod:`.blender_engine`, bpy in a separate
 interpreter, as in the paper); :mod:`.engine` is their common interface.
 """
@@ -140,8 +142,9 @@ def pour(
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
                      size_classes=size_classes, indices=indices)
-    length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float)))
-    mass_unit = float(np.median([library[i].mass for i in range(len(library))]))
+    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
+    length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
+    mass_unit = float(np.median([library[i].mass for i in range(len(library))])) * reference_scale**3
     bodies = _bodies(library, plan, length, mass_unit)
     spec = tube.spec(length)
     logger.info("Pouring %d grains in %d batches with %s (seed %d)%s",

@@ -15,11 +15,14 @@ from .engine import TubeSpec
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Tube", "DEFAULT_PACKING_FRACTION"]
+__all__ = ["Tube", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT"]
 
 #: Packing fraction assumed when sizing a tube for a number of grains: a loose
 #: random packing of angular grains poured under gravity.
 DEFAULT_PACKING_FRACTION = 0.55
+#: Tallest default fill, in inner diameters of the tube: a default tube is widened past
+#: the source scan's width rather than let the grains stack into a column taller than this.
+MAX_FILL_ASPECT = 10.0
 
 
 class LibraryLike(Protocol):
@@ -100,12 +103,16 @@ class Tube:
     ) -> Tube:
         """Size a tube for pouring `n_particles` grains of `library`.
 
-        The inner radius is half the source scan's smaller lateral extent
+        The inner radius follows the source scan: half its smaller lateral extent
         (``source_shape[1:] * voxel_size[1:]``) minus the wall and two voxels, so a
-        reconstruction on the source's lateral grid holds the whole tube. Wall and
-        base are three voxels thick. The height holds the expected fill height
-        (``n_particles`` grains of the library's mean volume times ``scale**3`` at
-        `packing_fraction`) times `headroom`, plus four of the largest grains.
+        reconstruction on the source's lateral grid holds the whole tube, times
+        ``max(scale, 1)``, so grains scaled up fill a tube as many grain diameters
+        across as the scan is (scaled down, they fill the scan's width). Where the
+        expected fill would still be taller than :data:`MAX_FILL_ASPECT` inner
+        diameters (many grains), the radius grows until it is not. Wall and base are
+        three voxels thick. The height holds the expected fill height (``n_particles``
+        grains of the library's mean volume times ``scale**3`` at `packing_fraction`)
+        times `headroom`, plus four of the largest grains.
 
         Parameters
         ----------
@@ -148,6 +155,10 @@ class Tube:
         volumes = np.array([library[i].volume for i in range(len(library))], dtype=float)
         diameters = np.array([library[i].equivalent_diameter for i in range(len(library))])
         solid = n_particles * float(volumes.mean()) * scale**3
+        if inner_radius is None:
+            # fill = solid / (pf pi r^2) <= MAX_FILL_ASPECT * 2 r  <=>  r**3 >= solid / (2 aspect pf pi)
+            widest = (solid / (2.0 * MAX_FILL_ASPECT * packing_fraction * math.pi)) ** (1.0 / 3.0)
+            radius = max(radius * max(scale, 1.0), widest)
         fill = solid / (packing_fraction * math.pi * radius**2)
         if height is None:
             height = fill * headroom + 4.0 * float(diameters.max()) * scale
