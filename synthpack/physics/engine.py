@@ -156,6 +156,12 @@ class SettleCriteria:
     rotate slower than ``angular_speed`` for ``quiet_steps`` consecutive steps, after at
     least ``min_steps`` steps; the engine gives up after ``max_steps`` steps.
 
+    The default step is 1/120 s (0.125 s quiet, 0.25 s at least, 16.7 s at most). Until
+    0.5 it was 1/240 s with the same durations: on grains ~1 unit across the coarser
+    step keeps the contacts (largest grain overlap 1.04 against 1.09 voxels, the same
+    packing fraction, every grain inside; 300 grains scaled by 2, measured) at half
+    the steps; 1/60 s lets grains overlap 1.6x as deep.
+
     Attributes
     ----------
     time_step : float
@@ -174,13 +180,13 @@ class SettleCriteria:
         Steps always run per batch.
     """
 
-    time_step: float = 1 / 240
+    time_step: float = 1 / 120
     substeps: int = 1
     linear_speed: float = 0.05
     angular_speed: float = 0.5
-    quiet_steps: int = 30
-    max_steps: int = 4000
-    min_steps: int = 60
+    quiet_steps: int = 15
+    max_steps: int = 2000
+    min_steps: int = 30
 
 
 @dataclass
