@@ -37,7 +37,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -50,6 +49,8 @@ from synthpack.library import ParticleLibrary
 from synthpack.pack import PACK_VOLUMES
 from synthpack.samples import sample_scan
 
+from _measure import TreeRss, load_average
+
 SPEEDUP_CONFIG = PackConfig().replace(pour={"n_particles": 60, "batch_size": 30})
 GRAIN_SCALE = 4.0
 MARGIN, WALL, BASE = 4, 3, 3  # voxels: Grid.covering's default margin, Tube.for_library's wall and base
@@ -58,61 +59,12 @@ MARGIN, WALL, BASE = 4, 3, 3  # voxels: Grid.covering's default margin, Tube.for
 PACKING_GUESS = 0.45
 
 
-def _load() -> str:
-    return "/".join(f"{v:.2f}" for v in os.getloadavg())
-
-
-class TreeRss:
-    """Peak of the summed RSS of a process and all its descendants, and their CPU seconds, sampled in a thread.
-
-    ``cpu_seconds`` is the sum over the processes seen of their last sampled user + system
-    time, less the root's time at the start: divided by the wall time, the cores the
-    measured work actually got (the machine is shared).
-    """
-
-    def __init__(self, pid: int, interval: float = 0.1) -> None:
-        self.process = psutil.Process(pid)
-        self.interval = interval
-        self.peak = 0
-        self._cpu: dict[int, float] = {}
-        self._start_cpu = sum(self.process.cpu_times()[:2])
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-
-    @property
-    def cpu_seconds(self) -> float:
-        return sum(self._cpu.values()) - self._start_cpu
-
-    def _sample(self) -> None:
-        while not self._stop.is_set():
-            total = 0
-            try:
-                for process in [self.process, *self.process.children(recursive=True)]:
-                    try:
-                        total += process.memory_info().rss
-                        self._cpu[process.pid] = sum(process.cpu_times()[:2])
-                    except psutil.Error:
-                        continue
-            except psutil.Error:
-                break
-            self.peak = max(self.peak, total)
-            self._stop.wait(self.interval)
-
-    def __enter__(self) -> TreeRss:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join()
-
-
 def speedup(library: ParticleLibrary, workdir: Path, n_packs: int) -> list[str]:
     lines = ["## 1. Packs on 1 vs 2 Dask workers", "",
              f"{n_packs} packs of {SPEEDUP_CONFIG.pour.n_particles} grains (batches of "
              f"{SPEEDUP_CONFIG.pour.batch_size}), `large` sample library, TIFF; `generate_packs(..., workers=W)` "
              "(a LocalCluster of W single-threaded worker processes), wall time including the cluster's "
-             f"start-up. Load average before: {_load()}.", "",
+             f"start-up. Load average before: {load_average()}.", "",
              "| workers | seconds | s per pack | CPU s of the run's processes | cores it got (CPU s / s) "
              "| peak RSS, all processes (MiB) |", "|---|---|---|---|---|---|"]
     seconds = {}
@@ -133,7 +85,7 @@ def speedup(library: ParticleLibrary, workdir: Path, n_packs: int) -> list[str]:
     lines += ["", f"Speed-up, 1 worker / 2 workers: **{ratio:.2f}x** (target >= 1.7x: "
               f"{'met' if ratio >= 1.7 else 'MISSED'}; with other work on the machine the 2-worker run gets "
               "fewer than 2 cores: see 'cores it got'). Packs of the two runs byte-identical: "
-              f"{'yes' if identical else 'NO'}. Load average after: {_load()}.", ""]
+              f"{'yes' if identical else 'NO'}. Load average after: {load_average()}.", ""]
     return lines
 
 
@@ -156,7 +108,7 @@ def memory(library_dir: Path, library: ParticleLibrary, workdir: Path, sizes: li
              "size in voxels at every volume size); every stage runs, the pour included. 'voxel stages' = "
              "reconstruction + post-processing (both write Zarr chunk by chunk), the stages that scale with the "
              "volume. "
-             f"Load average before: {_load()}.", "",
+             f"Load average before: {load_average()}.", "",
              "| target | grid (z, y, x) | 10^6 voxels | grains | peak RSS (MiB) | vs first | pour s "
              "| reconstruct s | post-process s | total wall s | voxel stages s / 10^6 voxels |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -186,7 +138,7 @@ def memory(library_dir: Path, library: ParticleLibrary, workdir: Path, sizes: li
         shutil.rmtree(out, ignore_errors=True)
     growth = rss.peak / first[0]
     lines += ["", f"Peak RSS growth from the first to the last size: **{growth:.2f}x** for {voxels / first[1]:.0f}x "
-              f"the voxels (target < 2x: {'met' if growth < 2 else 'MISSED'}). Load average after: {_load()}.", ""]
+              f"the voxels (target < 2x: {'met' if growth < 2 else 'MISSED'}). Load average after: {load_average()}.", ""]
     return lines
 
 

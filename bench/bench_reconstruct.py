@@ -55,11 +55,9 @@ from synthpack.physics import Placements, pour
 from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
 from synthpack.samples import sample_scan
 
+from _measure import load_average
+
 SUPERSAMPLE = 4
-
-
-def _load() -> str:
-    return "/".join(f"{v:.2f}" for v in os.getloadavg())
 
 
 def _rss_kib() -> tuple[int, int]:
@@ -245,7 +243,7 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
               f"{'x'.join(map(str, np.max([p.mask.shape for p in library], axis=0)))} voxels); "
               f"{len(placements)} grains, batches of 50, seed 0 ({poured}); grid "
               f"{'x'.join(map(str, grid.shape))} = {n_voxels / 1e6:.2f} M voxels. "
-              f"Setup {time.perf_counter() - start:.1f} s. Load average before: {_load()}.", ""]
+              f"Setup {time.perf_counter() - start:.1f} s. Load average before: {load_average()}.", ""]
 
     timings = {}
     results = {}
@@ -294,7 +292,7 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
               f"The reference took {reference_seconds:.1f} s. Ours includes what the paper method does not do: "
               f"the pore texture and the tube wall over the whole grid (the row without them isolates the "
               f"grain rendering). The paper method pastes each rotated grain at the nearest whole voxel "
-              f"(part of its Dice loss); ours places it at its exact position. Load average after: {_load()}.", "",
+              f"(part of its Dice loss); ours places it at its exact position. Load average after: {load_average()}.", "",
               f"Each grain's mask is resampled over the box of its rotated mask: {box_voxels:,.0f} voxels on "
               f"average for grains of {grain_voxels:,.0f} voxels; intensities only at the grain's own voxels.",
               "", f"The partial-volume render (default) costs {timings[main_name] / timings[whole_voxels]:.2f}x the "
@@ -311,7 +309,7 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
 def target_demo(workdir: Path) -> list[str]:
     exe = Path(sys.executable).with_name("synthpack")
     out = workdir / "demo"
-    lines = ["## 2. End to end: `synthpack demo`", "", f"Load average before: {_load()}.", ""]
+    lines = ["## 2. End to end: `synthpack demo`", "", f"Load average before: {load_average()}.", ""]
     start = time.perf_counter()
     run = subprocess.run([str(exe), "demo", "--out", str(out)], capture_output=True, text=True, check=True)
     wall = time.perf_counter() - start
@@ -432,7 +430,7 @@ def target_memory(workdir: Path, size: int, pour_rate: float) -> list[str]:
               f"time is lower than in a real pack). Tube wall and pore texture on, linear interpolation, "
               f"chunks 64x256x256 (the default config).", ""]
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    load_before = _load()
+    load_before = load_average()
     start = time.perf_counter()
     run = subprocess.run([sys.executable, __file__, "--memory-child", str(workdir)], capture_output=True,
                          text=True, check=True)
@@ -465,7 +463,7 @@ def target_memory(workdir: Path, size: int, pour_rate: float) -> list[str]:
               f"| seconds per 10^6 voxels | {child['seconds'] / voxels * 1e6:.3f} |",
               f"| child wall time (incl. start and library load) | {wall:.1f} s |",
               f"| contested voxels | {child['contested']} |",
-              f"| load average before / after | {load_before} / {_load()} |", ""]
+              f"| load average before / after | {load_before} / {load_average()} |", ""]
     return lines
 
 
@@ -485,13 +483,13 @@ def main() -> None:
         start = time.perf_counter()
         print(f"Machine: {os.cpu_count()} CPUs, {platform.platform()}, Python {platform.python_version()}, "
               f"numpy {np.__version__}, scipy {scipy.__version__}; load average (1/5/15 min) at start: "
-              f"{_load()}.\n")
+              f"{load_average()}.\n")
         lines, pour_rate = target_speed_quality(workdir)
         print("\n".join(lines), flush=True)
         if not args.skip_demo:
             print("\n".join(target_demo(workdir)), flush=True)
         print("\n".join(target_memory(workdir, args.size, pour_rate)), flush=True)
-        print(f"Total benchmark wall time: {time.perf_counter() - start:.0f} s; load average at end: {_load()}.")
+        print(f"Total benchmark wall time: {time.perf_counter() - start:.0f} s; load average at end: {load_average()}.")
 
 
 if __name__ == "__main__":
