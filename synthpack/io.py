@@ -424,7 +424,7 @@ def _zarr_compressor(dtype: np.dtype | type) -> zarr.abc.codec.BytesBytesCodec:
 
     Floating-point volumes (tomograms): Blosc LZ4 at level 1 on byte-shuffled values;
     integer volumes (labels): Zstandard at level 1. On a 50-million-voxel pack (tomogram,
-    clean, labels; docs/benchmarks.md) they write 2.6x as fast as Zarr's default
+    clean, labels; docs/benchmarks.md) they write about 2.5x as fast as Zarr's default
     (Zstandard at its default level), for a compression ratio of 1.9 instead of 2.1.
     """
     if np.issubdtype(np.dtype(dtype), np.floating):
