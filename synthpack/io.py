@@ -358,7 +358,7 @@ def write_zarr(
         )
 
     def create(store: Path) -> None:
-        zarr.create_array(store=str(store), data=data, **_zarr_layout(size, unit, chunks))
+        zarr.create_array(store=str(store), data=data, **_zarr_layout(size, unit, chunks, data.dtype))
 
     if name is None:
         with atomic_directory(path, _ZARR_OUTPUT) as tmp:
@@ -416,13 +416,28 @@ def create_zarr_volume(
     """
     return zarr.create_array(store=str(store), shape=tuple(int(n) for n in shape), dtype=dtype,
                              shards=None if shards is None else tuple(int(n) for n in shards),
-                             **_zarr_layout(voxel_size, unit, chunks))
+                             **_zarr_layout(voxel_size, unit, chunks, dtype))
 
 
-def _zarr_layout(voxel_size: VoxelSize, unit: str, chunks: tuple[int, int, int] | None) -> dict:
-    """Chunks, dimension names and attributes of every volume synthpack writes to Zarr."""
+def _zarr_compressor(dtype: np.dtype | type) -> zarr.abc.codec.BytesBytesCodec:
+    """The compressor of every volume synthpack writes to Zarr, chosen for write speed.
+
+    Floating-point volumes (tomograms): Blosc LZ4 at level 1 on byte-shuffled values;
+    integer volumes (labels): Zstandard at level 1. On a 50-million-voxel pack (tomogram,
+    clean, labels; docs/benchmarks.md) they write about 2.5x as fast as Zarr's default
+    (Zstandard at its default level), for a compression ratio of 1.9 instead of 2.1.
+    """
+    if np.issubdtype(np.dtype(dtype), np.floating):
+        return zarr.codecs.BloscCodec(cname="lz4", clevel=1, shuffle="shuffle")
+    return zarr.codecs.ZstdCodec(level=1)
+
+
+def _zarr_layout(voxel_size: VoxelSize, unit: str, chunks: tuple[int, int, int] | None,
+                 dtype: np.dtype | type) -> dict:
+    """Chunks, compressor, dimension names and attributes of every volume synthpack writes to Zarr."""
     return dict(
         chunks="auto" if chunks is None else tuple(int(c) for c in chunks),
+        compressors=[_zarr_compressor(dtype)],
         dimension_names=("z", "y", "x"),
         attributes={"voxel_size": list(voxel_size), "unit": unit, "axes": ["z", "y", "x"]},
     )

@@ -155,6 +155,11 @@ class PartialVolume:
         intensity = np.pad(tomogram.astype(np.float32, copy=False), PAD, mode="edge")[tuple(nearest)]
         return PreparedCrop(intensity, distance)
 
+    def threshold(self, scale: float | np.ndarray) -> float | np.ndarray:
+        """The signed distance of a crop (crop voxels) at and below which a grain drawn `scale` output voxels per
+        crop voxel has no occupancy: ``(shift - 1/2) / scale`` (`occupancy` of ``distance * scale``)."""
+        return (self.shift - 0.5) / np.asarray(scale, dtype=np.float64)
+
     def occupancy(self, distance: np.ndarray) -> np.ndarray:
         """Occupancy ``clip(distance - shift + 1/2, 0, 1)`` of voxels at signed `distance` (voxels), float32."""
         out = np.asarray(distance, dtype=np.float32) - np.float32(self.shift - 0.5)

@@ -56,6 +56,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import fft
 
+from ._arrays import periodic_window
 from ._schema import non_negative, one_of, positive, setting
 from .source.pore_histogram import map_to_quantiles
 from .source.pore_spectrum import frequency_radius, spectrum_on_grid
@@ -152,8 +153,8 @@ class PoreTexture:
         ndarray of float32, shape hi - lo
             Zero mean (Gaussian values) or median 0 (mapped onto the histogram) over a period; a new array.
         """
-        wrapped = (np.arange(a, b) % self.tile for a, b in zip(lo, hi))
-        return _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed)[np.ix_(*wrapped)]
+        field = _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed)
+        return periodic_window(field, lo, np.asarray(hi) - np.asarray(lo))
 
     def record(
         self, pore_std: float, pore_spectrum: tuple[float, ...] | None, seed: int,

@@ -366,11 +366,20 @@ class RenderCrop(NamedTuple):
     distance : ndarray of float32 or None
         Signed distance from the mask's boundary (voxels, padded like `intensity`)
         for the partial volume; None for whole voxels.
+    support : ndarray of uint8, shape (nz + 2 PAD, ny + 2 PAD, nx + 2 PAD)
+        1 on the crop voxels within one voxel (per axis) of a voxel that can give an
+        output voxel a label or an occupancy (a mask voxel, or one whose signed
+        distance exceeds the partial volume's threshold), padded by
+        `~synthpack.partial_volume.PAD`. A voxel whose linear interpolation reads any
+        such voxel has its nearest crop voxel in the support, so one cheap
+        nearest-neighbour resampling of it finds every output voxel the grain can
+        change (see :func:`render_chunk`).
     """
 
     mask: np.ndarray
     intensity: np.ndarray
     distance: np.ndarray | None
+    support: np.ndarray
 
 
 def prepare_crops(
@@ -378,6 +387,7 @@ def prepare_crops(
     partial_volume: PartialVolume | None = None,
     used: Sequence[int] | None = None,
     threads: int = 1,
+    thresholds: dict[int, float] | None = None,
 ) -> list[RenderCrop | None]:
     """Crops as :func:`render_chunk` takes them (see `RenderCrop`).
 
@@ -393,20 +403,38 @@ def prepare_crops(
         Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
     threads : int
         Threads preparing crops (SciPy's distance transforms release the GIL).
+    thresholds : dict of int to float, optional
+        Partial volume: per crop, the lowest signed distance (crop voxels) at which any of
+        its placements has a non-zero occupancy (`PartialVolume.threshold`); default:
+        that of an unscaled placement.
     """
     wanted = sorted(set(range(len(crops)) if used is None else (int(i) for i in used)))
+    thresholds = thresholds or {}
 
     def prepare(index: int) -> RenderCrop:
         tomogram, mask = crops[index]
         padded_mask = np.pad(mask.astype(np.float32), 1)
         if partial_volume is None:
-            return RenderCrop(padded_mask, tomogram, None)
-        return RenderCrop(padded_mask, *partial_volume.prepare(tomogram, mask))
+            return RenderCrop(padded_mask, tomogram, None, _support(np.pad(mask, PAD)))
+        intensity, distance = partial_volume.prepare(tomogram, mask)
+        threshold = thresholds.get(index, partial_volume.threshold(1.0))
+        # the margin keeps the support a superset whatever the float32 rounding of the occupancy
+        reached = (distance > np.float32(threshold - _MARGIN)) | np.pad(mask, PAD)
+        return RenderCrop(padded_mask, intensity, distance, _support(reached))
 
     prepared: list[RenderCrop | None] = [None] * len(crops)
     for index, crop in bounded_map(prepare, wanted, threads):
         prepared[index] = crop
     return prepared
+
+
+#: Signed distance (crop voxels) by which the support reaches beyond the occupancy's threshold.
+_MARGIN = 0.01
+
+
+def _support(reached: np.ndarray) -> np.ndarray:
+    """`reached` (bool) grown by one voxel along every axis and diagonal (a 3x3x3 cube), as uint8."""
+    return ndimage.binary_dilation(reached, np.ones((3, 3, 3), dtype=bool)).view(np.uint8)
 
 
 def render_chunk(
@@ -464,41 +492,64 @@ def render_chunk(
     labels = np.zeros(shape, dtype=np.int32)
     claim = np.zeros(shape, dtype=np.float32)
     composite = None if partial_volume is None else _Composite(shape)
+    flat_labels, flat_claim, flat_tomogram = labels.reshape(-1), claim.reshape(-1), tomogram.reshape(-1)
     contested = 0
     hit = np.all((maps.box_lo < hi) & (maps.box_hi > lo), axis=1)
     for i in np.flatnonzero(hit):
         sub_lo = np.maximum(maps.box_lo[i], lo)
         sub_hi = np.minimum(maps.box_hi[i], hi)
-        out_shape = tuple(int(n) for n in sub_hi - sub_lo)
         crop = crops[maps.library_index[i]]
-        offset = maps.offset[i] + maps.matrix[i] @ sub_lo
-        window = tuple(slice(a - b, c - b) for a, b, c in zip(sub_lo, lo, sub_hi))
-        weight = ndimage.affine_transform(
-            crop.mask, maps.matrix[i], offset=offset + 1.0,  # the mask is padded by one voxel
-            output_shape=out_shape, order=1, mode="constant", cval=0.0,
+        matrix = maps.matrix[i]
+        offset = maps.offset[i] + matrix @ sub_lo
+        # the box's voxels the grain can change: a nearest-neighbour resampling of its support
+        near = ndimage.affine_transform(
+            crop.support, matrix, offset=offset + PAD, output_shape=tuple(int(n) for n in sub_hi - sub_lo),
+            order=0, mode="constant", cval=0,
         )
+        where = np.nonzero(near)
+        if not len(where[0]):
+            continue
+        index = np.ravel_multi_index(tuple(w + int(a - b) for w, a, b in zip(where, sub_lo, lo)), shape)
+        base = _mapped(matrix, where)
+        weight = ndimage.map_coordinates(crop.mask, _shifted(base, offset + 1.0),  # the mask is padded by one voxel
+                                         order=1, mode="constant", cval=0.0, output=np.float32)
         inside = weight > 0.5
-        region_claim = claim[window]
+        region_claim = flat_claim[index]
         contested += int(np.count_nonzero(inside & (region_claim > 0.5)))
         wins = inside & (weight > region_claim)
-        labels[window][wins] = i + 1
-        region_claim[wins] = weight[wins]
+        won = index[wins]
+        flat_labels[won] = i + 1
+        flat_claim[won] = weight[wins]
         if composite is None:
-            where = np.nonzero(wins)
-            tomogram[window][where] = _sample(crop.intensity, maps.matrix[i], offset, where, order)
+            coordinates = _shifted(base[:, wins], offset)
+            flat_tomogram[won] = ndimage.map_coordinates(crop.intensity, coordinates, order=order, mode="nearest",
+                                                         prefilter=order > 1)
         else:
-            composite.add(window, crop, maps.matrix[i], offset, out_shape, partial_volume, order)
+            composite.add(index, crop, matrix, _shifted(base, offset + PAD), partial_volume, order)
     if composite is not None:
         composite.over(tomogram)
     return tomogram, labels, contested
 
 
-def _sample(
-    intensity: np.ndarray, matrix: np.ndarray, offset: np.ndarray, where: tuple[np.ndarray, ...], order: int,
-) -> np.ndarray:
-    """`intensity` interpolated at the crop positions ``matrix @ o + offset`` of the box indices `where`."""
-    coordinates = matrix @ np.array(where, dtype=float) + offset[:, None]
-    return ndimage.map_coordinates(intensity, coordinates, order=order, mode="nearest", prefilter=order > 1)
+def _mapped(matrix: np.ndarray, where: tuple[np.ndarray, ...]) -> np.ndarray:
+    """``matrix @ o`` (float64, shape (3, K)) of the box indices `where`, summed as SciPy's affine_transform sums.
+
+    With `_shifted`, the crop coordinates `scipy.ndimage.affine_transform` computes for these
+    voxels, to the last bit: the sparse render interpolates exactly what the dense one did.
+    """
+    mapped = np.empty((3, len(where[0])), dtype=np.float64)
+    term = np.empty(len(where[0]), dtype=np.float64)
+    for row in range(3):
+        np.multiply(where[0], matrix[row, 0], out=mapped[row])
+        for column in (1, 2):
+            np.multiply(where[column], matrix[row, column], out=term)
+            mapped[row] += term
+    return mapped
+
+
+def _shifted(mapped: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``mapped + shift`` per axis: the crop coordinates of `_mapped` voxels for an affine offset `shift`."""
+    return mapped + np.asarray(shift, dtype=np.float64)[:, None]
 
 
 class _Composite:
@@ -509,22 +560,23 @@ class _Composite:
         self.value = np.zeros(shape, dtype=np.float32)
 
     def add(
-        self, window: tuple[slice, ...], crop: RenderCrop, matrix: np.ndarray, offset: np.ndarray,
-        out_shape: tuple[int, ...], partial_volume: PartialVolume, order: int,
+        self, index: np.ndarray, crop: RenderCrop, matrix: np.ndarray, coordinates: np.ndarray,
+        partial_volume: PartialVolume, order: int,
     ) -> None:
-        """Add one grain over its box `window` of the chunk (`offset`: crop position of the box's first voxel)."""
+        """Add one grain at the chunk's flat voxel `index` (no repeats), at crop `coordinates` (3, K) of its padded arrays."""
         scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
-        distance = ndimage.affine_transform(
-            crop.distance, matrix, offset=offset + PAD, output_shape=out_shape, order=1, mode="constant", cval=FAR,
-        )
+        distance = ndimage.map_coordinates(crop.distance, coordinates, order=1, mode="constant", cval=FAR,
+                                           output=np.float32)
         occupancy = partial_volume.occupancy(distance * np.float32(scale))
-        where = np.nonzero(occupancy)
-        if not len(where[0]):
+        some = np.flatnonzero(occupancy)
+        if not len(some):
             return
-        # dense adds over the box (zeros where the grain is not) are cheaper than scattered ones
-        self.occupancy[window] += occupancy
-        occupancy[where] *= _sample(crop.intensity, matrix, offset + PAD, where, order)
-        self.value[window] += occupancy
+        occupancy = occupancy[some]
+        index = index[some]
+        self.occupancy.reshape(-1)[index] += occupancy
+        occupancy *= ndimage.map_coordinates(crop.intensity, coordinates[:, some], order=order, mode="nearest",
+                                             prefilter=order > 1)
+        self.value.reshape(-1)[index] += occupancy
 
     def over(self, background: np.ndarray) -> None:
         """Composite onto `background` in place: ``(1 - O) b + V``, or ``V / O`` where grains overlap (``O > 1``)."""
@@ -583,7 +635,12 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers)
+    thresholds = None
+    if partial_volume is not None and len(maps.library_index):
+        scales = np.abs(np.linalg.det(maps.matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
+        lowest = partial_volume.threshold(scales)
+        thresholds = {int(k): float(lowest[maps.library_index == k].min()) for k in np.unique(maps.library_index)}
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers, thresholds)
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box

@@ -6,7 +6,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
-from synthpack.partial_volume import PAD, PartialVolume
+from synthpack.partial_volume import FAR, PAD, PartialVolume
 from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
 from synthpack.source import SourceStatistics, fit_edge_spread
@@ -231,6 +231,67 @@ def test_partial_volume_keeps_the_labels_and_mixes_boundary_voxels(large_library
     pore_side = profile.normalised[profile.distance == -0.5][0]
     assert abs(hard_profile.normalised[hard_profile.distance == -0.5][0]) < 0.05
     assert pore_side > 0.1 if shift <= 0 else pore_side > 0.0
+
+
+def _reference_render(crops, maps, grid, pore, partial_volume, order):
+    """The straightforward render: every grain resampled densely over its whole box, on one flat-pore volume."""
+    tomogram = np.full(grid.shape, pore, dtype=np.float32)
+    labels = np.zeros(grid.shape, dtype=np.int32)
+    claim, occupancy, value = (np.zeros(grid.shape, dtype=np.float32) for _ in range(3))
+    contested = 0
+    for i, library_index in enumerate(maps.library_index):
+        lo, hi = maps.box_lo[i], maps.box_hi[i]
+        if np.any(hi <= lo):
+            continue
+        shape = tuple(int(n) for n in hi - lo)
+        window = tuple(slice(a, b) for a, b in zip(lo, hi))
+        crop, mask = crops[library_index]
+        matrix = maps.matrix[i]
+        offset = maps.offset[i] + matrix @ lo
+        weight = ndimage.affine_transform(np.pad(mask.astype(np.float32), 1), matrix, offset=offset + 1.0,
+                                          output_shape=shape, order=1, mode="constant")
+        inside = weight > 0.5
+        region = claim[window]
+        contested += int(np.count_nonzero(inside & (region > 0.5)))
+        wins = inside & (weight > region)
+        labels[window][wins] = i + 1
+        region[wins] = weight[wins]
+        if partial_volume is None:
+            values = ndimage.affine_transform(crop, matrix, offset=offset, output_shape=shape, order=order,
+                                              mode="nearest")
+            tomogram[window][wins] = values[wins]
+            continue
+        intensity, distance = partial_volume.prepare(crop, mask)
+        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)
+        resampled = ndimage.affine_transform(distance, matrix, offset=offset + PAD, output_shape=shape, order=1,
+                                             mode="constant", cval=FAR)
+        grain = partial_volume.occupancy(resampled * np.float32(scale))
+        occupancy[window] += grain
+        value[window] += grain * ndimage.affine_transform(intensity, matrix, offset=offset + PAD,
+                                                          output_shape=shape, order=order, mode="nearest")
+    if partial_volume is not None:
+        tomogram = (1.0 - np.minimum(occupancy, 1.0)) * tomogram + value / np.maximum(occupancy, 1.0)
+    return tomogram, labels, contested
+
+
+@pytest.mark.parametrize("shift, order", [(None, 1), (None, 3), (0.0, 1), (-0.4, 1), (0.3, 3)])
+def test_render_equals_a_dense_reference_render(large_library, shift, order):
+    # the render interpolates only the voxels near each grain; the reference every voxel of its box.
+    # Few library grains, each placed several times at different scales, some overlapping.
+    rng = np.random.default_rng(7)
+    crops, _, rotations, positions, grid = _ball_scene(large_library, n=16)
+    index = rng.integers(0, 4, len(rotations))
+    scales = rng.uniform(0.7, 1.8, len(rotations))
+    partial_volume = None if shift is None else PartialVolume(shift=shift, rim=1.5)
+    maps = pose_maps([c[1] for c in crops], index, rotations, positions, scales, grid,
+                     reach=partial_volume.reach if partial_volume else 1.0)
+    tomogram, labels, contested = reconstruct(crops, maps, grid, Background(0.2), order=order, chunks=(13, 40, 37),
+                                              partial_volume=partial_volume)
+    reference = _reference_render(crops, maps, grid, 0.2, partial_volume, order)
+    assert contested == reference[2] > 0
+    np.testing.assert_array_equal(labels, reference[1])
+    assert len(np.unique(labels)) > 10
+    np.testing.assert_allclose(tomogram, reference[0], rtol=0, atol=1e-5)
 
 
 def test_prepared_crop_replaces_the_rim_by_the_interior():

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
+from .._arrays import periodic_window
 from ..source.spectrum import NPS_PATCH, ring_of
 from ._base import Transform
 from ._param import Param
@@ -188,11 +189,15 @@ class ColouredNoise(Transform):
         contrast = params["grain_level"] - params["pore_level"]
         grain = (block - np.float32(params["pore_level"])) / np.float32(contrast if contrast else 1.0)
         grain = np.clip(grain, 0.0, 1.0, out=grain)
-        wrapped = np.ix_(*((np.arange(o, o + n) % TILE) for o, n in zip(origin, block.shape)))
-        fields = [_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,))[wrapped]
-                  for k, phase in enumerate(("pore", "grain"))]
-        pore_field, grain_field = fields
-        return np.sqrt(1.0 - grain) * pore_field + np.sqrt(grain) * grain_field
+        pore_field, grain_field = (
+            periodic_window(_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,)),
+                            origin, block.shape)
+            for k, phase in enumerate(("pore", "grain")))
+        pore = np.subtract(1.0, grain, dtype=np.float32)
+        pore_field *= np.sqrt(pore, out=pore)
+        grain_field *= np.sqrt(grain, out=grain)
+        pore_field += grain_field
+        return pore_field
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
         key = tuple(int(v) for v in rng.integers(0, 2**32, size=2))
@@ -203,4 +208,6 @@ class ColouredNoise(Transform):
         origin: tuple[int, int, int], shape: tuple[int, int, int], **params: Any,
     ) -> np.ndarray:
         key = tuple(int(v) for v in call.generate_state(2))
-        return block + self._noise(block, key, origin, **params)
+        noise = self._noise(block, key, origin, **params)
+        noise += block
+        return noise
