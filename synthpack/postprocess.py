@@ -74,8 +74,10 @@ from .artefacts import (
     GaussianNoise,
     RingArtefacts,
     calibrate,
+    calibration_halo,
     from_config,
     generic_postprocessing,
+    measured_slices,
     noise_to_add,
 )
 from .errors import SynthpackInputError
@@ -92,6 +94,7 @@ __all__ = [
     "POSTPROCESS_MODES",
     "Postprocessing",
     "RANDOMISED_RANGES",
+    "bulk_parts",
     "bulk_region",
     "check_postprocess",
     "resolve_postprocessing",
@@ -286,9 +289,17 @@ def _fit(statistics: SourceStatistics, clean: Any, labels: Any, grid: Grid, pack
     fallback = _uncalibratable(statistics)
     if fallback is not None:
         return None, fallback
+    targets = _calibration_targets(statistics)
     try:
-        region = bulk_region(grid.shape, grid.origin, grid.voxel_size, packing_region)
-        return calibrate(clean, labels, region, pore_texture=pore_texture, **_calibration_targets(statistics)), None
+        # only the slices the fit measures (and its halo) are made and read: the bulk of a big pack is
+        # larger than memory; the fit is the same as on the whole bulk (`measured_slices`)
+        in_height, in_disc = bulk_parts(grid.shape, grid.origin, grid.voxel_size, packing_region)
+        start, stop = measured_slices(in_height, in_disc)
+        halo = calibration_halo(targets["target_sigma"])
+        low, high = max(0, start - halo), min(grid.shape[0], stop + halo)
+        region = np.zeros((high - low, *grid.shape[1:]), dtype=bool)
+        region[start - low:stop - low] = in_disc
+        return calibrate(clean[low:high], labels[low:high], region, pore_texture=pore_texture, **targets), None
     except SynthpackInputError as error:
         return None, f"this pack: {error}"
 
@@ -403,16 +414,30 @@ def bulk_region(
         If fewer than `MIN_REGION_VOXELS` voxels lie in it (a pack too shallow or too
         narrow to have a bulk).
     """
+    in_height, in_disc = bulk_parts(shape, origin, voxel_size, packing_region)
+    return in_height[:, None, None] & in_disc[None, :, :]
+
+
+def bulk_parts(
+    shape: tuple[int, int, int],
+    origin: tuple[float, float, float],
+    voxel_size: tuple[float, float, float],
+    packing_region: dict[str, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """`bulk_region` as its two factors, without the (Z, Y, X) mask: the slices (Z,) and the disc (Y, X), bool.
+
+    Parameters and errors as `bulk_region`.
+    """
     z = origin[0] + np.arange(shape[0]) * voxel_size[0]
     y = origin[1] + np.arange(shape[1]) * voxel_size[1]
     x = origin[2] + np.arange(shape[2]) * voxel_size[2]
     in_disc = np.hypot(y[:, None], x[None, :]) <= packing_region["radius"]
     in_height = (z >= packing_region["z_min"]) & (z <= packing_region["z_max"])
-    region = in_height[:, None, None] & in_disc[None, :, :]
-    if np.count_nonzero(region) < MIN_REGION_VOXELS:
+    voxels = int(np.count_nonzero(in_height)) * int(np.count_nonzero(in_disc))
+    if voxels < MIN_REGION_VOXELS:
         raise SynthpackInputError(
-            f"the pack has no bulk to measure ({np.count_nonzero(region)} voxels lie one grain diameter "
+            f"the pack has no bulk to measure ({voxels} voxels lie one grain diameter "
             "from the tube wall and floor and two below its top): pour more grains (pour.n_particles) "
             "or use a wider tube (pour.tube_radius)"
         )
-    return region
+    return in_height, in_disc

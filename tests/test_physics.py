@@ -474,6 +474,13 @@ def test_burial_removes_only_grains_covered_by_a_thick_layer():
     # an uncovered column counts as the floor: nothing is buried
     assert not burial.buried([deep, top[:1]], 1.5, 1.0).any()
     assert burial.buried([], 1.5, 1.0).shape == (0,)
+    # in a wide tube, a hole far away does not keep a covered grain in the world; one next to it does
+    cover = {(x, y): 0.8 * corners + [x + 0.5, y + 0.5, 9.0] for x in range(-10, 10) for y in range(-10, 10)
+             if np.hypot(x + 0.5, y + 0.5) <= 9.0}  # one grain per column, over the whole tube
+    far = [hull for xy, hull in cover.items() if xy != (7, 0)]
+    near = [hull for xy, hull in cover.items() if xy != (1, 0)]
+    assert burial.buried([deep, *cover.values()], 10.0, 1.0)[0]
+    assert burial.buried([deep, *far], 10.0, 1.0)[0] and not burial.buried([deep, *near], 10.0, 1.0)[0]
     assert burial.largest_diameter([corners, 3 * corners]) == pytest.approx(2 * 3 * np.sqrt(0.5))
 
 

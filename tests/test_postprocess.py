@@ -10,7 +10,7 @@ import pytest
 
 from synthpack import postprocess as postprocess_module
 from synthpack.artefacts import ColouredNoise, GaussianNoise, calibrate, generic_postprocessing
-from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices
+from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
 from synthpack.errors import SynthpackInputError
 from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.reconstruct import Grid
@@ -116,10 +116,30 @@ def test_central_slices_keep_at_most_the_asked_voxels_of_a_region_centred_in_its
     region = np.zeros((40, 8, 8), dtype=bool)
     region[5:35, 2:6, 2:6] = True  # 30 slices of 16 voxels
     assert central_slices(region, 10_000) is region
-    kept = central_slices(region, 160)
-    assert np.count_nonzero(kept) == 160 and not np.any(kept & ~region)
-    assert np.flatnonzero(kept.any(axis=(1, 2))).tolist() == list(range(15, 25))
-    assert np.count_nonzero(central_slices(region, 1)) == 16  # at least one slice
+    kept = central_slices(region, 320)
+    assert np.count_nonzero(kept) == 320 and not np.any(kept & ~region)
+    assert np.flatnonzero(kept.any(axis=(1, 2))).tolist() == list(range(10, 30))
+    assert np.count_nonzero(central_slices(region, 1)) == 1  # at least one slice of a central square
+    wide = np.zeros((40, 300, 300), dtype=bool)
+    wide[5:35, 10:290, 10:290] = True  # 30 slices of 78,400 voxels: one slice would be 78% of the bound
+    kept = central_slices(wide, 100_000)
+    slices = np.flatnonzero(kept.any(axis=(1, 2)))
+    assert len(slices) >= 16 and np.count_nonzero(kept) <= 100_000 and not np.any(kept & ~wide)
+    rows = np.flatnonzero(kept.any(axis=(0, 2)))
+    assert abs((rows[0] + rows[-1]) / 2 - 149.5) <= 1  # about the lateral centre
+
+
+@pytest.mark.parametrize("shape, max_voxels", [((60, 20, 20), 10_000), ((60, 20, 20), 1_000),
+                                               ((50, 301, 301), 100_000), ((9, 40, 40), 50)])
+def test_measured_slices_are_those_central_slices_keeps_of_the_whole_region(shape, max_voxels):
+    """A big pack's calibration reads only these slices of the bulk (never the (Z, Y, X) mask)."""
+    y, x = np.mgrid[:shape[1], :shape[2]]
+    in_slice = np.hypot(y - shape[1] / 2, x - shape[2] / 2) < shape[1] / 2 - 2
+    in_slices = np.zeros(shape[0], dtype=bool)
+    in_slices[3:shape[0] - 1] = True
+    kept = central_slices(in_slices[:, None, None] & in_slice[None], max_voxels)
+    slices = np.flatnonzero(kept.any(axis=(1, 2)))
+    assert measured_slices(in_slices, in_slice, max_voxels) == (slices[0], slices[-1] + 1)
 
 
 def test_calibrated_on_central_slices_fits_what_the_whole_region_fits(rendered):

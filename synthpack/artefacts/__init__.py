@@ -39,7 +39,7 @@ a recipe scaled to the contrast alone; `noise_to_add` matches a source scan's no
 from ._base import Compose, Transform, available_transforms, from_config
 from ._param import Param
 from .blur import GaussianBlur, MotionBlur, line_kernel
-from .calibrate import Calibration, calibrate, noise_to_add
+from .calibrate import Calibration, calibrate, calibration_halo, measured_slices, noise_to_add
 from .coloured_noise import ColouredNoise
 from .ct import CTSimulation
 from .intensity import ContrastGamma
@@ -64,8 +64,10 @@ __all__ = [
     "Transform",
     "available_transforms",
     "calibrate",
+    "calibration_halo",
     "from_config",
     "generic_postprocessing",
     "line_kernel",
+    "measured_slices",
     "noise_to_add",
 ]

@@ -6,7 +6,8 @@ thinned by resampling, between pores that hold the pore texture. `calibrate`
 fits the rest of the scanner's image formation to the source
 (`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk).
 A representative sample is enough: the fit measures the central slices of the
-region holding at most `CALIBRATION_VOXELS` of its voxels (`central_slices`), so
+region holding at most `CALIBRATION_VOXELS` of its voxels (`central_slices`; in
+a region too wide for `MIN_CALIBRATION_SLICES` slices, a central square of them), so
 its cost is fixed and vanishes per voxel on big packs.
 
 1. **Point-spread function.** The width of the clean volume's edge-spread function
@@ -70,7 +71,8 @@ from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "calibrate", "central_slices", "noise_to_add"]
+__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "calibrate", "calibration_halo", "central_slices", "measured_slices",
+           "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
@@ -79,6 +81,8 @@ PSF_STEPS = 3
 #: the PSF sigma fitted on it is within 0.003 voxel, the noise levels within 0.1 % and the ring powers
 #: within 2 % of the whole-bulk fit, at a quarter of its cost.
 CALIBRATION_VOXELS = 1 << 20
+#: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`).
+MIN_CALIBRATION_SLICES = 16
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -202,12 +206,17 @@ def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
 def central_slices(region: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> np.ndarray:
     """The part of `region` in its central slices (along axis 0), holding at most about `max_voxels` voxels.
 
+    Where fewer than `MIN_CALIBRATION_SLICES` of the region's widest slices would fit in
+    `max_voxels` (a pack much wider than tall, e.g. a tube 1,000 voxels wide), the region
+    is first cut to the central square of its slices (about its lateral centre) in which
+    that many slices fit: the noise and spectra need voxels a few slices deep.
+
     Parameters
     ----------
     region : ndarray of bool, shape (Z, Y, X)
         Not empty.
     max_voxels : int
-        Bound on the voxels kept; at least the central slice is kept.
+        Bound on the voxels kept; at least the central slice (of the central square) is kept.
 
     Returns
     -------
@@ -219,13 +228,72 @@ def central_slices(region: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> 
     per_slice = np.count_nonzero(region, axis=(1, 2))
     if per_slice.sum() <= max_voxels:
         return region
+    square = _central_square(region.any(axis=0), int(per_slice.max()), max_voxels)
+    if square is not None:
+        cut = np.zeros_like(region)
+        cut[(slice(None), *square)] = region[(slice(None), *square)]
+        region = cut
+        per_slice = np.count_nonzero(region, axis=(1, 2))
+    start, stop = _central_range(per_slice, max_voxels)
+    kept = np.zeros_like(region)
+    kept[start:stop] = region[start:stop]
+    return kept
+
+
+def measured_slices(in_slices: np.ndarray, in_slice: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> tuple[int, int]:
+    """The slices `central_slices` keeps of a region that is a stack of one shape, without making the region.
+
+    For a region ``in_slices[:, None, None] & in_slice[None]`` (a pack's bulk
+    cylinder): a caller can read only these slices (and `calibration_halo` more on
+    each side) of a volume larger than memory, and get the same calibration as
+    from the whole region.
+
+    Parameters
+    ----------
+    in_slices : ndarray of bool, shape (Z,)
+        The slices the region occupies.
+    in_slice : ndarray of bool, shape (Y, X)
+        The region on each of them.
+    max_voxels : int
+        As for `central_slices`.
+
+    Returns
+    -------
+    (start, stop) : tuple of int
+    """
+    per_slice = in_slices.astype(np.int64) * int(np.count_nonzero(in_slice))
+    if per_slice.sum() <= max_voxels:
+        occupied = np.flatnonzero(per_slice)
+        return int(occupied[0]), int(occupied[-1]) + 1
+    square = _central_square(in_slice, int(per_slice.max()), max_voxels)
+    if square is not None:
+        per_slice = in_slices.astype(np.int64) * int(np.count_nonzero(in_slice[square]))
+    return _central_range(per_slice, max_voxels)
+
+
+def _central_square(lateral: np.ndarray, widest: int, max_voxels: int) -> tuple[slice, slice] | None:
+    """The central square of `lateral` ((Y, X) bool) in which `MIN_CALIBRATION_SLICES` slices fit, or None."""
+    if max_voxels // widest >= MIN_CALIBRATION_SLICES:
+        return None
+    side = max(1, math.isqrt(max_voxels // MIN_CALIBRATION_SLICES))
+    rows, columns = np.flatnonzero(lateral.any(axis=1)), np.flatnonzero(lateral.any(axis=0))
+    y0 = max(0, (int(rows[0]) + int(rows[-1]) + 1 - side) // 2)
+    x0 = max(0, (int(columns[0]) + int(columns[-1]) + 1 - side) // 2)
+    return slice(y0, y0 + side), slice(x0, x0 + side)
+
+
+def _central_range(per_slice: np.ndarray, max_voxels: int) -> tuple[int, int]:
+    """``(start, stop)`` of the central occupied slices holding at most `max_voxels` (at least one slice)."""
     occupied = np.flatnonzero(per_slice)
     n = min(len(occupied), max(1, max_voxels // int(per_slice.max())))
     start = occupied[(len(occupied) - n) // 2]
     stop = occupied[(len(occupied) - n) // 2 + n - 1] + 1
-    kept = np.zeros_like(region)
-    kept[start:stop] = region[start:stop]
-    return kept
+    return int(start), int(stop)
+
+
+def calibration_halo(target_sigma: float) -> int:
+    """Voxels read around the measured region for a source edge width `target_sigma` (voxels)."""
+    return int(math.ceil(4 * target_sigma)) + 2
 
 
 def _clean_ring_powers(
@@ -319,7 +387,7 @@ def calibrate(
             f"{target_shift!r}"
         )
     region = central_slices(region, max_voxels)
-    box = _crop(region, int(math.ceil(4 * target_sigma)) + 2)
+    box = _crop(region, calibration_halo(target_sigma))
     volume, box_labels, box_region = clean[box], np.asarray(labels[box]), region[box]
     distance = signed_distance(box_labels)
 

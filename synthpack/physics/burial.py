@@ -40,10 +40,14 @@ def buried(hulls: Sequence[np.ndarray], radius: float, largest: float) -> np.nda
 
     The pack's surface is sampled on a square grid of one-unit (about one grain)
     columns inside the tube: each column's height is the highest locked hull vertex
-    in it, and a column without any counts as the floor (z = 0), so nothing is buried
-    until the whole cross-section is covered. A grain whose top lies more than two of
-    the largest grain diameters below the LOWEST column is covered everywhere by a
-    thick layer of locked grains.
+    in it, and a column without any counts as the floor (z = 0). A later grain comes
+    down in some column and reaches at most about one largest diameter sideways, so
+    each grain is judged against the LOWEST column within ``ceil(largest) + 1`` columns
+    of those its hull covers (its local surface): a grain whose top lies more than two
+    of the largest grain diameters below that is covered everywhere a later grain could
+    reach it from by a thick layer of locked grains. Until 0.5 the lowest column of the
+    whole tube was used, which in a tube many grains wide kept every grain in the world
+    while any hole remained anywhere in the top layer.
 
     Parameters
     ----------
@@ -66,10 +70,18 @@ def buried(hulls: Sequence[np.ndarray], radius: float, largest: float) -> np.nda
     inside = np.hypot(cx, cy) <= radius - 0.5
     if len(hulls) == 0 or not inside.any():
         return np.zeros(len(hulls), dtype=bool)
-    points = np.concatenate(list(hulls))
-    ix = np.clip(np.floor(points[:, 0]).astype(np.int64) + half, 0, 2 * half - 1)
-    iy = np.clip(np.floor(points[:, 1]).astype(np.int64) + half, 0, 2 * half - 1)
+    columns = [(_column(hull[:, 0], half), _column(hull[:, 1], half)) for hull in hulls]
     heights = np.zeros(cx.shape)
-    np.maximum.at(heights, (ix, iy), points[:, 2])
-    cut = float(heights[inside].min()) - 2 * largest
-    return np.array([hull[:, 2].max() < cut for hull in hulls], dtype=bool)
+    for hull, (ix, iy) in zip(hulls, columns):
+        np.maximum.at(heights, (ix, iy), hull[:, 2])
+    reach = int(np.ceil(largest)) + 1
+    surface = np.pad(np.where(inside, heights, np.inf), reach, constant_values=np.inf)
+    lowest = np.lib.stride_tricks.sliding_window_view(surface, (2 * reach + 1,) * 2).min(axis=(2, 3))
+    cuts = np.array([lowest[ix.min():ix.max() + 1, iy.min():iy.max() + 1].min() for ix, iy in columns])
+    tops = np.array([float(hull[:, 2].max()) for hull in hulls])
+    return tops < cuts - 2 * largest
+
+
+def _column(coordinates: np.ndarray, half: int) -> np.ndarray:
+    """Grid column index (0 .. 2 half - 1) of each coordinate, clipped to the grid."""
+    return np.clip(np.floor(coordinates).astype(np.int64) + half, 0, 2 * half - 1)
