@@ -154,14 +154,16 @@ def test_an_optional_real_scan_without_its_files_is_skipped_with_a_message(tmp_p
     assert "gone" not in " ".join(loaded.arms)
 
 
-def test_the_cpu_config_runs_every_arm_over_three_seeds_with_the_concrete_scan_where_present():
+def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_where_present():
     config = ExperimentConfig.load("cpu")
     assert len(config.seeds) >= 3 and config.budgets
     present = (ROOT.parent / "shared" / "data" / "concrete" / "concrete_neutron.tif").is_file()
     assert ("concrete" in config.real) == present
-    names = config.arms
-    for scan in config.real:
-        assert {scan, scan + "+syn", scan + ":syn", scan + ":syn-rand", f"{scan}@{config.budgets[0]}+syn"} <= set(names)
+    names = set(config.arms)
+    for scan in config.real:  # every scan: real, real + packs, packs alone
+        assert {scan, scan + "+syn", scan + ":syn"} <= names
+    # every arm kind on the built-in sample
+    assert {"large+syn-nopp", "large:syn-rand", f"large@{config.budgets[0]}", f"large@{config.budgets[0]}+syn"} <= names
 
 
 @pytest.mark.slow
