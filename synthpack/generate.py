@@ -33,6 +33,7 @@ from .physics.container import DEFAULT_PACKING_FRACTION
 from .physics.registry import get_engine
 from .postprocess import Postprocessing, check_postprocess, resolve_postprocessing
 from .reconstruct import Background, Grid, pose_maps, reconstruct
+from .render_torch import TorchRenderer, resolve_device
 from .runner import run_packs
 
 logger = logging.getLogger(__name__)
@@ -140,6 +141,7 @@ def build_pack(
         Default: NumPy arrays.
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
+    device = resolve_device(config.reconstruct.device, config.reconstruct.order)
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
@@ -150,7 +152,7 @@ def build_pack(
     with _timed(timings, "pour"):
         placements = _pour(library, config, seed, progress, grains)
     with _timed(timings, "reconstruct"):
-        render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains)
+        render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains, device)
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
@@ -220,11 +222,12 @@ def _pour(
 
 def _render(
     library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
-    threads: int | None, allocate: Allocate, grains: PackGrains | None,
+    threads: int | None, allocate: Allocate, grains: PackGrains | None, device: str | None,
 ) -> _Render:
     """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
 
     Placement ``k``'s grain is ``library[placements.indices[k]]``, or ``grains.particles[k]`` with `grains`.
+    On the torch `device` (`synthpack.render_torch`), or with NumPy where it is None.
     """
     particles, placed = (library, placements.indices) if grains is None else (
         grains.particles, np.arange(len(placements)))
@@ -238,13 +241,17 @@ def _render(
     maps = pose_maps([p.mask for p in particles], placed,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
                      reach=partial_volume.reach if partial_volume else 1.0)
+    renderer = None if device is None else TorchRenderer(device)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
         tube=(wall[0], wall[1], -tube.base_thickness),
-        order=config.order, seed=seed, chunks=chunks, workers=threads,
+        order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
-        partial_volume=partial_volume,
+        partial_volume=partial_volume, renderer=renderer,
     )
+    if renderer is not None:
+        logger.info("rendered on %s: %d voxels within float rounding of the mask threshold", device,
+                    renderer.near_threshold)
     return _Render(grid, clean, labels, background, contested, partial_volume, wall)
 
 

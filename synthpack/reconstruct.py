@@ -24,7 +24,7 @@ derived from the source scan's statistics in one place, `Background.from_source`
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -46,6 +46,7 @@ __all__ = [
     "ReconstructConfig",
     "PoseMaps",
     "RenderCrop",
+    "background_values",
     "pose_maps",
     "reconstruct",
     "prepare_crops",
@@ -62,6 +63,12 @@ _XYZ_TO_ZYX = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 def _chunk_shape(value: list) -> bool:
     """three positive whole numbers (z, y, x)"""
     return len(value) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in value)
+
+
+def _device(value: str) -> bool:
+    """auto, cpu, cuda or cuda:N"""
+    return isinstance(value, str) and (value in ("auto", "cpu", "cuda") or (
+        value.startswith("cuda:") and value[5:].isdigit()))
 
 
 @dataclass(frozen=True)
@@ -84,6 +91,8 @@ class ReconstructConfig:
                                        "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
     rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
                                 "replaced by its interior; default: from the source's fitted edge")
+    device: str = setting("auto", _device, "where the render runs: auto (the first CUDA GPU torch sees, else the "
+                          "CPU), cpu, or cuda / cuda:N; only order 1 runs on a GPU")
     pore_texture: PoreTexture = field(default_factory=PoreTexture)
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:
@@ -332,11 +341,11 @@ def _surface_voxels(mask: np.ndarray) -> np.ndarray:
     return np.argwhere(surface).astype(float)
 
 
-def _background(
+def background_values(
     grid: Grid, lo: np.ndarray, hi: np.ndarray, background: Background, tube: tuple[float, float, float] | None,
     seed: int,
 ) -> np.ndarray:
-    """The background over the box ``[lo, hi)``: pore level + pore texture, then the wall."""
+    """The background over the box ``[lo, hi)``: pore level + pore texture, then the wall (float32, shape hi - lo)."""
     values = np.full(tuple(hi - lo), background.pore_mean, dtype=np.float32)
     if background.pore_std > 0:
         values += background.texture_values(lo, hi, seed)
@@ -488,7 +497,7 @@ def render_chunk(
         Number of voxels claimed by more than one particle.
     """
     shape = tuple(int(n) for n in hi - lo)
-    tomogram = _background(grid, lo, hi, background, tube, seed)
+    tomogram = background_values(grid, lo, hi, background, tube, seed)
     labels = np.zeros(shape, dtype=np.int32)
     claim = np.zeros(shape, dtype=np.float32)
     composite = None if partial_volume is None else _Composite(shape)
@@ -597,6 +606,7 @@ def reconstruct(
     workers: int | None = None,
     out: tuple[np.ndarray, np.ndarray] | None = None,
     partial_volume: PartialVolume | None = None,
+    renderer: Callable[..., tuple[np.ndarray, np.ndarray, int]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see :func:`render_chunk`).
 
@@ -617,6 +627,9 @@ def reconstruct(
     out : (tomogram, labels), optional
         Arrays (or array-likes supporting slice assignment, e.g. Zarr arrays) of
         ``grid.shape`` to write into; new arrays by default.
+    renderer : callable, optional
+        Renders one chunk, with :func:`render_chunk`'s arguments and results; default
+        :func:`render_chunk` (NumPy), e.g. `synthpack.render_torch.TorchRenderer` on a GPU.
 
     Returns
     -------
@@ -644,8 +657,8 @@ def reconstruct(
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
-        return render_chunk(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed,
-                            partial_volume=partial_volume)
+        return (renderer or render_chunk)(prepared, maps, grid, lo, hi, background, tube=tube, order=order,
+                                          seed=seed, partial_volume=partial_volume)
 
     for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
         render, chunk_boxes(grid.shape, chunks), workers

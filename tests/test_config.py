@@ -56,6 +56,7 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
         ({"reconstruct": {"pore_texture": {"tile": 6.5}}}, "'reconstruct.pore_texture.tile' has the wrong type"),
         ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
         ({"reconstruct": {"pore_texture": {"model": "fractal"}}}, "'reconstruct.pore_texture.model'"),
+        ({"reconstruct": {"device": "gpu"}}, "'reconstruct.device' is out of range"),
         ({"pour": 3}, "must be a mapping"),
     ],
 )

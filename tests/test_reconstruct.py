@@ -2,6 +2,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
@@ -9,6 +10,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.partial_volume import FAR, PAD, PartialVolume
 from synthpack.pore_texture import PoreTexture
 from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
+from synthpack.render_torch import TorchRenderer, resolve_device
 from synthpack.source import SourceStatistics, fit_edge_spread
 from synthpack.source.edges import edge_profile, signed_distance
 
@@ -292,6 +294,39 @@ def test_render_equals_a_dense_reference_render(large_library, shift, order):
     np.testing.assert_array_equal(labels, reference[1])
     assert len(np.unique(labels)) > 10
     np.testing.assert_allclose(tomogram, reference[0], rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA GPU"))])
+@pytest.mark.parametrize("shift", [None, -0.4])
+def test_the_torch_render_equals_the_numpy_render(large_library, shift, device):
+    """The GPU path's arithmetic (run on the CPU without a GPU): labels equal, intensities within 1e-5."""
+    rng = np.random.default_rng(11)
+    crops, _, rotations, positions, grid = _ball_scene(large_library, n=10)
+    index = rng.integers(0, 4, len(rotations))
+    scales = rng.uniform(0.7, 1.8, len(rotations))
+    partial_volume = None if shift is None else PartialVolume(shift=shift, rim=1.5)
+    maps = pose_maps([c[1] for c in crops], index, rotations, positions, scales, grid,
+                     reach=partial_volume.reach if partial_volume else 1.0)
+    background = Background(0.2, 0.05, 0.5)  # pore texture and a wall
+    arguments = dict(tube=(300.0, 330.0, -30.0), chunks=(13, 40, 37), partial_volume=partial_volume, seed=3)
+    tomogram, labels, contested = reconstruct(crops, maps, grid, background, **arguments)
+    renderer = TorchRenderer(device)
+    on_device = reconstruct(crops, maps, grid, background, renderer=renderer, workers=1, **arguments)
+    assert renderer.near_threshold < max(1, labels.size // 100_000)
+    mismatch = np.count_nonzero(on_device[1] != labels)
+    assert mismatch <= renderer.near_threshold and on_device[2] == contested > 0
+    assert len(np.unique(labels)) > 10
+    np.testing.assert_allclose(on_device[0], tomogram, rtol=0, atol=1e-5)
+
+
+def test_a_gpu_device_without_a_gpu_is_an_input_error():
+    assert resolve_device("cpu") is None
+    assert resolve_device("auto", order=3) is None
+    if not torch.cuda.is_available():
+        assert resolve_device("auto") is None
+        with pytest.raises(SynthpackInputError, match="torch sees no CUDA GPU here; use auto or cpu"):
+            resolve_device("cuda")
 
 
 def test_prepared_crop_replaces_the_rim_by_the_interior():
