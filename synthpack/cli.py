@@ -74,8 +74,11 @@ def _add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
 
 def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_argument_group("source scan (give --tomogram and --labels, or --sample)")
-    source.add_argument("--tomogram", type=Path, help="tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr or NetCDF")
-    source.add_argument("--labels", type=Path, help="instance labels of the tomogram (0 = background)")
+    source.add_argument("--tomogram", type=Path,
+                        help="tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr, NetCDF, HDF5 (scan.h5, or "
+                             "scan.h5:/entry/data for one dataset), MetaImage, NRRD, NIfTI, or raw binary with its "
+                             "layout: scan.raw:ZxYxX:DTYPE:BYTE_ORDER, e.g. scan.raw:512x1024x1024:uint16:little")
+    source.add_argument("--labels", type=Path, help="instance labels of the tomogram (0 = background), in any format --tomogram reads")
     source.add_argument("--sample", choices=("large", "small"), help="use a built-in sample scan instead")
     source.add_argument("--sample-seed", type=int, default=0, help="seed of the built-in sample (default 0)")
     source.add_argument("--voxel-size", type=float, nargs="+", metavar="SIZE",

@@ -1,4 +1,4 @@
-"""Read and write CT volumes (TIFF, TIFF-slice folders, NPY, Zarr, Mango NetCDF) and 2D label images.
+"""Read and write CT volumes (TIFF, NPY, Zarr, NetCDF, HDF5, MetaImage, NRRD, NIfTI, raw) and 2D label images.
 
 Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
 ``(dz, dy, dx)`` and its length unit when the file records them; `read_scan`
@@ -26,15 +26,44 @@ Supported inputs
   such files split along z (``block00000000.nc``, ``block00000001.nc``, ...).
   In Mango label volumes the dtype's maximum value (255 for uint8,
   2**31 - 1 for int32) marks voxels outside the round field of view; it is
-  read as background (0).
+  read as background (0);
+- HDF5 files (``.h5``, ``.hdf5``, ``.hdf``, ``.nxs``; h5py), one dataset
+  named after a colon (``scan.h5:/entry/data``) or the file's only 3D
+  dataset. Voxel size from the first of these attributes found on the
+  dataset or its parent groups: ``element_size_um`` (z, y, x in um, as the
+  ImageJ HDF5 plugin and ilastik write it), ``voxel_size`` or ``spacing``
+  (one value or z, y, x) with ``unit`` or ``units``;
+- MetaImage (``.mhd``, ``.mha``; SimpleITK) and NRRD (``.nrrd``, ``.nhdr``;
+  pynrrd), voxel size from their spacing, reversed from ITK's (x, y, z) to
+  (z, y, x). The unit is NRRD's ``space units`` when recorded, else
+  millimetres, the convention of ITK and 3D Slicer;
+- NIfTI (``.nii``, ``.nii.gz``; nibabel), stored (x, y, z) and transposed
+  to (z, y, x); voxel size from the header's pixdim (zooms), unit from
+  ``xyzt_units`` (millimetres when it says unknown, as ITK reads it);
+- raw binary (``.raw``, ``.bin``, ``.vol``) with its layout after a colon:
+  ``scan.raw:ZxYxX:DTYPE:BYTE_ORDER``, e.g.
+  ``scan.raw:512x1024x1024:uint16:little``: Z slices of Y rows of X voxels,
+  X varying fastest, no header; the byte order (``little`` or ``big``) may
+  be left out for 1-byte dtypes. It records no voxel size.
+
+Orientation matrices (ITK direction cosines, NIfTI qform/sform) are
+ignored: the array is read in the order it is stored.
+HDF5, NRRD and NIfTI need the ``formats`` extra (``pip install
+"synthpack[formats]"``: h5py, pynrrd, nibabel), MetaImage the ``metaimage``
+extra (SimpleITK, large); without them these files give a one-line error
+saying what to install.
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
+import math
 import os
 import re
 import struct
+import sys
+import tempfile
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -83,6 +112,11 @@ SUPPORTED_FORMATS = (
     "NumPy array (.npy)",
     "Zarr store (directory, e.g. .zarr)",
     "Mango NetCDF (.nc, or a folder of block*.nc files split along z)",
+    "HDF5 (.h5, .hdf5, .hdf, .nxs; a dataset after a colon: scan.h5:/entry/data)",
+    "MetaImage (.mhd, .mha)",
+    "NRRD (.nrrd, .nhdr)",
+    "NIfTI (.nii, .nii.gz)",
+    "raw binary with its layout after a colon (scan.raw:ZxYxX:uint16:little)",
 )
 
 _TIFF_SUFFIXES = (".tif", ".tiff")
@@ -111,6 +145,26 @@ _TIFF_RESOLUTION_UNITS = {
     tifffile.RESUNIT.MILLIMETER: 1e3,
     tifffile.RESUNIT.MICROMETER: 1.0,
 }
+# A path, then after a colon the dataset of an HDF5 file (scan.h5:/entry/data)
+# or the layout of a raw file (scan.raw:64x128x256:uint16:little).
+_PATH_SPEC = re.compile(r"^(?P<file>.+?\.(?:h5|hdf5|hdf|nxs|raw|bin|vol)):(?P<spec>.*)$", re.IGNORECASE)
+_RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "uint64", "int64", "float32", "float64")
+_RAW_BYTE_ORDERS = {"little": "<", "big": ">"}
+_RAW_LAYOUT = ("FILE.raw:ZxYxX:DTYPE:BYTE_ORDER, e.g. scan.raw:512x1024x1024:uint16:little (Z slices of Y "
+               "rows of X voxels, X varying fastest; DTYPE one of " + ", ".join(_RAW_DTYPES)
+               + "; BYTE_ORDER little or big, optional for 1-byte dtypes)")
+# The attributes an HDF5 dataset or its parent groups record its voxel size in, z first.
+_HDF5_SIZE_ATTRIBUTES = ("element_size_um", "voxel_size", "spacing")
+# Length unit of ITK-family spacings that record none (MetaImage, NRRD without
+# "space units", NIfTI with unknown xyzt_units): ITK's and 3D Slicer's millimetres.
+_ITK_UNIT = "mm"
+# Optional reader packages: module -> (package to install, extra of synthpack holding it).
+_OPTIONAL = {
+    "h5py": ("h5py", "formats"),
+    "nrrd": ("pynrrd", "formats"),
+    "nibabel": ("nibabel", "formats"),
+    "SimpleITK": ("SimpleITK", "metaimage"),
+}
 # Above this many bytes write_tiff writes BigTIFF (same margin as tifffile).
 _BIGTIFF_BYTES = 2**32 - 2**25
 
@@ -132,13 +186,15 @@ def read_scan(
     ----------
     tomogram : path or ndarray, shape (Z, Y, X)
         Reconstructed intensities, or the file / folder / Zarr store holding
-        them (see the module docstring for the formats). In a Zarr group or a
-        NetCDF file holding several volumes, the array named ``tomogram``,
-        ``tomo`` or ``tomo_float`` is read.
+        them (see the module docstring for the formats). In a Zarr group, a
+        NetCDF or an HDF5 file holding several volumes, the array named
+        ``tomogram``, ``tomo`` or ``tomo_float`` is read. A path may name an
+        HDF5 dataset (``scan.h5:/entry/data``) or give the layout of a raw
+        file (``scan.raw:ZxYxX:DTYPE:BYTE_ORDER``) after a colon.
     labels : path or ndarray of int, shape (Z, Y, X)
         Instance labels (0 = background, 1..N = particles), or where they are.
-        In a Zarr group or NetCDF file the array named ``labels`` is read; it
-        may be the same path as `tomogram`.
+        In a Zarr group, NetCDF or HDF5 file the array named ``labels`` is
+        read; it may be the same path as `tomogram`.
     voxel_size : float or tuple of 3 float, optional
         Voxel edge lengths ``(dz, dy, dx)`` (one number: isotropic). Overrides
         the voxel size in the file metadata (the difference is logged at INFO).
@@ -204,15 +260,20 @@ def read_volume(path: PathLike, name: str | None = None) -> Volume:
     path : str or Path
         A ``.tif``/``.tiff`` stack, a folder of 2D TIFF slices, a ``.npy``
         file, a Zarr store, a Mango NetCDF ``.nc`` file or a folder of NetCDF
-        blocks.
+        blocks, an HDF5, MetaImage, NRRD or NIfTI file, or a raw file with its
+        layout after a colon, ``scan.raw:ZxYxX:DTYPE:BYTE_ORDER`` (see the
+        module docstring). An HDF5 path may name its dataset after a colon,
+        ``scan.h5:/entry/data``.
     name : str, optional
-        The array to read from a Zarr group or the variable to read from a
-        NetCDF file. Needed only when the store holds several candidates.
+        The array to read from a Zarr group, the variable to read from a
+        NetCDF file, or the dataset to read from an HDF5 file (the same as
+        after a colon). Needed only when the file holds several candidates.
 
     Returns
     -------
     volume : ndarray
-        The data as stored (any dtype), usually shape (Z, Y, X). NetCDF
+        The data as stored (any dtype; raw data in native byte order), usually
+        shape (Z, Y, X) (NIfTI transposed from its (x, y, z) to it). NetCDF
         ``labels`` have their field-of-view marker (the dtype maximum) set to 0.
     voxel_size : tuple of 3 float or None
         ``(dz, dy, dx)`` from the file metadata, or None if it records none.
@@ -222,8 +283,8 @@ def read_volume(path: PathLike, name: str | None = None) -> Volume:
     Raises
     ------
     SynthpackInputError
-        If the path does not exist, its format is not supported, or it cannot
-        be read.
+        If the path does not exist, its format is not supported, it cannot be
+        read, or the package that reads it is not installed.
     """
     return _read(path, role=None, name=name)
 
@@ -601,7 +662,11 @@ def _load(source: PathLike | np.ndarray, role: str) -> tuple[np.ndarray, Metadat
 def _read(path: PathLike, role: str | None, name: str | None) -> Volume:
     if not str(path).strip():
         raise SynthpackInputError("an empty path was given: pass the file or folder to read")
-    path = Path(path)
+    path, spec = _split_spec(path)
+    if spec is not None:
+        if name is not None and name != spec:
+            raise SynthpackInputError(f"{path} has {spec!r} after its colon and name={name!r}: give one of them")
+        name = spec
     if not path.exists():
         raise SynthpackInputError(
             f"{path} does not exist: check the path (it is resolved from "
@@ -638,19 +703,39 @@ def _reader_for(path: Path) -> tuple[Callable[..., Volume], str]:
             f"(.tif/.tiff) or NetCDF blocks (.nc), or be a Zarr store. "
             f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}"
         )
+    hdf5, raw, itk = (_read_hdf5, "HDF5"), (_read_raw, "raw binary"), (_read_metaimage, "MetaImage")
+    nrrd, nifti = (_read_nrrd, "NRRD"), (_read_nifti, "NIfTI")
     readers = {
         ".tif": (_read_tiff, "TIFF"),
         ".tiff": (_read_tiff, "TIFF"),
         ".npy": (_read_npy, "NumPy .npy"),
         ".nc": (_read_netcdf, "NetCDF"),
+        ".h5": hdf5, ".hdf5": hdf5, ".hdf": hdf5, ".nxs": hdf5,
+        ".mhd": itk, ".mha": itk,
+        ".nrrd": nrrd, ".nhdr": nrrd,
+        ".nii": nifti, ".nii.gz": nifti,
+        ".raw": raw, ".bin": raw, ".vol": raw,
     }
-    if path.suffix.lower() not in readers:
+    suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix.lower()
+    if suffix not in readers:
         raise SynthpackInputError(
             f"{path} is not a supported volume file (extension {path.suffix!r}). "
             f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}. Convert it to one "
             "of these (e.g. save as TIFF stack from Fiji)"
         )
-    return readers[path.suffix.lower()]
+    return readers[suffix]
+
+
+def _split_spec(path: PathLike) -> tuple[Path, str | None]:
+    """`path` without what follows the colon after an HDF5 or raw file name, and that (None if nothing).
+
+    A file whose name really contains the colon is taken whole.
+    """
+    text = os.fspath(path)
+    match = _PATH_SPEC.match(text)
+    if match is None or Path(text).exists():
+        return Path(text), None
+    return Path(match["file"]), match["spec"] or None
 
 
 @contextmanager
@@ -661,8 +746,9 @@ def _reading(path: Path, description: str) -> Iterator[None]:
     except (SynthpackInputError, MemoryError):
         raise
     except Exception as exc:
+        reason = " ".join(str(exc).split())  # one line, also for multi-line messages (ITK's)
         raise SynthpackInputError(
-            f"cannot read {path} as {description}: {exc}. Check that the file is "
+            f"cannot read {path} as {description}: {reason}. Check that the file is "
             "complete and really is in this format (copy or export it again)"
         ) from exc
 
@@ -932,7 +1018,8 @@ def _mask_field_of_view(volume: np.ndarray, var_name: str, path: Path) -> np.nda
 
 
 def _choose(
-    available: list[str], role: str | None, name: str | None, path: Path, kind: str
+    available: list[str], role: str | None, name: str | None, path: Path, kind: str,
+    pick: str = "read the one you want with read_volume(path, name=...)",
 ) -> str:
     """Pick one of the arrays/variables of a store for `role` or by `name`.
 
@@ -955,8 +1042,7 @@ def _choose(
     looking_for = f"the {role} " if role else ""
     raise SynthpackInputError(
         f"cannot tell which {kind} of {path} holds {looking_for}volume; {kind}s "
-        f"present: {available or 'none'}. Name them 'tomogram' and 'labels', or "
-        "read the one you want with read_volume(path, name=...)"
+        f"present: {available or 'none'}. Name them 'tomogram' and 'labels', or {pick}"
     )
 
 
@@ -973,6 +1059,167 @@ def _attribute_voxel_size(voxel_size: object, unit: object, path: Path) -> Metad
         ) from exc
     unit = _normalise_unit(str(unit))
     return (None, None) if unit == "px" else (size, unit)
+
+
+def _optional(module: str, what: str) -> Any:
+    """Import the optional package `module` that reads `what`, or say how to install it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        package, extra = _OPTIONAL[module]
+        raise SynthpackInputError(
+            f"reading {what} needs the Python package {package}, which is not installed: "
+            f'pip install "synthpack[{extra}]" (or pip install {package})'
+        ) from exc
+
+
+def _read_hdf5(path: Path, role: str | None, name: str | None) -> Volume:
+    h5py = _optional("h5py", "HDF5 files")
+    with h5py.File(path, "r") as file:
+        dataset = file[_hdf5_dataset(file, role, name, path, h5py.Dataset)]
+        volume = dataset[()]
+        size, unit = _hdf5_voxel_size(dataset, path)
+    return volume, size, unit
+
+
+def _hdf5_dataset(file: Any, role: str | None, name: str | None, path: Path, dataset_type: type) -> str:
+    """Path of the dataset to read: `name`, else the file's only 3D dataset or the one named for `role`."""
+    volumes: list[str] = []
+    file.visititems(lambda key, node: volumes.append(key)
+                    if isinstance(node, dataset_type) and node.ndim == 3 else None)
+    if name is not None:
+        if isinstance(file.get(name), dataset_type):
+            return name
+        raise SynthpackInputError(
+            f"{path} has no dataset {name!r}; 3D datasets present: {sorted(volumes) or 'none'}"
+        )
+    if not volumes:
+        raise SynthpackInputError(
+            f"{path} holds no 3D dataset: give the HDF5 file holding the volume, or its dataset "
+            f"after a colon ({path}:/path/to/dataset)"
+        )
+    return _choose(sorted(volumes), role, None, path, "3D dataset",
+                   pick=f"give the one you want after a colon ({path}:/path/to/dataset)")
+
+
+def _hdf5_voxel_size(dataset: Any, path: Path) -> Metadata:
+    """Voxel size from the first `_HDF5_SIZE_ATTRIBUTES` entry found on `dataset` or a parent group."""
+    node = dataset
+    while True:
+        found = [key for key in _HDF5_SIZE_ATTRIBUTES if key in node.attrs]
+        if found:
+            value = np.asarray(node.attrs[found[0]]).tolist()
+            unit = "um" if found[0] == "element_size_um" else node.attrs.get("unit", node.attrs.get("units"))
+            if isinstance(unit, bytes):
+                unit = unit.decode()
+            return _attribute_voxel_size(value, unit, path)
+        if node.name == "/":
+            return None, None
+        node = node.parent
+
+
+def _read_metaimage(path: Path, role: str | None, name: str | None) -> Volume:
+    sitk = _optional("SimpleITK", "MetaImage files")
+    try:
+        with _native_stderr_held(path):
+            image = sitk.ReadImage(str(path), imageIO="MetaImageIO")
+    except RuntimeError as exc:  # ITK's reason without its source file, object address and errno text
+        reason = re.sub(r"^.*ITK ERROR: \w+\(0x[0-9a-f]+\): |\s*Reason: [^.]*\.?$", "", " ".join(str(exc).split()))
+        raise RuntimeError(reason.rstrip(".")) from exc
+    volume = sitk.GetArrayFromImage(image)  # (z, y, x) for a 3D image
+    return volume, *_itk_voxel_size(image.GetSpacing(), None, path)
+
+
+@contextmanager
+def _native_stderr_held(path: Path) -> Iterator[None]:
+    """Hold back what native code (ITK's MetaIO) prints on the process's stderr while reading `path`.
+
+    Like tifffile's log messages in `_open_tiff`: dropped when an error is raised
+    (its message says what is wrong), logged as warnings otherwise. Nothing else
+    should write to stderr meanwhile: file descriptor 2 is redirected.
+    """
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        held.seek(0)
+        for line in held.read().decode(errors="replace").splitlines():
+            if line.strip():
+                logger.warning("%s: %s", path, line.strip())
+
+
+def _read_nrrd(path: Path, role: str | None, name: str | None) -> Volume:
+    nrrd = _optional("nrrd", "NRRD files")
+    volume, header = nrrd.read(str(path), index_order="C")  # (z, y, x): file axes reversed
+    if "space directions" in header:
+        directions = [np.asarray(row, dtype=float) for row in header["space directions"]]
+        spacing = [float(np.linalg.norm(row)) for row in directions if np.all(np.isfinite(row))]
+    else:
+        spacing = [float(v) for v in header.get("spacings", ()) if np.isfinite(v)]
+    units = set(header.get("space units", ()))
+    return volume, *_itk_voxel_size(spacing, units.pop() if len(units) == 1 else None, path)
+
+
+def _itk_voxel_size(spacing: Iterable[float], unit: str | None, path: Path) -> Metadata:
+    """``(dz, dy, dx)`` from an ITK-order ``(dx, dy, dz)`` spacing; without a unit, `_ITK_UNIT`."""
+    spacing = tuple(spacing)
+    if len(spacing) != 3:
+        return None, None
+    if unit is None:
+        logger.info("%s records no length unit: its spacing is taken in %s, as ITK and 3D Slicer do",
+                    path, _ITK_UNIT)
+    return _attribute_voxel_size(spacing[::-1], unit or _ITK_UNIT, path)
+
+
+def _read_nifti(path: Path, role: str | None, name: str | None) -> Volume:
+    nibabel = _optional("nibabel", "NIfTI files")
+    image = nibabel.load(path, mmap=False)
+    volume = np.ascontiguousarray(np.asarray(image.dataobj).T)  # stored (x, y, z): now (z, y, x)
+    unit = image.header.get_xyzt_units()[0]
+    zooms = image.header.get_zooms()[:3] if volume.ndim == 3 else ()
+    return volume, *_itk_voxel_size(zooms, None if unit == "unknown" else unit, path)
+
+
+def _read_raw(path: Path, role: str | None, name: str | None) -> Volume:
+    """Read a headerless binary volume whose layout `name` gives (see `_raw_layout`)."""
+    shape, dtype = _raw_layout(name, path)
+    expected = math.prod(shape) * dtype.itemsize
+    size = path.stat().st_size
+    if size != expected:
+        raise SynthpackInputError(
+            f"{path} is {size:,} bytes but {'x'.join(map(str, shape))} voxels of {dtype.name} take "
+            f"{expected:,}: check the shape and dtype after the colon ({_RAW_LAYOUT})"
+        )
+    volume = np.fromfile(path, dtype=dtype).reshape(shape)
+    return volume.astype(dtype.newbyteorder("="), copy=False), None, None
+
+
+def _raw_layout(spec: str | None, path: Path) -> tuple[tuple[int, int, int], np.dtype]:
+    """Shape ``(Z, Y, X)`` and dtype (with its byte order) of a raw file from ``ZxYxX:DTYPE[:BYTE_ORDER]``."""
+    parts = [] if spec is None else spec.lower().split(":")
+    shape_text, dtype_name, order = (parts + ["", "", ""])[:3]
+    dims = shape_text.split("x")
+    if spec is None:
+        problem = "its layout is missing after a colon"
+    elif len(parts) > 3:
+        problem = f"layout {spec!r} has more than three parts"
+    elif len(dims) != 3 or not all(d.isdigit() and int(d) > 0 for d in dims):
+        problem = f"shape {shape_text!r} is not three positive integers ZxYxX"
+    elif dtype_name not in _RAW_DTYPES:
+        problem = f"dtype {dtype_name!r} is not supported"
+    elif order and order not in _RAW_BYTE_ORDERS:
+        problem = f"byte order {order!r} is not little or big"
+    elif not order and np.dtype(dtype_name).itemsize > 1:
+        problem = f"the byte order of {dtype_name} is missing"
+    else:
+        shape = (int(dims[0]), int(dims[1]), int(dims[2]))
+        return shape, np.dtype(dtype_name).newbyteorder(_RAW_BYTE_ORDERS.get(order, "="))
+    raise SynthpackInputError(f"cannot read the raw file {path}: {problem}; give {_RAW_LAYOUT}")
 
 
 # --------------------------------------------------------------------------- #
