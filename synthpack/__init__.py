@@ -22,6 +22,7 @@ __version__ = "0.5.0"
 
 _LAZY = {
     "read_scan": "synthpack.io",
+    "label_scan": "synthpack.labelling",
     "ParticleLibrary": "synthpack.library",
     "Particle": "synthpack.particles",
     "pour": "synthpack.physics",

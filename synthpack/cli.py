@@ -49,10 +49,18 @@ _OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
     "demo": (("out", "synthpack.cli:DEMO_OUTPUT"),),
     "export-yolo": (("out", "synthpack.export.yolo:YOLO_OUTPUT"),),
     "evaluate": (("out", "synthpack.metrics:EVALUATION_OUTPUT"),),
+    "label": (("out", "synthpack.cli:LABELS_OUTPUT"),),
 }
 
 #: The demo's folder: an earlier demo (its library) is replaced, anything else is refused.
 DEMO_OUTPUT = Output("demo folder", marker="library/library.json")
+
+#: The `label` command's TIFF: never replaced without --overwrite (it may have been corrected by hand since).
+LABELS_OUTPUT = Output("label volume", folder=False)
+
+#: The `label` command's options that are `LabelSettings` (validated by it), with their types.
+_LABEL_OPTIONS = (("threshold", float), ("contrast", str), ("sigma", float), ("smoothing", float),
+                  ("min_distance", int), ("min_voxels", int))
 
 
 def _check_outputs(command: str, args: argparse.Namespace) -> None:
@@ -72,18 +80,24 @@ def _add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
                              "than synthpack's own earlier output; files of other names are kept")
 
 
+_TOMOGRAM_HELP = ("tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr, NetCDF, HDF5 (scan.h5, or "
+                  "scan.h5:/entry/data for one dataset), MetaImage, NRRD, NIfTI, or raw binary with its "
+                  "layout: scan.raw:ZxYxX:DTYPE:BYTE_ORDER, e.g. scan.raw:512x1024x1024:uint16:little")
+
+
+def _add_voxel_size_arguments(group: argparse._ActionsContainer) -> None:
+    group.add_argument("--voxel-size", type=float, nargs="+", metavar="SIZE",
+                       help="voxel size: one number, or three in (z, y, x) order; overrides the file metadata")
+    group.add_argument("--unit", help="length unit of the voxel size, e.g. um or mm")
+
+
 def _add_scan_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_argument_group("source scan (give --tomogram and --labels, or --sample)")
-    source.add_argument("--tomogram", type=Path,
-                        help="tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr, NetCDF, HDF5 (scan.h5, or "
-                             "scan.h5:/entry/data for one dataset), MetaImage, NRRD, NIfTI, or raw binary with its "
-                             "layout: scan.raw:ZxYxX:DTYPE:BYTE_ORDER, e.g. scan.raw:512x1024x1024:uint16:little")
+    source.add_argument("--tomogram", type=Path, help=_TOMOGRAM_HELP)
     source.add_argument("--labels", type=Path, help="instance labels of the tomogram (0 = background), in any format --tomogram reads")
     source.add_argument("--sample", choices=("large", "small"), help="use a built-in sample scan instead")
     source.add_argument("--sample-seed", type=int, default=0, help="seed of the built-in sample (default 0)")
-    source.add_argument("--voxel-size", type=float, nargs="+", metavar="SIZE",
-                        help="voxel size: one number, or three in (z, y, x) order; overrides the file metadata")
-    source.add_argument("--unit", help="length unit of the voxel size, e.g. um or mm")
+    _add_voxel_size_arguments(source)
 
 
 def _read_source_scan(args: argparse.Namespace):
@@ -350,6 +364,31 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
     print(f"\nreport: {', '.join(str(p) for p in paths.values())}")
 
 
+def _cmd_label(args: argparse.Namespace) -> None:
+    from .io import read_tomogram, write_tiff
+    from .labelling import STARTING_POINT, LabelSettings, label_scan
+
+    settings = build(LabelSettings, {name: getattr(args, name) for name, _ in _LABEL_OPTIONS}, name=option_name)
+    if args.out.suffix.lower() not in (".tif", ".tiff"):
+        raise SynthpackInputError(f"--out {args.out}: the labels are written as a TIFF file; give a name ending in .tif")
+    preview = args.out.with_suffix(".png") if args.preview else None
+    if preview is not None:
+        from .preview import PREVIEW_OUTPUT
+
+        check_output(preview, PREVIEW_OUTPUT, overwrite=args.overwrite)
+    voxel_size = None if args.voxel_size is None else tuple(args.voxel_size)
+    tomogram, voxel_size, unit = read_tomogram(args.tomogram, voxel_size=voxel_size, unit=args.unit)
+    result = label_scan(tomogram, settings)
+    write_tiff(args.out, result.labels, voxel_size, unit, labels=True)
+    print(f"{result.n_grains} grains labelled in {args.out} (threshold {result.threshold:.6g}, {result.contrast} "
+          f"grains, markers at least {result.min_distance} voxels apart)")
+    if preview is not None:
+        from .preview import save_label_preview
+
+        print(f"preview: {save_label_preview(tomogram, result.labels, preview, overwrite=args.overwrite)}")
+    print(f"WARNING: {STARTING_POINT}")
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="synthpack",
@@ -366,6 +405,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_export_command(commands)
     _add_evaluate_command(commands)
     _add_library_command(commands)
+    _add_label_command(commands)
     return parser
 
 
@@ -508,6 +548,26 @@ def _add_evaluate_command(commands: Any) -> None:
     _add_overwrite_argument(evaluate)
     evaluate.set_defaults(run=_cmd_evaluate)
 
+
+
+def _add_label_command(commands: Any) -> None:
+    from .labelling import CONTRASTS, LabelSettings
+
+    label = commands.add_parser(
+        "label", help="starting instance labels for a scan that has none (threshold + distance-transform "
+                      "watershed): a starting point to correct, not ground truth")
+    label.add_argument("--tomogram", type=Path, required=True, help=_TOMOGRAM_HELP)
+    _add_voxel_size_arguments(label)
+    label.add_argument("--out", type=Path, required=True,
+                       help="label TIFF to write (0 = pore, 1..N = grains; the scan's voxel size)")
+    label.add_argument("--preview", action="store_true",
+                       help="also write a PNG of the middle slices with the label outlines, next to --out (.png)")
+    group = label.add_argument_group("segmentation (see synthpack.labelling)")
+    for name, kind in _LABEL_OPTIONS:
+        group.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(LabelSettings, name),
+                           help=help_of(LabelSettings, name), **({"choices": CONTRASTS} if name == "contrast" else {}))
+    _add_overwrite_argument(label)
+    label.set_defaults(run=_cmd_label)
 
 
 def _add_library_command(commands: Any) -> None:

@@ -78,7 +78,7 @@ from PIL import Image
 
 from ._atomic import Output, atomic_directory, atomic_file
 from .errors import SynthpackInputError
-from .scan import Scan, validate_voxel_size
+from .scan import Scan, validate_tomogram, validate_voxel_size
 
 logger = logging.getLogger(__name__)
 
@@ -91,6 +91,7 @@ __all__ = [
     "memmap_volume",
     "read_label_image",
     "read_scan",
+    "read_tomogram",
     "read_slice",
     "read_volume",
     "write_label_image",
@@ -243,13 +244,60 @@ def read_scan(
             f"{exc} [tomogram: {tomo_source}; labels: {label_source}]"
         ) from exc
     if origin == "default":
-        logger.warning(
-            "no voxel size was given and the input records none: using 1.0 px (voxel "
-            "units). Pass --voxel-size (one value, or dz dy dx) and --unit on the "
-            "command line, or voxel_size=... and unit=... to read_scan, to work in "
-            "physical units [tomogram: %s]", tomo_source,
-        )
+        _warn_no_voxel_size(tomo_source)
     return scan
+
+
+def read_tomogram(
+    tomogram: PathLike | np.ndarray,
+    voxel_size: float | tuple[float, float, float] | None = None,
+    unit: str | None = None,
+) -> tuple[np.ndarray, VoxelSize, str]:
+    """Read a tomogram alone (no labels), validated, with its voxel size.
+
+    Parameters
+    ----------
+    tomogram : path or ndarray, shape (Z, Y, X)
+        As for `read_scan`: any format `read_volume` reads.
+    voxel_size : float or tuple of 3 float, optional
+        Voxel edge lengths ``(dz, dy, dx)``; overrides the file metadata.
+    unit : str, optional
+        Length unit of the voxel size (see `read_scan`).
+
+    Returns
+    -------
+    tomogram : ndarray, shape (Z, Y, X)
+        Finite real intensities, dtype as read.
+    voxel_size : tuple of 3 float
+        ``(dz, dy, dx)``, chosen as `read_scan` chooses it (1.0 px with a warning when
+        neither the argument nor the metadata gives one).
+    unit : str
+        Length unit of `voxel_size`.
+
+    Raises
+    ------
+    SynthpackInputError
+        If the file is missing, unreadable or of an unknown format, or the volume is
+        not a finite real 3D volume.
+    """
+    array, meta, source = _load(tomogram, "tomogram")
+    size, size_unit, origin = _resolve_voxel_size(voxel_size, unit, meta, (None, None))
+    try:
+        array = validate_tomogram(array)
+    except SynthpackInputError as exc:
+        raise SynthpackInputError(f"{exc} [tomogram: {source}]") from exc
+    if origin == "default":
+        _warn_no_voxel_size(source)
+    return array, size, size_unit
+
+
+def _warn_no_voxel_size(source: str) -> None:
+    logger.warning(
+        "no voxel size was given and the input records none: using 1.0 px (voxel "
+        "units). Pass --voxel-size (one value, or dz dy dx) and --unit on the "
+        "command line, or voxel_size=... and unit=... to read_scan, to work in "
+        "physical units [tomogram: %s]", source,
+    )
 
 
 def read_volume(path: PathLike, name: str | None = None) -> Volume:

@@ -12,7 +12,7 @@ from .library import ParticleLibrary
 from .particles import equivalent_diameter
 from .scan import Scan
 
-__all__ = ["label_overlay", "save_library_preview"]
+__all__ = ["label_overlay", "save_label_preview", "save_library_preview"]
 
 
 #: The PNG text entry that marks a picture as synthpack's own (replaced on a rerun).
@@ -200,6 +200,51 @@ def save_pack_preview(
     ax.set_ylabel("density")
     ax.legend()
     ax.set_title("grain-size distribution")
+    try:
+        return _save_png(fig, path, 80, overwrite)
+    finally:
+        plt.close(fig)
+
+
+def save_label_preview(
+    tomogram: np.ndarray, labels: np.ndarray, path: str | os.PathLike, *, overwrite: bool = False
+) -> Path:
+    """Write a PNG to check starting labels (`synthpack.labelling`) by eye.
+
+    The middle z, y and x slices of the tomogram, grey, with the outline of every
+    label drawn in colour (`skimage.segmentation.mark_boundaries`), above the same
+    slices with the labels filled in.
+
+    Parameters
+    ----------
+    tomogram : ndarray, shape (Z, Y, X)
+        Intensities.
+    labels : ndarray of int, shape (Z, Y, X)
+        Instance labels, 0 = background.
+    path : path-like
+        Output PNG.
+    overwrite : bool
+        Replace an existing file at `path` that is not a synthpack preview.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from skimage.segmentation import mark_boundaries
+
+    fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")
+    middle = np.asarray(labels.shape) // 2
+    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :]), ("x", np.s_[:, :, middle[2]])]
+    lo, hi = np.percentile(tomogram, [1, 99])
+    for column, (axis, index) in enumerate(views):
+        grey = np.clip((np.asarray(tomogram[index], dtype=np.float64) - lo) / max(hi - lo, 1e-12), 0, 1)
+        axes[0, column].imshow(mark_boundaries(grey, np.asarray(labels[index]), color=(1, 0.3, 0.1)), origin="lower")
+        axes[0, column].set_title(f"middle {axis} slice + label outlines")
+        axes[1, column].imshow(label_overlay(np.asarray(tomogram[index]), np.asarray(labels[index])), origin="lower")
+        axes[1, column].set_title(f"middle {axis} slice + labels")
+    for ax in axes.ravel():
+        ax.set_axis_off()
+    fig.suptitle(f"{int(labels.max())} grains: a starting point to check and correct, not ground truth")
     try:
         return _save_png(fig, path, 80, overwrite)
     finally:
