@@ -107,8 +107,7 @@ def save_library_preview(
     fig = plt.figure(figsize=(13, 7.5), layout="constrained")
     grid = fig.add_gridspec(2, n_meshes, height_ratios=(1.4, 1))
     span = n_meshes // 3
-    middle = np.asarray(scan.shape) // 2
-    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :])]
+    views = _middle_slices(scan.shape)[:2]
     for column, (axis, index) in enumerate(views):
         ax = fig.add_subplot(grid[0, column * span : (column + 1) * span])
         ax.imshow(label_overlay(scan.tomogram[index], scan.labels[index]), origin="lower")
@@ -179,8 +178,7 @@ def save_pack_preview(
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")
-    middle = np.asarray(labels.shape) // 2
-    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :]), ("x", np.s_[:, :, middle[2]])]
+    views = _middle_slices(labels.shape)
     for ax, (axis, index) in zip(axes[0], views):
         ax.imshow(label_overlay(np.asarray(tomogram[index]), np.asarray(labels[index])), origin="lower")
         ax.set_title(f"synthetic: middle {axis} slice + labels")
@@ -188,7 +186,7 @@ def save_pack_preview(
     lo, hi = np.percentile(clean, [0.5, 99.5])
     for ax, volume, title in ((axes[1, 0], clean, "before post-processing"),
                               (axes[1, 1], tomogram, "after post-processing")):
-        ax.imshow(volume[middle[0]], cmap="gray", vmin=lo, vmax=hi, origin="lower")
+        ax.imshow(volume[views[0][1]], cmap="gray", vmin=lo, vmax=hi, origin="lower")
         ax.set_title(f"middle z slice, {title}")
         ax.set_axis_off()
     ax = axes[1, 2]
@@ -204,6 +202,12 @@ def save_pack_preview(
         return _save_png(fig, path, 80, overwrite)
     finally:
         plt.close(fig)
+
+
+def _middle_slices(shape: tuple[int, ...]) -> list[tuple[str, tuple]]:
+    """The middle z, y and x slices of a volume of `shape`: ``(axis name, index)`` each."""
+    middle = np.asarray(shape) // 2
+    return [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :]), ("x", np.s_[:, :, middle[2]])]
 
 
 def save_label_preview(
@@ -233,8 +237,7 @@ def save_label_preview(
     from skimage.segmentation import mark_boundaries
 
     fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")
-    middle = np.asarray(labels.shape) // 2
-    views = [("z", np.s_[middle[0], :, :]), ("y", np.s_[:, middle[1], :]), ("x", np.s_[:, :, middle[2]])]
+    views = _middle_slices(labels.shape)
     lo, hi = np.percentile(tomogram, [1, 99])
     for column, (axis, index) in enumerate(views):
         grey = np.clip((np.asarray(tomogram[index], dtype=np.float64) - lo) / max(hi - lo, 1e-12), 0, 1)
