@@ -1,4 +1,5 @@
-"""Measurements the benchmarks share: load average, and the peak RSS and CPU time of a process tree.
+"""Measurements the benchmarks share: load average, the peak RSS and CPU time of a process tree, and a
+measured ``synthpack generate --format zarr`` run.
 
 Imported by the scripts in this folder (``python bench/bench_x.py`` puts the folder on
 ``sys.path``); not part of the package.
@@ -6,12 +7,18 @@ Imported by the scripts in this folder (``python bench/bench_x.py`` puts the fol
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import psutil
+import yaml
 
-__all__ = ["TreeRss", "load_average"]
+__all__ = ["TreeRss", "generate_zarr_pack", "load_average"]
 
 
 def load_average() -> str:
@@ -69,3 +76,31 @@ class TreeRss:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
+
+
+def generate_zarr_pack(library_dir: Path, config: dict, out: Path) -> tuple[dict, float, TreeRss]:
+    """One pack by ``synthpack generate --format zarr`` in a subprocess, measured.
+
+    The config is written next to `out` (``out.with_suffix(".yaml")``).
+
+    Returns
+    -------
+    manifest : dict
+        The pack's manifest (``timings`` holds the stages' seconds).
+    wall : float
+        Seconds from the start of the subprocess to its end.
+    rss : TreeRss
+        Its process tree's peak RSS and CPU time.
+    """
+    config_path = out.with_suffix(".yaml")
+    config_path.write_text(yaml.safe_dump(config))
+    exe = Path(sys.executable).with_name("synthpack")
+    start = time.perf_counter()
+    child = subprocess.Popen([str(exe), "-q", "generate", "--library", str(library_dir), "--config",
+                              str(config_path), "--out", str(out), "--format", "zarr"])
+    with TreeRss(child.pid) as rss:
+        code = child.wait()
+    wall = time.perf_counter() - start
+    if code:
+        raise RuntimeError(f"synthpack generate into {out} failed (exit {code})")
+    return json.loads((out / "pack_0000" / "manifest.json").read_text()), wall, rss

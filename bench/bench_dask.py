@@ -29,19 +29,15 @@ from __future__ import annotations
 
 import argparse
 import filecmp
-import json
 import math
 import os
 import platform
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import psutil
-import yaml
 
 from synthpack.config import PackConfig
 from synthpack.generate import generate_packs
@@ -49,7 +45,7 @@ from synthpack.library import ParticleLibrary
 from synthpack.pack import PACK_VOLUMES
 from synthpack.samples import sample_scan
 
-from _measure import TreeRss, load_average
+from _measure import TreeRss, generate_zarr_pack, load_average
 
 SPEEDUP_CONFIG = PackConfig().replace(pour={"n_particles": 60, "batch_size": 30})
 GRAIN_SCALE = 4.0
@@ -101,7 +97,6 @@ def size_config(library: ParticleLibrary, size: int) -> dict:
 
 
 def memory(library_dir: Path, library: ParticleLibrary, workdir: Path, sizes: list[int]) -> list[str]:
-    exe = Path(sys.executable).with_name("synthpack")
     lines = ["## 2. Peak memory and time against volume size (Zarr, chunk by chunk)", "",
              f"One pack per size, `synthpack generate --library ... --config ... --format zarr` in a subprocess; "
              f"RSS summed over the process tree, sampled every 0.1 s. Grains scaled by {GRAIN_SCALE:g} (the same "
@@ -114,19 +109,9 @@ def memory(library_dir: Path, library: ParticleLibrary, workdir: Path, sizes: li
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     first = None
     for size in sizes:
-        config_path = workdir / f"size_{size}.yaml"
-        config_path.write_text(yaml.safe_dump(size_config(library, size)))
         out = workdir / f"size_{size}"
         shutil.rmtree(out, ignore_errors=True)
-        start = time.perf_counter()
-        child = subprocess.Popen([str(exe), "-q", "generate", "--library", str(library_dir), "--config",
-                                  str(config_path), "--out", str(out), "--format", "zarr"])
-        with TreeRss(child.pid) as rss:
-            code = child.wait()
-        wall = time.perf_counter() - start
-        if code:
-            raise RuntimeError(f"synthpack generate failed for size {size} (exit {code})")
-        manifest = json.loads((out / "pack_0000" / "manifest.json").read_text())
+        manifest, wall, rss = generate_zarr_pack(library_dir, size_config(library, size), out)
         shape = manifest["shape"]
         voxels = math.prod(shape) / 1e6
         t = manifest["timings"]

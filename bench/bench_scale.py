@@ -31,18 +31,14 @@ copy floor, pour s/grain at 10,000 grains <= 1.3x that at 1,000.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 import zarr
 
 from synthpack.config import PackConfig
@@ -51,7 +47,7 @@ from synthpack.pack import PACK_VOLUMES
 from synthpack.physics import Tube, pour
 from synthpack.samples import sample_scan
 
-from _measure import TreeRss, load_average
+from _measure import generate_zarr_pack, load_average
 
 WALL_VOXELS = 3 + 2  # Tube.for_library's wall and clearance, voxels: the tube's outer width is about --width
 SLAB_SLICES = 64  # slices per timed slab of the floor
@@ -60,23 +56,6 @@ SLAB_SLICES = 64  # slices per timed slab of the floor
 def tube_radius(library: ParticleLibrary, width: int) -> float:
     """Inner radius (physical units) of a tube whose outer width is about `width` voxels."""
     return (width / 2 - WALL_VOXELS) * float(library.voxel_size[1])
-
-
-def run_generate(library_dir: Path, config: dict, out: Path) -> tuple[dict, float, TreeRss]:
-    """``synthpack generate --format zarr`` in a subprocess: (manifest, wall seconds, RSS sampler)."""
-    config_path = out.with_suffix(".yaml")
-    config_path.write_text(yaml.safe_dump(config))
-    exe = Path(sys.executable).with_name("synthpack")
-    start = time.perf_counter()
-    child = subprocess.Popen([str(exe), "-q", "generate", "--library", str(library_dir), "--config",
-                              str(config_path), "--out", str(out), "--format", "zarr"])
-    with TreeRss(child.pid) as rss:
-        code = child.wait()
-    wall = time.perf_counter() - start
-    if code:
-        raise SystemExit(f"synthpack generate failed (exit {code})")
-    manifest = json.loads((out / "pack_0000" / "manifest.json").read_text())
-    return manifest, wall, rss
 
 
 def _best_of(repeats: int, action) -> float:
@@ -151,7 +130,7 @@ def main() -> None:
     out = workdir / f"pack_{grains}"
     if out.exists():
         raise SystemExit(f"{out} exists: remove it or give another --workdir")
-    manifest, wall, rss = run_generate(library_dir, config, out)
+    manifest, wall, rss = generate_zarr_pack(library_dir, config, out)
     shape = manifest["shape"]
     voxels = math.prod(shape)
     t = manifest["timings"]
