@@ -37,7 +37,6 @@ import numpy as np
 from scipy import stats
 
 from .._atomic import Output, atomic_directory
-from ..errors import SynthpackInputError
 from ..intensity import intensity_window
 from ..pack import find_packs
 from ..scan import Scan
