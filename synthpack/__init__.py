@@ -30,6 +30,7 @@ _LAZY = {
     "Tube": "synthpack.physics",
     "SyntheticParticlePackDataset": "synthpack.dataset",
     "ScanSliceDataset": "synthpack.dataset",
+    "PatchDataset": "synthpack.dataset",
 }
 
 __all__ = ["Scan", "SynthpackInputError", "__version__", *sorted(_LAZY)]

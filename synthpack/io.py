@@ -3,8 +3,9 @@
 Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
 ``(dz, dy, dx)`` and its length unit when the file records them; `read_scan`
 turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
-`memmap_volume` memory-maps a volume file and `read_slice` reads one slice of
-a memory map, a Zarr array or an array, so a slice is read without the volume.
+`memmap_volume` memory-maps a volume file; `read_slice` reads one slice and
+`read_box` one box of a memory map, a Zarr array or an array, so a slice or a
+patch is read without the volume.
 `write_label_image` and `read_label_image` store 2D instance label images
 (PNG, TIFF, NPY), e.g. the truth and predictions of scored slices.
 Writers are atomic: the data go to a temporary sibling first and are renamed
@@ -65,7 +66,7 @@ import struct
 import sys
 import tempfile
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -89,6 +90,7 @@ __all__ = [
     "atomic_file",
     "create_zarr_volume",
     "memmap_volume",
+    "read_box",
     "read_label_image",
     "read_scan",
     "read_tomogram",
@@ -610,6 +612,32 @@ def read_slice(volume: ArrayLike, axis: int, index: int) -> np.ndarray:
         when `volume` is a NumPy array or memory map.
     """
     return np.asarray(volume[(slice(None),) * axis + (index,)])
+
+
+def read_box(volume: ArrayLike, origin: Sequence[int], size: Sequence[int]) -> np.ndarray:
+    """One box of a 3D volume, read alone.
+
+    Parameters
+    ----------
+    volume : array-like, shape (Z, Y, X)
+        A NumPy array, a memory map (`memmap_volume`) or a Zarr array: only the
+        box is read (from a memory map, only the pages it crosses; from a Zarr
+        array, only the chunks it crosses).
+    origin : sequence of 3 int
+        First voxel ``(z, y, x)`` of the box, inside the volume.
+    size : sequence of 3 int
+        Extent ``(d, h, w)`` of the box in voxels; the box must lie inside the volume.
+
+    Returns
+    -------
+    ndarray, dtype of `volume`, shape `size`
+        A view when `volume` is a NumPy array or memory map.
+    """
+    box = tuple(slice(int(start), int(start) + int(extent)) for start, extent in zip(origin, size))
+    out = np.asarray(volume[box])
+    if out.shape != tuple(int(n) for n in size):
+        raise ValueError(f"box at {tuple(origin)} of size {tuple(size)} is not inside a volume of shape {volume.shape}")
+    return out
 
 
 # --------------------------------------------------------------------------- #

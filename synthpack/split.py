@@ -20,7 +20,15 @@ import numpy as np
 
 from .errors import SynthpackInputError
 
-__all__ = ["SPLITS", "TEST_FRACTION", "VAL_FRACTION", "central_block", "slice_splits", "split_slices"]
+__all__ = [
+    "SPLITS",
+    "TEST_FRACTION",
+    "VAL_FRACTION",
+    "central_block",
+    "check_val_fraction",
+    "slice_splits",
+    "split_slices",
+]
 
 #: The parts of a volume's slices, in this order.
 SPLITS = ("train", "val", "test")
@@ -54,6 +62,14 @@ def central_block(n_slices: int, fraction: float = TEST_FRACTION) -> tuple[int, 
     return start, start + n_test
 
 
+def check_val_fraction(val_fraction: float) -> float:
+    """`val_fraction` as a float; raise unless it is in ``[0, 1 - TEST_FRACTION)``."""
+    if isinstance(val_fraction, bool) or not isinstance(val_fraction, (int, float, np.integer, np.floating)) \
+            or not 0 <= val_fraction < 1 - TEST_FRACTION:
+        raise SynthpackInputError(f"val_fraction must be in [0, {1 - TEST_FRACTION:g}), got {val_fraction!r}")
+    return float(val_fraction)
+
+
 def slice_splits(n_slices: int, val_fraction: float = VAL_FRACTION) -> dict[str, np.ndarray]:
     """Slice indices of train, val and test for a volume of `n_slices` slices.
 
@@ -71,8 +87,7 @@ def slice_splits(n_slices: int, val_fraction: float = VAL_FRACTION) -> dict[str,
         ``{"train", "val", "test"}`` -> sorted int64 indices; they partition
         ``range(n_slices)``.
     """
-    if not 0 <= val_fraction < 1 - TEST_FRACTION:
-        raise SynthpackInputError(f"val_fraction must be in [0, {1 - TEST_FRACTION:g}), got {val_fraction}")
+    val_fraction = check_val_fraction(val_fraction)
     start, stop = central_block(n_slices)
     wide_start, wide_stop = central_block(n_slices, TEST_FRACTION + val_fraction) if val_fraction else (start, stop)
     every = np.arange(n_slices, dtype=np.int64)

@@ -1,4 +1,4 @@
-"""PyTorch datasets of 2D slices of synthetic packs and of real scans (paper section 4.1).
+"""PyTorch datasets of 2D slices and 3D patches of synthetic packs and of real scans (paper section 4.1).
 
 `SyntheticParticlePackDataset` builds synthetic packs from a source (a built-in
 sample scan, a labelled scan on disk or a particle library), caches them under a
@@ -51,11 +51,17 @@ so fewer, smaller tensors cross faster: ``dense_masks=False`` items with
 `collate_stacked` cross as five tensors per batch. Use `collate_fn` for
 detection-style batches (the number of instances varies per slice).
 
+3D patches: `PatchDataset` serves random or grid (D, H, W) patches of the
+volumes of either dataset (or of a scan), with the same split along `axis` (every
+patch inside one block of its split) and seeded artefact transforms, as
+MONAI / TorchIO dict items; `synthpack.dataset.patches` documents its format.
+
 Modules
 -------
 ``base``        `SliceDataset`: split, index, epoch, item assembly, ``repr``
 ``synthetic``   `SyntheticParticlePackDataset`
 ``real``        `ScanSliceDataset`
+``patches``     `PatchDataset`: 3D patches of either's volumes
 ``source``      what packs are made from: sample, scan files or library
 ``cache``       the pack cache: content-hash key, check and build (the "download")
 ``targets``     image tensor and detection target of one slice; `expand_masks`
@@ -64,6 +70,7 @@ Modules
 """
 
 from .collate import collate_fn, collate_stacked
+from .patches import PAD_LABEL, PatchDataset
 from .real import ScanSliceDataset
 from .source import SAMPLE_SEED
 from .synthetic import SyntheticParticlePackDataset
@@ -72,6 +79,8 @@ from .targets import Item, expand_masks, instance_target
 __all__ = [
     "SyntheticParticlePackDataset",
     "ScanSliceDataset",
+    "PatchDataset",
+    "PAD_LABEL",
     "instance_target",
     "expand_masks",
     "collate_fn",

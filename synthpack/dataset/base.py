@@ -1,4 +1,9 @@
-"""The base class of the slice datasets: split, index, epoch, item assembly and ``repr``."""
+"""The base class of the slice datasets: split, index, epoch, item assembly and ``repr``.
+
+`EpochSeeded` (the epoch in shared memory) is shared with the patch dataset
+(`synthpack.dataset.patches`), which also reads its volumes through a slice
+dataset's `volume_shapes` and `open_volumes`.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ from ..split import split_slices
 from .targets import Item, image_tensor, instance_target
 from .transforms import SliceTransforms
 
-__all__ = ["SliceDataset", "check_seed"]
+__all__ = ["EpochSeeded", "SliceDataset", "check_axis", "check_seed"]
 
 #: What a slice dataset serves: the paper's training or test slices (`synthpack.split`,
 #: without a validation part), or every slice.
@@ -32,13 +37,37 @@ def check_seed(seed: Any, what: str) -> int:
     return int(seed)
 
 
-def _check_axis(axis: Any) -> int:
+def check_axis(axis: Any) -> int:
+    """`axis` as an int; raise unless it is 0, 1 or 2."""
     if isinstance(axis, bool) or axis not in _AXES:
         raise SynthpackInputError(f"axis must be 0, 1 or 2 (the slicing axis of the (Z, Y, X) volume), got {axis!r}")
     return int(axis)
 
 
-class SliceDataset(Dataset, ABC):
+class EpochSeeded:
+    """The epoch that seeds a dataset's per-item random draws, shared with its DataLoader workers.
+
+    Subclasses call `_init_epoch` in ``__init__``.
+    """
+
+    def _init_epoch(self) -> None:
+        # in shared memory, so set_epoch reaches DataLoader workers that already run
+        self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()
+
+    @property
+    def epoch(self) -> int:
+        """The epoch that seeds the random transforms (0 until `set_epoch`)."""
+        return int(self._epoch)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Set the epoch of the per-item seeds: call it before iterating a DataLoader.
+
+        The value lives in shared memory, so persistent DataLoader workers see it.
+        """
+        self._epoch.fill_(check_seed(epoch, "epoch"))
+
+
+class SliceDataset(Dataset, EpochSeeded, ABC):
     """Slices of a list of labelled volumes along one axis, split as in the paper.
 
     Subclasses call `_index` with the volume shapes once they are known and
@@ -50,29 +79,16 @@ class SliceDataset(Dataset, ABC):
         if split not in _SPLIT_CHOICES:
             raise SynthpackInputError(f"split must be 'train', 'test' or 'all', got {split!r}")
         self.split = split
-        self.axis = _check_axis(axis)
+        self.axis = check_axis(axis)
         self.seed = check_seed(seed, "seed")
         self.transform = transform
         self.dense_masks = bool(dense_masks)
         self._transforms = SliceTransforms(transform)
-        # in shared memory, so set_epoch reaches DataLoader workers that already run
-        self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()
+        self._init_epoch()
         self._volume_index: np.ndarray | None = None
         self._slice_index: np.ndarray | None = None
         self._n_slices: list[int] = []
-
-    # -- epoch ---------------------------------------------------------------------
-    @property
-    def epoch(self) -> int:
-        """The epoch that seeds the artefact transforms (0 until `set_epoch`)."""
-        return int(self._epoch)
-
-    def set_epoch(self, epoch: int) -> None:
-        """Set the epoch of the artefact transforms' seeds: call it before iterating a DataLoader.
-
-        The value lives in shared memory, so persistent DataLoader workers see it.
-        """
-        self._epoch.fill_(check_seed(epoch, "epoch"))
+        self._shapes: list[tuple[int, ...]] = []
 
     # -- indexing ------------------------------------------------------------------
     def _index(self, shapes: Sequence[tuple[int, ...]]) -> None:
@@ -82,7 +98,8 @@ class SliceDataset(Dataset, ABC):
             chosen = split_slices(shape[self.axis], self.split)
             volumes.append(np.full(chosen.size, k, dtype=np.int64))
             slices.append(chosen)
-        self._n_slices = [shape[self.axis] for shape in shapes]
+        self._shapes = [tuple(int(n) for n in shape) for shape in shapes]
+        self._n_slices = [shape[self.axis] for shape in self._shapes]
         self._volume_index = np.concatenate(volumes)
         self._slice_index = np.concatenate(slices)
 
@@ -93,6 +110,19 @@ class SliceDataset(Dataset, ABC):
     @abstractmethod
     def _volumes(self, k: int) -> tuple[Any, Any]:
         """``(image volume, label volume)`` of volume `k`, opened in the calling process."""
+
+    def volume_shapes(self) -> list[tuple[int, ...]]:
+        """Shapes (Z, Y, X) of the dataset's volumes, in order (built or checked if needed)."""
+        self._ready()
+        return list(self._shapes)
+
+    def open_volumes(self, k: int) -> tuple[Any, Any]:
+        """``(image volume, label volume)`` of volume `k`: memory maps, Zarr arrays or shared arrays.
+
+        Opened once per process and kept; slicing them reads only the voxels asked for.
+        """
+        self._ready()
+        return self._volumes(k)
 
     def slices(self, k: int = 0) -> np.ndarray:
         """Slice indices (int64, sorted) of volume `k` in this dataset."""
@@ -133,6 +163,10 @@ class SliceDataset(Dataset, ABC):
         return self._opened
 
     # -- repr ------------------------------------------------------------------------
+    @abstractmethod
+    def describe_source(self) -> str:
+        """One line naming where the volumes come from (for ``repr`` and patch items)."""
+
     @abstractmethod
     def _repr_lines(self) -> list[str]:
         """The dataset-specific lines of ``repr``."""

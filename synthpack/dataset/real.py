@@ -145,5 +145,8 @@ class ScanSliceDataset(SliceDataset):
             opened[k] = tuple(volume.open() for volume in self._scan_volumes)
         return opened[k]
 
+    def describe_source(self) -> str:
+        return self.description
+
     def _repr_lines(self) -> list[str]:
         return [f"Scan: {self.description}", f"Shape: {self.shape}"]

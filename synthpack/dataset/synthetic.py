@@ -165,6 +165,9 @@ class SyntheticParticlePackDataset(SliceDataset):
         pack: Pack = opened[k]
         return (pack.tomogram if self.postprocess else pack.clean), pack.labels
 
+    def describe_source(self) -> str:
+        return f"packs of {self.source.describe()}"
+
     def _repr_lines(self) -> list[str]:
         lines = [f"Root location: {self.root}", f"Source: {self.source.describe()}", f"Packs: {self.n_packs}"]
         if self._pack_paths is None:

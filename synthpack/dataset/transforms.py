@@ -1,4 +1,4 @@
-"""A dataset's ``transform``: artefact transforms on the NumPy slice, then ``(image, target)`` callables."""
+"""A dataset's ``transform``: artefact transforms on the NumPy slice or patch, then the item's callables."""
 
 from __future__ import annotations
 
@@ -16,24 +16,28 @@ __all__ = ["SliceTransforms"]
 
 
 class SliceTransforms:
-    """The ``transform`` argument of a slice dataset, split by what each part acts on.
+    """The ``transform`` argument of a slice (or patch) dataset, split by what each part acts on.
 
     Parameters
     ----------
     transform : callable, artefact transform or list of them, optional
         `synthpack.artefacts` transforms (listed first) act on the float32
-        NumPy slice; any other callable is called as
-        ``image, target = transform(image, target)`` on the item, in order.
+        NumPy slice (or 3D patch); any other callable is called on the item,
+        in order, as `form` says.
+    form : str
+        How the dataset calls the other callables, for error messages: the
+        slice datasets' ``image, target = transform(image, target)`` or the
+        patch dataset's ``item = transform(item)``.
 
     Attributes
     ----------
     artefacts : list
         The artefact transforms, in order.
     callables : list
-        The ``(image, target)`` callables, in order.
+        The other callables, in order.
     """
 
-    def __init__(self, transform: Any) -> None:
+    def __init__(self, transform: Any, form: str = "image, target = transform(image, target)") -> None:
         self.artefacts: list = []
         self.callables: list = []
         if transform is None:
@@ -46,9 +50,9 @@ class SliceTransforms:
             if isinstance(entry, (ArtefactTransform, ArtefactCompose)):
                 if self.callables:
                     raise SynthpackInputError(
-                        f"artefact transform {entry!r} comes after an (image, target) transform: artefacts "
-                        "act on the raw slice, so list them first, e.g. transform=[GaussianNoise(std=0.05), "
-                        "v2.RandomHorizontalFlip()]"
+                        f"artefact transform {entry!r} comes after a transform called as {form}: artefacts "
+                        "act on the raw slice or patch, so list them first, e.g. "
+                        "transform=[GaussianNoise(std=0.05), <the other transforms>]"
                     )
                 self.artefacts.append(entry)
             elif callable(entry):
@@ -56,14 +60,15 @@ class SliceTransforms:
             else:
                 raise SynthpackInputError(
                     f"transform {entry!r} is neither a synthpack.artefacts transform nor a callable "
-                    "image, target = transform(image, target): pass one of those, or a list of them"
+                    f"{form}: pass one of those, or a list of them"
                 )
 
     def apply_artefacts(self, image: np.ndarray, seed: Sequence[int]) -> np.ndarray:
-        """The artefact transforms applied in order to the (H, W) slice `image`.
+        """The artefact transforms applied in order to the (H, W) slice or (D, H, W) patch `image`.
 
         Their random draws come from one generator seeded by `seed` (the item's
-        ``(seed, epoch, volume, axis, slice)``), so an item is the same in any process.
+        ``(seed, epoch, volume, axis, slice)`` for a slice), so an item is the
+        same in any process.
         """
         if not self.artefacts:
             return image
