@@ -34,7 +34,8 @@ from skimage.measure import find_contours
 
 from synthpack.config import PackConfig
 from synthpack.export import export_yolo
-from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, to_uint8, yolo_label_text
+from synthpack.export.slices import to_uint8
+from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, yolo_label_text
 from synthpack.generate import generate_packs
 from synthpack.io import write_tiff
 from synthpack.library import ParticleLibrary

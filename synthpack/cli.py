@@ -48,6 +48,7 @@ _OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
     "pour": (("out", "synthpack.physics.placements:PLACEMENTS_OUTPUT"),),
     "demo": (("out", "synthpack.cli:DEMO_OUTPUT"),),
     "export-yolo": (("out", "synthpack.export.yolo:YOLO_OUTPUT"),),
+    "export-coco": (("out", "synthpack.export.coco:COCO_OUTPUT"),),
     "evaluate": (("out", "synthpack.metrics:EVALUATION_OUTPUT"),),
     "label": (("out", "synthpack.cli:LABELS_OUTPUT"),),
 }
@@ -340,19 +341,33 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
 
 
+def _slice_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments every export takes from the options of `_add_export_arguments`."""
+    return {"packs": args.packs or (), "real": [tuple(pair) for pair in args.real or ()], "axis": args.axis,
+            "split": args.split, "val_fraction": args.val_fraction, "postprocess": args.postprocess,
+            "window": None if args.window is None else tuple(args.window), "min_area": args.min_area,
+            "overwrite": args.overwrite}
+
+
+def _print_export(summary: Any, what: str, path: Path) -> None:
+    lo, hi = summary.window
+    print(summary.table())
+    print(f"\n{what} {path}: {len(summary.sources)} source(s), "
+          f"intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from})")
+
+
 def _cmd_export_yolo(args: argparse.Namespace) -> None:
     from .export import export_yolo
 
-    summary = export_yolo(
-        args.out, packs=args.packs or (), real=[tuple(pair) for pair in args.real or ()], axis=args.axis,
-        split=args.split, val_fraction=args.val_fraction, postprocess=args.postprocess,
-        window=None if args.window is None else tuple(args.window), min_area=args.min_area,
-        tolerance=args.tolerance, truth_splits=args.truth_splits, overwrite=args.overwrite,
-    )
-    lo, hi = summary.window
-    print(summary.table())
-    print(f"\nYOLO dataset {args.out / 'data.yaml'}: {len(summary.sources)} source(s), "
-          f"intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from})")
+    summary = export_yolo(args.out, tolerance=args.tolerance, truth_splits=args.truth_splits, **_slice_options(args))
+    _print_export(summary, "YOLO dataset", args.out / "data.yaml")
+
+
+def _cmd_export_coco(args: argparse.Namespace) -> None:
+    from .export import export_coco
+
+    summary = export_coco(args.out, **_slice_options(args))
+    _print_export(summary, "COCO dataset", args.out / "annotations")
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> None:
@@ -506,32 +521,44 @@ def _add_pour_command(commands: Any) -> None:
 
 
 
-def _add_export_command(commands: Any) -> None:
-    export = commands.add_parser("export-yolo", help="write packs and real scans as a YOLO segmentation dataset")
+def _add_export_arguments(export: argparse.ArgumentParser, pieces: str) -> None:
+    """The options every export command shares (what is sliced, how, and where to); `pieces`: what --min-area counts."""
+    from .export.slices import MIN_AREA, SPLIT_MODES
+    from .split import VAL_FRACTION
+
     export.add_argument("--packs", type=Path, nargs="+", action="extend", metavar="DIR",
                         help="pack folders, or folders holding pack_NNNN folders")
     export.add_argument("--real", type=Path, nargs=2, action="append", metavar=("TOMOGRAM", "LABELS"),
                         help="a labelled real scan (repeat for several)")
     export.add_argument("--out", type=Path, required=True, help="dataset folder (new, empty or an earlier export)")
     export.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help="slicing axis (default 0)")
-    export.add_argument("--split", choices=("paper", "real-test"), default="paper",
+    export.add_argument("--split", choices=SPLIT_MODES, default=SPLIT_MODES[0],
                         help="paper: every volume gives train/val/test (central 20%% test); "
-                             "real-test: synthetic packs give training slices only (default paper)")
-    export.add_argument("--val-fraction", type=float, default=0.1,
-                        help="validation slices per volume, next to the test block (default 0.1)")
+                             f"real-test: synthetic packs give training slices only (default {SPLIT_MODES[0]})")
+    export.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
+                        help=f"validation slices per volume, next to the test block (default {VAL_FRACTION})")
     export.add_argument("--postprocess", action=argparse.BooleanOptionalAction, default=True,
                         help="synthetic images from the post-processed tomogram (default) or the clean volume")
     export.add_argument("--window", type=float, nargs=2, metavar=("LO", "HI"),
                         help="intensity window for 8 bits (default: 0.5/99.5 percentiles of the real scans, "
                              "else of the first pack's clean volume)")
-    export.add_argument("--min-area", type=int, default=10,
-                        help="parts below this many pixels get no label (default 10)")
+    export.add_argument("--min-area", type=int, default=MIN_AREA,
+                        help=f"{pieces} below this many pixels get no label (default {MIN_AREA})")
+    _add_overwrite_argument(export)
+
+
+def _add_export_command(commands: Any) -> None:
+    export = commands.add_parser("export-yolo", help="write packs and real scans as a YOLO segmentation dataset")
+    _add_export_arguments(export, "parts (4-connected pieces of an instance's section)")
     export.add_argument("--tolerance", type=float, default=0.0,
                         help="polygon simplification in pixels (default 0: exact outlines)")
     export.add_argument("--truth-splits", nargs="*", choices=("train", "val", "test"), default=["test"],
                         help="splits that also get truth/ instance images for `evaluate` (default test)")
-    _add_overwrite_argument(export)
     export.set_defaults(run=_cmd_export_yolo)
+    coco = commands.add_parser("export-coco", help="write packs and real scans as a COCO instance-segmentation "
+                                                   "dataset (RLE masks)")
+    _add_export_arguments(coco, "instances (all pieces of a label in a slice)")
+    coco.set_defaults(run=_cmd_export_coco)
 
 
 

@@ -1,4 +1,4 @@
-"""Shared fixtures: small labelled volumes and the built-in sample library."""
+"""Shared fixtures: small labelled volumes, the built-in sample library, and the dataset exports' inputs."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from synthpack.config import PackConfig
+from synthpack.generate import generate_packs
 from synthpack.library import ParticleLibrary
 from synthpack.samples import sample_scan
 from synthpack.scan import Scan
@@ -46,3 +48,29 @@ def phantom() -> tuple[np.ndarray, np.ndarray]:
     clean = ndimage.gaussian_filter(np.where(labels > 0, 0.8, 0.2), 1.0)
     clean = clean + 0.05 * np.sin(x / 9.0) + 0.03 * y / 64
     return clean.astype(np.float32), labels
+
+
+@pytest.fixture(scope="session")
+def export_pack_dir(large_library, tmp_path_factory):
+    """One 20-grain pack of the large sample library, for the dataset exports."""
+    config = PackConfig().replace(pour={"n_particles": 20, "batch_size": 10})
+    (path,) = generate_packs(large_library, tmp_path_factory.mktemp("packs"), 1, config, progress=False)
+    return path
+
+
+@pytest.fixture(scope="session")
+def shapes_scan() -> Scan:
+    """20 slices of 40x50 holding a U-shaped grain (two arms in slices 2-17), a ring and a C shape."""
+    labels = np.zeros((20, 40, 50), np.uint16)
+    labels[0:2, 5:25, 5:30] = 1  # the U's base: one part per slice
+    labels[2:18, 5:11, 5:30] = 1  # left arm
+    labels[2:18, 19:25, 5:30] = 1  # right arm: slices 2-17 cut the U into two parts
+    yy, xx = np.mgrid[:40, :50]
+    radius = np.hypot(yy - 30, xx - 40)
+    labels[:, (radius >= 3) & (radius <= 7)] = 2  # ring: a 29-pixel hole in every slice
+    c_shape = np.zeros((40, 50), bool)
+    c_shape[28:39, 5:20] = True
+    c_shape[31:36, 9:20] = False  # concave outline, one part
+    labels[4:16, c_shape] = 3
+    tomogram = np.where(labels > 0, 0.8, 0.2).astype(np.float32)
+    return Scan(tomogram, labels, voxel_size=(1.0, 1.0, 1.0), unit="px", source="shapes")

@@ -10,50 +10,24 @@ from PIL import Image
 from skimage import measure
 
 from synthpack.cli import main
-from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export import export_yolo
-from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, to_uint8, yolo_label_text
-from synthpack.generate import generate_packs
+from synthpack.export.slices import to_uint8
+from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, yolo_label_text
 from synthpack.io import write_tiff
 from synthpack.pack import open_pack
-from synthpack.scan import Scan
 from synthpack.split import slice_splits, split_slices
 
 SPLIT_NAMES = ("train", "val", "test")
-
-
-@pytest.fixture(scope="module")
-def pack_dir(large_library, tmp_path_factory):
-    config = PackConfig().replace(pour={"n_particles": 20, "batch_size": 10})
-    (path,) = generate_packs(large_library, tmp_path_factory.mktemp("packs"), 1, config, progress=False)
-    return path
-
-
-def shapes_scan() -> Scan:
-    """20 slices of 40x50 holding a U-shaped grain (two arms in slices 2-17), a ring and a C shape."""
-    labels = np.zeros((20, 40, 50), np.uint16)
-    labels[0:2, 5:25, 5:30] = 1  # the U's base: one part per slice
-    labels[2:18, 5:11, 5:30] = 1  # left arm
-    labels[2:18, 19:25, 5:30] = 1  # right arm: slices 2-17 cut the U into two parts
-    yy, xx = np.mgrid[:40, :50]
-    radius = np.hypot(yy - 30, xx - 40)
-    labels[:, (radius >= 3) & (radius <= 7)] = 2  # ring: a 29-pixel hole in every slice
-    c_shape = np.zeros((40, 50), bool)
-    c_shape[28:39, 5:20] = True
-    c_shape[31:36, 9:20] = False  # concave outline, one part
-    labels[4:16, c_shape] = 3
-    tomogram = np.where(labels > 0, 0.8, 0.2).astype(np.float32)
-    return Scan(tomogram, labels, voxel_size=(1.0, 1.0, 1.0), unit="px", source="shapes")
 
 
 RING_HOLE = int(np.count_nonzero(np.hypot(*np.mgrid[-3:4, -3:4]) < 3))
 
 
 @pytest.fixture(scope="module")
-def export(pack_dir, tmp_path_factory):
+def export(export_pack_dir, shapes_scan, tmp_path_factory):
     out = tmp_path_factory.mktemp("yolo") / "dataset"
-    summary = export_yolo(out, packs=[pack_dir], real=[shapes_scan()], truth_splits=SPLIT_NAMES, progress=False)
+    summary = export_yolo(out, packs=[export_pack_dir], real=[shapes_scan], truth_splits=SPLIT_NAMES, progress=False)
     return out, summary
 
 
@@ -77,9 +51,9 @@ def grain_dice_of_slice(text, grains, min_area=0):
             for g, m in union.items()}
 
 
-def test_round_trip_of_pack_slices_gives_back_the_grains(export, pack_dir):
+def test_round_trip_of_pack_slices_gives_back_the_grains(export, export_pack_dir):
     out, summary = export
-    pack = open_pack(pack_dir)
+    pack = open_pack(export_pack_dir)
     labels = np.asarray(pack.labels)
     scores = []
     for path in label_files(out):
@@ -100,9 +74,9 @@ def test_round_trip_of_pack_slices_gives_back_the_grains(export, pack_dir):
     assert sum(summary.instances.values()) == sum(len(p.read_text().splitlines()) for p in label_files(out))
 
 
-def test_concave_grain_cut_in_two_and_a_ring_round_trip(export):
+def test_concave_grain_cut_in_two_and_a_ring_round_trip(export, shapes_scan):
     out, summary = export
-    scan = shapes_scan()
+    scan = shapes_scan
     for index in range(20):
         split = next(s for s in SPLIT_NAMES if (out / "labels" / s / f"real_scan0_a0_s{index:04d}.txt").exists())
         text = (out / "labels" / split / f"real_scan0_a0_s{index:04d}.txt").read_text()
@@ -157,7 +131,7 @@ def test_polygons_of_fragments_holes_and_diagonal_pixels():
     assert 3 <= len(simplified) <= 4
 
 
-def test_split_is_the_papers_central_block_with_val_next_to_it(export, pack_dir):
+def test_split_is_the_papers_central_block_with_val_next_to_it(export, export_pack_dir):
     out, _ = export
     manifest = json.loads((out / "export.json").read_text())
     assert manifest["settings"]["split"] == "paper"
@@ -178,10 +152,10 @@ def test_split_is_the_papers_central_block_with_val_next_to_it(export, pack_dir)
     assert slice_splits(100, 0.1)["val"].tolist() == [35, 36, 37, 38, 39, 60, 61, 62, 63, 64]
 
 
-def test_images_use_one_window_and_the_chosen_volume(export, pack_dir, tmp_path):
+def test_images_use_one_window_and_the_chosen_volume(export, export_pack_dir, shapes_scan, tmp_path):
     out, summary = export
-    pack = open_pack(pack_dir)
-    scan = shapes_scan()
+    pack = open_pack(export_pack_dir)
+    scan = shapes_scan
     lo, hi = np.percentile(scan.tomogram, [0.5, 99.5])
     assert summary.window == pytest.approx((lo, hi))
     data = (out / "data.yaml").read_text()
@@ -190,7 +164,7 @@ def test_images_use_one_window_and_the_chosen_volume(export, pack_dir, tmp_path)
     name = f"syn_pack_0000_a0_s{index:04d}.png"
     image = np.array(Image.open(out / "images" / "test" / name))
     assert image.dtype == np.uint8 and np.array_equal(image, to_uint8(pack.tomogram[index], summary.window))
-    clean = export_yolo(tmp_path / "clean", packs=[pack_dir.parent], postprocess=False, split="paper",
+    clean = export_yolo(tmp_path / "clean", packs=[export_pack_dir.parent], postprocess=False, split="paper",
                         truth_splits=(), progress=False)
     assert clean.window == pytest.approx(tuple(np.percentile(pack.clean[:], [0.5, 99.5])), rel=1e-3)
     image = np.array(Image.open(tmp_path / "clean" / "images" / "test" / name))
@@ -232,19 +206,19 @@ def test_ultralytics_reads_the_dataset_without_corrupt_or_missing_labels(export,
     assert np.mean(np.array(scores) == 1.0) > 0.95 and np.mean(scores) > 0.99
 
 
-def test_export_command_with_real_files_and_real_test_split(pack_dir, tmp_path, capsys):
-    scan = shapes_scan()
+def test_export_command_with_real_files_and_real_test_split(export_pack_dir, shapes_scan, tmp_path, capsys):
+    scan = shapes_scan
     write_tiff(tmp_path / "shapes.tif", scan.tomogram, scan.voxel_size, scan.unit)
     write_tiff(tmp_path / "shapes_labels.tif", scan.labels, scan.voxel_size, scan.unit, labels=True)
     out = tmp_path / "ds"
-    argv = ["-q", "export-yolo", "--packs", str(pack_dir.parent), "--real", str(tmp_path / "shapes.tif"),
+    argv = ["-q", "export-yolo", "--packs", str(export_pack_dir.parent), "--real", str(tmp_path / "shapes.tif"),
             str(tmp_path / "shapes_labels.tif"), "--out", str(out), "--split", "real-test", "--no-postprocess",
             "--window", "0", "1", "--truth-splits", "test", "val"]
     assert main(argv) == 0
     assert "| test |" in capsys.readouterr().out
     names = {s: sorted(p.stem for p in (out / "images" / s).iterdir()) for s in SPLIT_NAMES}
     synthetic = [n for n in names["train"] if n.startswith("syn_pack_0000_a0_")]
-    assert len(synthetic) == open_pack(pack_dir).shape[0]  # every synthetic slice in train
+    assert len(synthetic) == open_pack(export_pack_dir).shape[0]  # every synthetic slice in train
     assert all(n.startswith("real_shapes_a0_") for n in names["val"] + names["test"])
     assert len(names["test"]) == 4 and len(list((out / "truth" / "val").iterdir())) == len(names["val"])
     manifest = json.loads((out / "export.json").read_text())
@@ -253,16 +227,16 @@ def test_export_command_with_real_files_and_real_test_split(pack_dir, tmp_path, 
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".ds")]  # no temporary folders left
 
 
-def test_export_input_errors(pack_dir, tmp_path):
+def test_export_input_errors(export_pack_dir, tmp_path):
     (tmp_path / "precious").mkdir()
     (tmp_path / "precious" / "notes.txt").write_text("keep me")
     with pytest.raises(SynthpackInputError, match="not a YOLO dataset written by synthpack"):
-        export_yolo(tmp_path / "precious", packs=[pack_dir], progress=False)
+        export_yolo(tmp_path / "precious", packs=[export_pack_dir], progress=False)
     assert (tmp_path / "precious" / "notes.txt").read_text() == "keep me"
     with pytest.raises(SynthpackInputError, match="neither a pack nor a folder of packs"):
         export_yolo(tmp_path / "x", packs=[tmp_path / "precious"], progress=False)
     with pytest.raises(SynthpackInputError, match="no slices for the val and test"):
-        export_yolo(tmp_path / "x", packs=[pack_dir], split="real-test", progress=False)
+        export_yolo(tmp_path / "x", packs=[export_pack_dir], split="real-test", progress=False)
     with pytest.raises(SynthpackInputError, match="nothing to export"):
         export_yolo(tmp_path / "x", progress=False)
     assert main(["-q", "export-yolo", "--packs", str(tmp_path / "missing"), "--out", str(tmp_path / "x")]) == 2

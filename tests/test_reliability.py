@@ -154,6 +154,7 @@ def test_outputs_in_a_folder_the_user_cannot_write(tmp_path, library):
     ("demo", "--out", "notes.txt/x"),
     ("compare", "--sample", "large", "--packs", "missing", "--out", "notes.txt"),
     ("export-yolo", "--packs", "missing", "--out", "notes.txt"),
+    ("export-coco", "--packs", "missing", "--out", "notes.txt"),
 ])
 def test_outputs_where_a_file_is_in_the_way(user_folder, args):
     result = run(*args, cwd=user_folder)

@@ -8,20 +8,15 @@ Layout of the output folder ``OUT``::
     labels/{train,val,test}/   one .txt per image: ``0 x1 y1 x2 y2 ...`` per polygon
     truth/test/                16-bit PNG instance images of the test slices, for `synthpack evaluate`
 
-File names are ``<source>_a<axis>_s<slice:04d>`` where ``<source>`` is
-``syn_<pack folder name>`` for a synthetic pack and ``real_<tomogram file
-stem>`` for a real scan (``-2``, ``-3``... appended if two sources share a name).
+File names, splits and images are those of every export (`synthpack.export.slices`:
+the sources, the split of their slices and the intensity window are planned there), so
+a YOLO and a COCO export of the same inputs hold the same images in the same splits.
 
 Format decisions
 ----------------
 Intensity window
-    Slices are mapped to 8 bits by ``round(255 * clip((v - lo) / (hi - lo), 0, 1))``
-    with ONE window for every source, so that real and synthetic slices of one
-    material look alike: by default the 0.5 and 99.5 percentiles of the real
-    scans' tomograms (pooled), or, without real scans, of the first pack's
-    clean (not post-processed) volume, so that exports with and without
-    post-processing share the window. It is recorded in ``data.yaml`` and
-    ``export.json``; pass `window` to fix it.
+    One window for every source (see `synthpack.export.slices`), recorded in
+    ``data.yaml`` and ``export.json``.
 Polygons
     Each instance's section in a slice is split into its 4-connected parts
     (a grain that the slice cuts into several pieces gives several parts), and
@@ -55,13 +50,6 @@ Holes
 Fragments
     Parts smaller than `min_area` pixels get no label line and are counted
     (``dropped_fragments``).
-Splits
-    Along the slicing axis, each volume's slices are split into train, val
-    and test by `synthpack.split.slice_splits`: the paper's central 20% is the
-    test set and the val slices are the training slices nearest it on both
-    sides. With ``split="real-test"`` synthetic packs give training slices
-    only (all of them), so val and test hold real slices only (the paper's
-    experiment: train on real + synthetic, test on real).
 Truth images
     For the splits in `truth_splits` (default test) ``truth/<split>/<name>.png``
     holds the slice's exact instances with the ids of the label lines (line
@@ -78,60 +66,40 @@ from __future__ import annotations
 import json
 import logging
 import os
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
-from PIL import Image
 from scipy import ndimage
 from skimage.draw import polygon as draw_polygon
 from skimage.measure import approximate_polygon, find_contours
 from skimage.measure import label as connected_parts
-from tqdm.auto import tqdm
 
 from .. import __version__
 from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
-from ..intensity import intensity_window
-from ..io import read_scan, read_slice, write_label_image
-from ..pack import Pack, find_packs, open_pack
+from ..io import write_label_image
 from ..scan import Scan
-from ..split import SPLITS, VAL_FRACTION, slice_splits
+from ..split import SPLITS, VAL_FRACTION
+from .slices import MIN_AREA, ExportSlice, ExportSummaryBase, check_slicing, plan_slices, split_counts
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "SPLIT_MODES",
     "ExportSummary",
     "SlicePolygons",
-    "to_uint8",
     "slice_polygons",
     "yolo_label_text",
     "rasterize_yolo_labels",
     "export_yolo",
 ]
 
-#: ``"paper"``: every volume split train/val/test; ``"real-test"``: synthetic packs train only.
-SPLIT_MODES = ("paper", "real-test")
 CLASS_NAMES = {0: "particle"}
 _EIGHT = np.ones((3, 3), dtype=bool)
 # Polygons run this far (pixels) inside the pixel edges: see "Polygons" in the module docstring.
 _INSET = 0.25
-
-
-# --------------------------------------------------------------------------- #
-# 8-bit images
-# --------------------------------------------------------------------------- #
-
-
-def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
-    """``round(255 * clip((image - lo) / (hi - lo), 0, 1))`` as uint8, same shape."""
-    lo, hi = window
-    scaled = (np.asarray(image, dtype=np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
-    return np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------- #
@@ -210,7 +178,7 @@ def _drop_collinear(vertices: np.ndarray) -> np.ndarray:
     return vertices[before[:, 0] * after[:, 1] != before[:, 1] * after[:, 0]]
 
 
-def slice_polygons(labels: np.ndarray, *, min_area: int = 10, tolerance: float = 0.0) -> SlicePolygons:
+def slice_polygons(labels: np.ndarray, *, min_area: int = MIN_AREA, tolerance: float = 0.0) -> SlicePolygons:
     """Polygons of the 4-connected parts of every instance in a label slice.
 
     Parameters
@@ -302,111 +270,33 @@ def rasterize_yolo_labels(text: str, shape: tuple[int, int]) -> list[np.ndarray]
 
 
 # --------------------------------------------------------------------------- #
-# Sources
-# --------------------------------------------------------------------------- #
-
-
-@dataclass
-class _Source:
-    """One volume to export: file-name prefix, origin, and image and label volumes, shape (Z, Y, X)."""
-
-    name: str
-    kind: str  # "real" or "synthetic"
-    path: str
-    volume: str  # which volume the images come from
-    tomogram: Any
-    labels: Any
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        return tuple(self.labels.shape)  # type: ignore[return-value]
-
-
-def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "scan"
-
-
-def _pack_source(pack: Pack, postprocess: bool) -> _Source:
-    """A synthetic pack's images (post-processed tomogram or clean volume) and labels."""
-    volume = "tomogram" if postprocess else "clean"
-    return _Source(f"syn_{_safe(pack.path.name)}", "synthetic", str(pack.path), volume, getattr(pack, volume),
-                   pack.labels)
-
-
-def _real_source(item: Scan | tuple, index: int) -> _Source:
-    """A real scan, given as a `Scan` or read from a ``(tomogram, labels)`` pair of paths."""
-    if isinstance(item, Scan):
-        return _Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels)
-    if not (isinstance(item, (tuple, list)) and len(item) == 2):
-        raise SynthpackInputError(f"a real scan is a Scan or a (tomogram, labels) pair of paths, got {item!r}")
-    tomogram, labels = (Path(p) for p in item)
-    # the export works in pixels: an explicit voxel size skips the missing-metadata warning
-    scan = read_scan(tomogram, labels, voxel_size=1.0, unit="px")
-    name = tomogram.name[: -len(".zarr")] if tomogram.name.endswith(".zarr") else tomogram.stem
-    return _Source(f"real_{_safe(name)}", "real", f"{tomogram} + {labels}", "tomogram", scan.tomogram, scan.labels)
-
-
-def _unique_names(sources: list[_Source]) -> None:
-    seen: dict[str, int] = {}
-    for source in sources:
-        count = seen.get(source.name, 0) + 1
-        seen[source.name] = count
-        if count > 1:
-            source.name = f"{source.name}-{count}"
-
-
-# --------------------------------------------------------------------------- #
 # Export
 # --------------------------------------------------------------------------- #
 
 
-def _split_counts() -> dict[str, int]:
-    return dict.fromkeys(SPLITS, 0)
-
-
 @dataclass
-class ExportSummary:
+class ExportSummary(ExportSummaryBase):
     """What `export_yolo` wrote.
 
     Attributes
     ----------
-    out : Path
-        The dataset folder (``data.yaml`` inside).
-    window : (float, float)
-        Intensity window mapped to 0..255.
-    window_from : str
-        Where the window came from.
-    images, instances, empty_images, dropped_fragments, instance_pixels, hole_pixels : dict
-        Per split (``train``, ``val``, ``test``): PNG images, label lines,
-        images without any label line, parts too small for a label line,
-        pixels of the labelled parts, and hole pixels filled by polygons.
-    sources : list of dict
-        Per source: ``name``, ``kind`` (real / synthetic), ``path``,
-        ``volume`` (tomogram / clean), ``shape`` and slices per split.
-    settings : dict
-        The export's arguments.
+    out, window, window_from, images, sources, settings
+        As in `synthpack.export.slices.ExportSummaryBase`.
+    instances, empty_images, dropped_fragments, instance_pixels, hole_pixels : dict
+        Per split (``train``, ``val``, ``test``): label lines, images without
+        any label line, parts too small for a label line, pixels of the
+        labelled parts, and hole pixels filled by polygons.
     """
 
-    out: Path
-    window: tuple[float, float]
-    window_from: str
-    images: dict[str, int] = field(default_factory=_split_counts)
-    instances: dict[str, int] = field(default_factory=_split_counts)
-    empty_images: dict[str, int] = field(default_factory=_split_counts)
-    dropped_fragments: dict[str, int] = field(default_factory=_split_counts)
-    instance_pixels: dict[str, int] = field(default_factory=_split_counts)
-    hole_pixels: dict[str, int] = field(default_factory=_split_counts)
-    sources: list[dict] = field(default_factory=list)
-    settings: dict = field(default_factory=dict)
+    instances: dict[str, int] = field(default_factory=split_counts)
+    empty_images: dict[str, int] = field(default_factory=split_counts)
+    dropped_fragments: dict[str, int] = field(default_factory=split_counts)
+    instance_pixels: dict[str, int] = field(default_factory=split_counts)
+    hole_pixels: dict[str, int] = field(default_factory=split_counts)
 
-    _COUNTS = ("images", "instances", "empty_images", "dropped_fragments", "instance_pixels", "hole_pixels")
-
-    def to_dict(self) -> dict:
-        """JSON-able form (as in ``export.json``)."""
-        counts = {name: getattr(self, name) for name in self._COUNTS}
-        return {"format": "synthpack-yolo-seg", "synthpack": __version__, "out": str(self.out),
-                "window": list(self.window), "window_from": self.window_from, **counts,
-                "sources": self.sources, "settings": self.settings}
+    FORMAT: ClassVar[str] = "synthpack-yolo-seg"
+    COUNTS: ClassVar[tuple[str, ...]] = ("images", "instances", "empty_images", "dropped_fragments",
+                                         "instance_pixels", "hole_pixels")
 
     def _count(self, split: str, result: SlicePolygons) -> None:
         """Add one exported slice of `split`, with its polygons `result`, to the counts."""
@@ -416,14 +306,6 @@ class ExportSummary:
         self.dropped_fragments[split] += result.dropped_fragments
         self.instance_pixels[split] += result.instance_pixels
         self.hole_pixels[split] += result.hole_pixels
-
-    def table(self) -> str:
-        """Markdown table of the counts per split."""
-        lines = ["| split | " + " | ".join(name.replace("_", " ") for name in self._COUNTS) + " |",
-                 "|---|" + "---|" * len(self._COUNTS)]
-        for split in SPLITS:
-            lines.append(f"| {split} | " + " | ".join(str(getattr(self, n)[split]) for n in self._COUNTS) + " |")
-        return "\n".join(lines)
 
 
 #: A YOLO dataset folder: an earlier export (``export.json``) is replaced, anything else is refused.
@@ -453,7 +335,7 @@ def export_yolo(
     val_fraction: float = VAL_FRACTION,
     postprocess: bool = True,
     window: tuple[float, float] | None = None,
-    min_area: int = 10,
+    min_area: int = MIN_AREA,
     tolerance: float = 0.0,
     truth_splits: Sequence[str] = ("test",),
     progress: bool = True,
@@ -501,123 +383,43 @@ def export_yolo(
     ExportSummary
     """
     out = Path(out)
-    _check_arguments(axis, split, truth_splits, min_area, tolerance, bool(packs or real))
+    check_slicing(axis, split, bool(packs or real))
+    _check_arguments(truth_splits, min_area, tolerance)
     check_output(out, YOLO_OUTPUT, overwrite=overwrite)
-    opened = [open_pack(directory, verify=True) for path in packs for directory in find_packs(path)]
-    reals = [_real_source(item, k) for k, item in enumerate(real)]
-    sources = [_pack_source(pack, postprocess) for pack in opened] + reals
-    _unique_names(sources)
-    window, window_from = _choose_window(window, reals, opened)
-    plans = [_slice_plan(source, axis, split, val_fraction) for source in sources]
-    _check_plans(plans)
-    summary = ExportSummary(out, window, window_from, settings={
+    volumes = plan_slices(packs, real, axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,
+                          window=window)
+    summary = ExportSummary(out, volumes.window, volumes.window_from, settings={
         "axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
         "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits), "class_names": CLASS_NAMES,
     })
-    options = _SliceOptions(axis, window, min_area, tolerance, frozenset(truth_splits))
     with atomic_directory(out, YOLO_OUTPUT, overwrite=overwrite) as staging:
-        _make_folders(staging, truth_splits)
-        with tqdm(total=sum(s.shape[axis] for s in sources), desc="export", unit="slice",
-                  disable=not progress) as bar:
-            for source, plan in zip(sources, plans):
-                _export_source(staging, source, plan, options, summary, bar)
+        for sub, splits in (("labels", SPLITS), ("truth", truth_splits)):
+            for s in splits:
+                (staging / sub / s).mkdir(parents=True)
+        for item in volumes.write_images(staging, progress=progress):
+            summary._count(item.split, _write_labels(staging, item, min_area, tolerance, truth_splits))
+        summary.sources = volumes.source_records()
         (staging / "data.yaml").write_text(_data_yaml(out, summary))
         (staging / "export.json").write_text(json.dumps(summary.to_dict(), indent=1))
     logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
     return summary
 
 
-def _check_arguments(axis: int, split: str, truth_splits: Sequence[str], min_area: int, tolerance: float,
-                     anything: bool) -> None:
-    """Check `export_yolo`'s settings before anything is read; `anything`: packs or real scans were given."""
-    if axis not in (0, 1, 2):
-        raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis}")
-    if split not in SPLIT_MODES:
-        raise SynthpackInputError(f"split must be one of {', '.join(SPLIT_MODES)}, got {split!r}")
+def _check_arguments(truth_splits: Sequence[str], min_area: int, tolerance: float) -> None:
+    """Check `export_yolo`'s own settings (after `check_slicing`) before anything is read."""
     unknown = sorted(set(truth_splits) - set(SPLITS))
     if unknown:
         raise SynthpackInputError(f"unknown truth split(s) {', '.join(unknown)}: use {', '.join(SPLITS)}")
     if min_area < 1 or tolerance < 0:
         raise SynthpackInputError(f"min_area must be >= 1 and tolerance >= 0, got {min_area} and {tolerance}")
-    if not anything:
-        raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
 
 
-def _choose_window(window: tuple[float, float] | None, reals: list[_Source],
-                   packs: list[Pack]) -> tuple[tuple[float, float], str]:
-    """The intensity window ``(lo, hi)`` and where it came from (see "Intensity window" in the module docstring)."""
-    if window is not None:
-        lo, hi = (float(v) for v in window)
-        if not hi > lo:
-            raise SynthpackInputError(f"the window needs lo < hi, got ({lo}, {hi})")
-        return (lo, hi), "given"
-    if reals:
-        return intensity_window([s.tomogram for s in reals]), "0.5/99.5 percentiles of the real tomograms"
-    return intensity_window([packs[0].clean]), f"0.5/99.5 percentiles of the clean volume of {packs[0].path}"
-
-
-def _slice_plan(source: _Source, axis: int, split: str, val_fraction: float) -> dict[str, np.ndarray]:
-    """Slice indices of each split (`SPLITS`) of `source` along `axis` for the split mode `split`."""
-    n = source.shape[axis]
-    if split == "real-test" and source.kind == "synthetic":
-        none = np.zeros(0, np.int64)
-        return {"train": np.arange(n, dtype=np.int64), "val": none, "test": none}
-    return slice_splits(n, val_fraction)
-
-
-def _check_plans(plans: list[dict[str, np.ndarray]]) -> None:
-    """Raise unless every split gets slices from some source."""
-    empty = [s for s in SPLITS if not any(len(plan[s]) for plan in plans)]
-    if empty:
-        raise SynthpackInputError(
-            f"no slices for the {' and '.join(empty)} split(s): with split='real-test' give real scans, "
-            "and use a val_fraction > 0"
-        )
-
-
-def _make_folders(staging: Path, truth_splits: Sequence[str]) -> None:
-    """``images/<split>``, ``labels/<split>`` and ``truth/<truth split>`` under `staging`."""
-    for sub in ("images", "labels"):
-        for s in SPLITS:
-            (staging / sub / s).mkdir(parents=True)
-    for s in truth_splits:
-        (staging / "truth" / s).mkdir(parents=True)
-
-
-@dataclass(frozen=True)
-class _SliceOptions:
-    """How every slice is exported: slicing axis, intensity window and polygon settings (see `export_yolo`)."""
-
-    axis: int
-    window: tuple[float, float]
-    min_area: int
-    tolerance: float
-    truth_splits: frozenset[str]
-
-
-def _export_source(staging: Path, source: _Source, plan: dict[str, np.ndarray], options: _SliceOptions,
-                   summary: ExportSummary, bar: tqdm) -> None:
-    """Export every slice of `source` into the split `plan` gives it; add counts and the source to `summary`."""
-    split_of = {int(i): s for s, indices in plan.items() for i in indices}
-    for index in range(source.shape[options.axis]):
-        split = split_of[index]
-        summary._count(split, _export_slice(staging, source, index, split, options))
-        bar.update()
-    summary.sources.append({
-        "name": source.name, "kind": source.kind, "path": source.path, "volume": source.volume,
-        "shape": list(source.shape), "slices": {s: len(indices) for s, indices in plan.items()},
-        "test_block": [int(plan["test"][0]), int(plan["test"][-1]) + 1] if len(plan["test"]) else None,
-    })
-
-
-def _export_slice(staging: Path, source: _Source, index: int, split: str, options: _SliceOptions) -> SlicePolygons:
-    """Write slice `index` of `source` into `split`: PNG image, label lines and, for a truth split, truth image."""
-    stem = f"{source.name}_a{options.axis}_s{index:04d}"
-    image = to_uint8(read_slice(source.tomogram, options.axis, index), options.window)
-    Image.fromarray(image).save(staging / "images" / split / f"{stem}.png")
-    result = slice_polygons(read_slice(source.labels, options.axis, index), min_area=options.min_area,
-                            tolerance=options.tolerance)
-    (staging / "labels" / split / f"{stem}.txt").write_text(yolo_label_text(result.polygons, image.shape))
-    if split in options.truth_splits:
-        write_label_image(staging / "truth" / split / stem, result.parts)
+def _write_labels(staging: Path, item: ExportSlice, min_area: int, tolerance: float,
+                  truth_splits: Sequence[str]) -> SlicePolygons:
+    """Write the label lines of one slice and, for a truth split, its truth image; return its polygons."""
+    result = slice_polygons(item.labels, min_area=min_area, tolerance=tolerance)
+    (staging / "labels" / item.split / f"{item.stem}.txt").write_text(yolo_label_text(result.polygons,
+                                                                                      item.labels.shape))
+    if item.split in truth_splits:
+        write_label_image(staging / "truth" / item.split / item.stem, result.parts)
     return result
