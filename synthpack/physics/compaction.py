@@ -73,7 +73,7 @@ TARGET_TOLERANCE = 0.02
 #: Friction coefficient of a batch while it settles at full compaction (u = 1).
 SETTLE_FRICTION = 0.02
 #: Steps a compacted batch falls at its lowered friction (at most).
-FALL_STEPS = 2000
+FALL_STEPS = 4000
 #: The low-friction fall ends when the batch moves slower than this times the settle thresholds.
 FALL_QUIET = 8.0
 #: Largest shell inflation, as a fraction of the grain's size (u = -MAX_INFLATION).
