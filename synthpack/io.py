@@ -1255,7 +1255,10 @@ def _itk_voxel_size(spacing: Iterable[float], unit: str | None, path: Path) -> M
 def _read_nifti(path: Path, role: str | None, name: str | None) -> Volume:
     nibabel = _optional("nibabel", "NIfTI files")
     image = nibabel.load(path, mmap=False)
-    volume = np.ascontiguousarray(np.asarray(image.dataobj).T)  # stored (x, y, z): now (z, y, x)
+    data = np.asarray(image.dataobj)
+    while data.ndim > 3 and data.shape[-1] == 1:  # (x, y, z, 1): a volume saved with a time axis
+        data = data[..., 0]
+    volume = np.ascontiguousarray(data.T)  # stored (x, y, z): now (z, y, x)
     unit = image.header.get_xyzt_units()[0]
     zooms = image.header.get_zooms()[:3] if volume.ndim == 3 else ()
     return volume, *_itk_voxel_size(zooms, None if unit == "unknown" else unit, path)

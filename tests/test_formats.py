@@ -143,6 +143,15 @@ def test_nifti_written_by_nibabel_is_transposed_to_zyx(tmp_path, volume, name, u
     assert data.flags.c_contiguous and size == VOXEL and unit == expected
 
 
+def test_nifti_with_a_single_time_point_is_read_as_its_volume(tmp_path, volume):
+    image = nibabel.Nifti1Image(volume.T[..., None], np.diag([*VOXEL[::-1], 1.0]))  # (x, y, z, 1)
+    image.header.set_zooms((*VOXEL[::-1], 1.0))
+    nibabel.save(image, tmp_path / "scan.nii.gz")
+    data, size, _ = read_volume(tmp_path / "scan.nii.gz")
+    np.testing.assert_array_equal(data, volume)
+    assert size == VOXEL
+
+
 # --------------------------------------------------------------------------- #
 # Raw binary
 # --------------------------------------------------------------------------- #
