@@ -24,7 +24,7 @@ derived from the source scan's statistics in one place, `Background.from_source`
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -47,6 +47,7 @@ __all__ = [
     "PoseMaps",
     "RenderCrop",
     "background_values",
+    "grain_boxes",
     "pose_maps",
     "reconstruct",
     "prepare_crops",
@@ -503,13 +504,9 @@ def render_chunk(
     composite = None if partial_volume is None else _Composite(shape)
     flat_labels, flat_claim, flat_tomogram = labels.reshape(-1), claim.reshape(-1), tomogram.reshape(-1)
     contested = 0
-    hit = np.all((maps.box_lo < hi) & (maps.box_hi > lo), axis=1)
-    for i in np.flatnonzero(hit):
-        sub_lo = np.maximum(maps.box_lo[i], lo)
-        sub_hi = np.minimum(maps.box_hi[i], hi)
+    for i, sub_lo, sub_hi, offset in grain_boxes(maps, lo, hi):
         crop = crops[maps.library_index[i]]
         matrix = maps.matrix[i]
-        offset = maps.offset[i] + matrix @ sub_lo
         # the box's voxels the grain can change: a nearest-neighbour resampling of its support
         near = ndimage.affine_transform(
             crop.support, matrix, offset=offset + PAD, output_shape=tuple(int(n) for n in sub_hi - sub_lo),
@@ -538,6 +535,25 @@ def render_chunk(
     if composite is not None:
         composite.over(tomogram)
     return tomogram, labels, contested
+
+
+def grain_boxes(maps: PoseMaps, lo: np.ndarray, hi: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """The placements that reach the box ``[lo, hi)``, in placement order.
+
+    Yields
+    ------
+    i : int
+        The placement.
+    sub_lo, sub_hi : ndarray of int, shape (3,)
+        The part of the box it can reach (output voxel indices).
+    offset : ndarray of float, shape (3,)
+        Crop index of output voxel `sub_lo` (``maps.offset[i] + maps.matrix[i] @ sub_lo``).
+    """
+    hit = np.all((maps.box_lo < hi) & (maps.box_hi > lo), axis=1)
+    for i in np.flatnonzero(hit):
+        sub_lo = np.maximum(maps.box_lo[i], lo)
+        sub_hi = np.minimum(maps.box_hi[i], hi)
+        yield int(i), sub_lo, sub_hi, maps.offset[i] + maps.matrix[i] @ sub_lo
 
 
 def _mapped(matrix: np.ndarray, where: tuple[np.ndarray, ...]) -> np.ndarray:

@@ -18,14 +18,16 @@ CPU, as before. The post-processing stays on the CPU.
 
 from __future__ import annotations
 
+import glob
 import logging
+import sys
 from typing import Any, Sequence
 
 import numpy as np
 
 from .errors import SynthpackInputError
 from .partial_volume import FAR, PAD, PartialVolume
-from .reconstruct import Background, Grid, PoseMaps, RenderCrop, background_values
+from .reconstruct import Background, Grid, PoseMaps, RenderCrop, background_values, grain_boxes
 
 logger = logging.getLogger(__name__)
 
@@ -38,7 +40,8 @@ def resolve_device(device: str, order: int = 1) -> str | None:
     Parameters
     ----------
     device : str
-        ``"auto"`` (the first CUDA GPU torch sees, else None), ``"cpu"`` (None: the
+        ``"auto"`` (the first CUDA GPU torch sees, else None; on Linux without a
+        ``/dev/nvidia<N>`` device torch is not even imported), ``"cpu"`` (None: the
         NumPy render) or ``"cuda"`` / ``"cuda:N"`` (that GPU; an error without one).
     order : int
         Interpolation order of the render's intensities; only 1 runs on the device.
@@ -48,7 +51,7 @@ def resolve_device(device: str, order: int = 1) -> str | None:
     SynthpackInputError
         For a CUDA device torch does not see, or another order than 1 asked of one.
     """
-    if device == "cpu":
+    if device == "cpu" or (device == "auto" and not _may_have_cuda()):
         return None
     import torch
 
@@ -61,6 +64,17 @@ def resolve_device(device: str, order: int = 1) -> str | None:
         raise SynthpackInputError(f"reconstruct.device {device} renders with order 1 only; use order: 1 "
                                   "or device: cpu")
     return device
+
+
+def _may_have_cuda() -> bool:
+    """False where no CUDA GPU can be present, without importing torch (seconds per process).
+
+    On Linux a CUDA GPU shows as ``/dev/nvidia<N>``; elsewhere, or once torch is imported,
+    torch is asked.
+    """
+    if "torch" in sys.modules or not sys.platform.startswith("linux"):
+        return True
+    return bool(glob.glob("/dev/nvidia[0-9]*"))
 
 
 class TorchRenderer:
@@ -124,14 +138,10 @@ class TorchRenderer:
             occupancy = torch.zeros(shape, dtype=torch.float32, device=self.device)
             value = torch.zeros(shape, dtype=torch.float32, device=self.device)
         contested = 0
-        hit = np.all((maps.box_lo < hi) & (maps.box_hi > lo), axis=1)
-        for i in np.flatnonzero(hit):
-            sub_lo = np.maximum(maps.box_lo[i], lo)
-            sub_hi = np.minimum(maps.box_hi[i], hi)
+        for i, sub_lo, sub_hi, offset in grain_boxes(maps, lo, hi):
             index = int(maps.library_index[i])
             mask, intensity, distance = self._crop(index, crops[index])
             matrix = maps.matrix[i]
-            offset = maps.offset[i] + matrix @ sub_lo
             window = tuple(slice(int(a - b), int(c - b)) for a, b, c in zip(sub_lo, lo, sub_hi))
             base = self._mapped(matrix, tuple(int(n) for n in sub_hi - sub_lo))
             weight = _linear(torch, mask, _shift(base, offset + 1.0), cval=0.0).to(torch.float32)
