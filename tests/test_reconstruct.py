@@ -276,17 +276,23 @@ def _reference_render(crops, maps, grid, pore, partial_volume, order):
     return tomogram, labels, contested
 
 
-@pytest.mark.parametrize("shift, order", [(None, 1), (None, 3), (0.0, 1), (-0.4, 1), (0.3, 3)])
-def test_render_equals_a_dense_reference_render(large_library, shift, order):
-    # the render interpolates only the voxels near each grain; the reference every voxel of its box.
-    # Few library grains, each placed several times at different scales, some overlapping.
-    rng = np.random.default_rng(7)
-    crops, _, rotations, positions, grid = _ball_scene(large_library, n=16)
+def _mixed_scene(large_library, shift, n, seed):
+    """Few library grains, each placed several times at scales 0.7-1.8, some overlapping; the partial volume."""
+    rng = np.random.default_rng(seed)
+    crops, _, rotations, positions, grid = _ball_scene(large_library, n=n)
     index = rng.integers(0, 4, len(rotations))
     scales = rng.uniform(0.7, 1.8, len(rotations))
     partial_volume = None if shift is None else PartialVolume(shift=shift, rim=1.5)
     maps = pose_maps([c[1] for c in crops], index, rotations, positions, scales, grid,
                      reach=partial_volume.reach if partial_volume else 1.0)
+    return crops, maps, grid, partial_volume
+
+
+@pytest.mark.parametrize("shift, order", [(None, 1), (None, 3), (0.0, 1), (-0.4, 1), (0.3, 3)])
+def test_render_equals_a_dense_reference_render(large_library, shift, order):
+    # the render interpolates only the voxels near each grain; the reference every voxel of its box.
+    # Few library grains, each placed several times at different scales, some overlapping.
+    crops, maps, grid, partial_volume = _mixed_scene(large_library, shift, n=16, seed=7)
     tomogram, labels, contested = reconstruct(crops, maps, grid, Background(0.2), order=order, chunks=(13, 40, 37),
                                               partial_volume=partial_volume)
     reference = _reference_render(crops, maps, grid, 0.2, partial_volume, order)
@@ -301,13 +307,7 @@ def test_render_equals_a_dense_reference_render(large_library, shift, order):
 @pytest.mark.parametrize("shift", [None, -0.4])
 def test_the_torch_render_equals_the_numpy_render(large_library, shift, device):
     """The GPU path's arithmetic (run on the CPU without a GPU): labels equal, intensities within 1e-5."""
-    rng = np.random.default_rng(11)
-    crops, _, rotations, positions, grid = _ball_scene(large_library, n=10)
-    index = rng.integers(0, 4, len(rotations))
-    scales = rng.uniform(0.7, 1.8, len(rotations))
-    partial_volume = None if shift is None else PartialVolume(shift=shift, rim=1.5)
-    maps = pose_maps([c[1] for c in crops], index, rotations, positions, scales, grid,
-                     reach=partial_volume.reach if partial_volume else 1.0)
+    crops, maps, grid, partial_volume = _mixed_scene(large_library, shift, n=10, seed=11)
     background = Background(0.2, 0.05, 0.5)  # pore texture and a wall
     arguments = dict(tube=(300.0, 330.0, -30.0), chunks=(13, 40, 37), partial_volume=partial_volume, seed=3)
     tomogram, labels, contested = reconstruct(crops, maps, grid, background, **arguments)
