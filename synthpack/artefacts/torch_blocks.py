@@ -8,9 +8,12 @@ so the noise realisations and ring radii are the NumPy path's:
 
 - `GaussianBlur`, `MotionBlur`: the NumPy module's kernel (`gaussian_kernel`,
   `line_kernel`), the block mirrored beyond its edges as SciPy's ``"reflect"``
-  (NumPy's ``"symmetric"``) mirrors it, then sums of shifted copies weighted in
-  float32 (the Gaussian separably along each axis): plain multiply-adds, so no
-  reduced-precision (TF32) convolution can enter.
+  (NumPy's ``"symmetric"``) mirrors it, then weighted sums of shifted copies (the
+  Gaussian separably, axis after axis) in float64, rounded to float32 after each axis
+  as SciPy rounds: plain multiply-adds, so no reduced-precision (TF32) convolution can
+  enter, and the values are SciPy's but for the order of the sum. (A float32 sum
+  would differ by about 1e-7 of the intensities, which the coloured noise's
+  ``sqrt`` of the grain fraction amplifies near the pore level.)
 - `ColouredNoise`: its pore and grain noise tiles are made on the CPU
   (`ColouredNoise._tiles`) and moved to the device once per volume; the periodic
   gather and the mixing by phase fraction run there.
@@ -93,15 +96,16 @@ def _mirrored(volume: _Volume, block: torch.Tensor, halo: Iterable[int]) -> torc
 def _correlate(padded: torch.Tensor, kernel: np.ndarray) -> torch.Tensor:
     """The "valid" correlation of `padded` with `kernel` (same number of axes): ``sum_k kernel[k] padded[k:k+n]``.
 
-    Float32 multiply-adds over the non-zero weights; the output is smaller than
-    `padded` by ``kernel.shape - 1`` on each axis.
+    Summed in float64 over the non-zero weights and rounded to float32 once, as SciPy's
+    filters sum and round (so the result is theirs but for the order of the sum). The
+    output is smaller than `padded` by ``kernel.shape - 1`` on each axis.
     """
     shape = [int(n) - k + 1 for n, k in zip(padded.shape, kernel.shape)]
-    out = torch.zeros(shape, dtype=padded.dtype, device=padded.device)
+    wide = padded.to(torch.float64)
+    out = torch.zeros(shape, dtype=torch.float64, device=padded.device)
     for offset in zip(*np.nonzero(kernel)):
-        window = padded[tuple(slice(int(o), int(o) + n) for o, n in zip(offset, shape))]
-        out.add_(window, alpha=_f32(kernel[offset]))
-    return out
+        out.add_(wide[tuple(slice(int(o), int(o) + n) for o, n in zip(offset, shape))], alpha=float(kernel[offset]))
+    return out.to(torch.float32)
 
 
 def _gaussian_blur(volume: _Volume, transform: GaussianBlur, block: torch.Tensor, rng: np.random.Generator,
@@ -119,7 +123,7 @@ def _gaussian_blur(volume: _Volume, transform: GaussianBlur, block: torch.Tensor
 def _motion_blur(volume: _Volume, transform: MotionBlur, block: torch.Tensor, rng: np.random.Generator,
                  call: np.random.SeedSequence, origin: tuple[int, int, int], shape: tuple[int, int, int], *,
                  length: float, angle: float) -> torch.Tensor:
-    kernel = line_kernel(length, angle)
+    kernel = line_kernel(length, angle).astype(np.float32)  # the weights MotionBlur gives SciPy
     if kernel.size == 1:
         return block.clone()
     half = kernel.shape[0] // 2
