@@ -10,7 +10,8 @@ import numpy as np
 
 from .errors import SynthpackInputError
 
-__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "float32_value", "periodic_indices", "periodic_window", "radius_grid", "slabs"]
+__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "float32_value", "periodic_indices", "periodic_window",
+           "radius_grid", "slabs"]
 
 #: Noise is drawn (and measured) in slabs of at most this many voxels along axis 0, so
 #: the extra memory it needs is bounded whatever the volume's size.

@@ -24,6 +24,13 @@ and the voxel transforms after it join that pass, so the default pipeline
 (blur, rings, noise) is a single pass. A pipeline of several passes writes its
 intermediate volumes to a `scratch` array.
 
+**On a torch device** (``device``, e.g. ``"cuda"``): each block is moved to the
+device, the steps run there (`synthpack.artefacts.torch_blocks`) and the finished
+block comes back; reading, the block loop, the passes and every random draw are the
+same as on the CPU, so the result is the NumPy path's within float32 rounding. A
+pipeline holding any transform without a torch version runs on the CPU as a whole
+(logged at INFO), so a result never mixes the two.
+
 Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
 from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
 from ``[seed, k, 2, z0, y0, x0]`` (the block's first voxel). The result is a

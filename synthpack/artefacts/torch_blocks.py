@@ -12,8 +12,8 @@ so the noise realisations and ring radii are the NumPy path's:
   Gaussian separably, axis after axis) in float64, rounded to float32 after each axis
   as SciPy rounds: plain multiply-adds, so no reduced-precision (TF32) convolution can
   enter, and the values are SciPy's but for the order of the sum. (A float32 sum
-  would differ by about 1e-7 of the intensities, which the coloured noise's
-  ``sqrt`` of the grain fraction amplifies near the pore level.)
+  differs in the last bits, which the coloured noise's ``sqrt`` of the grain
+  fraction amplifies near the pore level to about 1e-5 of the intensity range.)
 - `ColouredNoise`: its pore and grain noise tiles are made on the CPU
   (`ColouredNoise._tiles`) and moved to the device once per volume; the periodic
   gather and the mixing by phase fraction run there.
@@ -25,6 +25,9 @@ so the noise realisations and ring radii are the NumPy path's:
   the block's generator, slab by slab as the NumPy transform draws it
   (`noise._standard_noise`), then scaled and applied on the device.
 - `ContrastGamma`: its response (`intensity.response`) evaluated on the device.
+
+Like the NumPy steps, a step never modifies its input block (which may share memory
+with the source volume on the CPU device).
 
 Other transforms (`PoissonNoise`, `CTSimulation`) have no torch version
 (`without_torch` names them), and `apply_blockwise` runs a pipeline that has not
@@ -146,7 +149,8 @@ def _coloured_noise(volume: _Volume, transform: ColouredNoise, block: torch.Tens
     return pore_field.add_(block)
 
 
-def _periodic_window(volume: _Volume, tile: torch.Tensor, origin: tuple[int, ...], shape: Iterable[int]) -> torch.Tensor:
+def _periodic_window(volume: _Volume, tile: torch.Tensor, origin: tuple[int, ...],
+                     shape: Iterable[int]) -> torch.Tensor:
     """`synthpack._arrays.periodic_window` on the device: the same indices, gathered there."""
     out = tile
     for axis, index in enumerate(periodic_indices(origin, tuple(shape), tile.shape)):
