@@ -46,7 +46,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -121,6 +121,16 @@ def _read_with_halo(source: Any, lo: np.ndarray, hi: np.ndarray, halo: np.ndarra
     return np.pad(block, pad, mode="symmetric") if any(a or b for a, b in pad) else block
 
 
+class _Where(Protocol):
+    """Where the steps run: blocks put there, each transform's block step, blocks got back as NumPy."""
+
+    def put(self, block: np.ndarray) -> Any: ...
+
+    def get(self, block: Any) -> np.ndarray: ...
+
+    def step(self, transform: Transform) -> Callable[..., Any]: ...
+
+
 class _HostSteps:
     """The NumPy block steps on the CPU: each transform's own `_transform_block`."""
 
@@ -139,7 +149,7 @@ class _HostSteps:
 
 def _run_pass(
     passed: list[_Step], source: Any, target: Any, seed: int, chunks: tuple[int, int, int], threads: int,
-    where: Any,
+    where: _Where,
 ) -> None:
     """One pass over the volume: its lead step (with halo or whole slices), then its voxel steps.
 
@@ -169,17 +179,17 @@ def _run_pass(
         target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
 
 
-def _steps_on(pipeline: Transform | Compose, device: str | None) -> Any:
+def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
     """What runs the steps: `torch_blocks.DeviceSteps` on `device` if every transform has a torch version."""
     if device is None:
-        return _HostSteps
+        return _HostSteps()
     from . import torch_blocks  # imports torch: only when a device is asked for
 
     missing = torch_blocks.without_torch(steps(pipeline))
     if missing:
         logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
                     ", ".join(sorted(set(missing))))
-        return _HostSteps
+        return _HostSteps()
     logger.info("post-processing on %s", device)
     return torch_blocks.DeviceSteps(device)
 
