@@ -10,7 +10,8 @@ import numpy as np
 
 from .errors import SynthpackInputError
 
-__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "periodic_window", "radius_grid", "slabs"]
+__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "float32_value", "periodic_indices", "periodic_window",
+           "radius_grid", "slabs"]
 
 #: Noise is drawn (and measured) in slabs of at most this many voxels along axis 0, so
 #: the extra memory it needs is bounded whatever the volume's size.
@@ -43,6 +44,11 @@ def as_image(image: Any) -> np.ndarray:
     return array.astype(np.float32, copy=False)
 
 
+def float32_value(value: float) -> float:
+    """`value` rounded to float32, as a Python float: NumPy and torch apply it to float32 arrays as that float32."""
+    return float(np.float32(value))
+
+
 def periodic_window(tile: np.ndarray, origin: Sequence[int], shape: Sequence[int]) -> np.ndarray:
     """The box of `shape` at global index `origin` of the space that copies of `tile` fill periodically.
 
@@ -61,9 +67,20 @@ def periodic_window(tile: np.ndarray, origin: Sequence[int], shape: Sequence[int
         A new array.
     """
     out = tile
-    for axis, (start, length, period) in enumerate(zip(origin, shape, tile.shape)):
-        out = out.take(np.arange(int(start), int(start) + int(length)) % period, axis=axis)
+    for axis, index in enumerate(periodic_indices(origin, shape, tile.shape)):
+        out = out.take(index, axis=axis)
     return out
+
+
+def periodic_indices(origin: Sequence[int], shape: Sequence[int], period: Sequence[int]) -> list[np.ndarray]:
+    """Per axis, the tile indices ``g % period`` of the global indices ``g`` of a box of `shape` at `origin`.
+
+    Returns
+    -------
+    list of ndarray of int64, one per axis, of lengths `shape`
+        What `periodic_window` gathers along each axis (a device gather uses the same).
+    """
+    return [np.arange(int(start), int(start) + int(length)) % int(p) for start, length, p in zip(origin, shape, period)]
 
 
 def slabs(shape: tuple[int, ...], max_voxels: int = SLAB_VOXELS) -> Iterator[slice]:

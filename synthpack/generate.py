@@ -142,6 +142,7 @@ def build_pack(
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
     device = resolve_device(config.reconstruct.device, config.reconstruct.order)
+    postprocess_device = resolve_device(config.reconstruct.device)  # any render order post-processes there
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
@@ -159,7 +160,7 @@ def build_pack(
             grid=render.grid, packing_region=placements.checks.packing_region,
             pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
         )
-        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks)
+        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
     grid = render.grid
     manifest = dict(
         seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
@@ -257,14 +258,17 @@ def _render(
 
 def _postprocess(
     postprocessing: Postprocessing, render: _Render, seed: int, threads: int | None, allocate: Allocate,
-    chunks: tuple[int, int, int],
+    chunks: tuple[int, int, int], device: str | None,
 ) -> tuple[Any, list[dict]]:
-    """The post-processed tomogram, chunk by chunk into `allocate`'s array, and the record of what was applied."""
+    """The post-processed tomogram, chunk by chunk into `allocate`'s array, and the record of what was applied.
+
+    On the torch `device` (`synthpack.artefacts.torch_blocks`) where the pipeline allows, or with NumPy.
+    """
     shape = render.grid.shape
     tomogram = allocate("tomogram", shape, np.float32, chunks)
     applied = apply_blockwise(
         postprocessing.pipeline, render.clean, tomogram, _derived_seed(seed, 1), chunks, threads=threads,
-        scratch=lambda: allocate("scratch", shape, np.float32, chunks),
+        scratch=lambda: allocate("scratch", shape, np.float32, chunks), device=device,
     )
     return tomogram, applied
 

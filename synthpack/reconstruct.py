@@ -92,8 +92,8 @@ class ReconstructConfig:
                                        "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
     rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
                                 "replaced by its interior; default: from the source's fitted edge")
-    device: str = setting("auto", _device, "where the render runs: auto (the first CUDA GPU torch sees, else the "
-                          "CPU), cpu, or cuda / cuda:N; only order 1 runs on a GPU")
+    device: str = setting("auto", _device, "where the render and the post-processing run: auto (the first CUDA "
+                          "GPU torch sees, else the CPU), cpu, or cuda / cuda:N; only order 1 renders on a GPU")
     pore_texture: PoreTexture = field(default_factory=PoreTexture)
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:

@@ -13,7 +13,9 @@ keeps other orders on the CPU.
 
 The device is chosen by ``reconstruct.device`` (`resolve_device`): ``auto`` (the
 default) renders on the first CUDA GPU when torch sees one, else with NumPy on the
-CPU, as before. The post-processing stays on the CPU.
+CPU, as before. The post-processing runs on the same device
+(`synthpack.artefacts.torch_blocks`, whatever the render's order) where every transform
+of its pipeline has a torch version, else on the CPU.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ __all__ = ["TorchRenderer", "resolve_device"]
 
 
 def resolve_device(device: str, order: int = 1) -> str | None:
-    """The torch device to render on, or None for the NumPy render on the CPU.
+    """The torch device to render (or post-process) on, or None for NumPy on the CPU.
 
     Parameters
     ----------
@@ -44,7 +46,8 @@ def resolve_device(device: str, order: int = 1) -> str | None:
         ``/dev/nvidia<N>`` device torch is not even imported), ``"cpu"`` (None: the
         NumPy render) or ``"cuda"`` / ``"cuda:N"`` (that GPU; an error without one).
     order : int
-        Interpolation order of the render's intensities; only 1 runs on the device.
+        Interpolation order of the render's intensities; only 1 runs on the device (the
+        post-processing asks with the default, 1: it runs there whatever the render's order).
 
     Raises
     ------

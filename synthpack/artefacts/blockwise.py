@@ -24,6 +24,13 @@ and the voxel transforms after it join that pass, so the default pipeline
 (blur, rings, noise) is a single pass. A pipeline of several passes writes its
 intermediate volumes to a `scratch` array.
 
+**On a torch device** (``device``, e.g. ``"cuda"``): each block is moved to the
+device, the steps run there (`synthpack.artefacts.torch_blocks`) and the finished
+block comes back; reading, the block loop, the passes and every random draw are the
+same as on the CPU, so the result is the NumPy path's within float32 rounding. A
+pipeline holding any transform without a torch version runs on the CPU as a whole
+(logged at INFO), so a result never mixes the two.
+
 Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
 from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
 from ``[seed, k, 2, z0, y0, x0]`` (the block's first voxel). The result is a
@@ -39,7 +46,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -114,33 +121,77 @@ def _read_with_halo(source: Any, lo: np.ndarray, hi: np.ndarray, halo: np.ndarra
     return np.pad(block, pad, mode="symmetric") if any(a or b for a, b in pad) else block
 
 
+class _Where(Protocol):
+    """Where the steps run: blocks put there, each transform's block step, blocks got back as NumPy."""
+
+    def put(self, block: np.ndarray) -> Any: ...
+
+    def get(self, block: Any) -> np.ndarray: ...
+
+    def step(self, transform: Transform) -> Callable[..., Any]: ...
+
+
+class _HostSteps:
+    """The NumPy block steps on the CPU: each transform's own `_transform_block`."""
+
+    @staticmethod
+    def put(block: np.ndarray) -> np.ndarray:
+        return block
+
+    @staticmethod
+    def get(block: np.ndarray) -> np.ndarray:
+        return block
+
+    @staticmethod
+    def step(transform: Transform) -> Callable[..., np.ndarray]:
+        return transform._transform_block
+
+
 def _run_pass(
-    passed: list[_Step], source: Any, target: Any, seed: int, chunks: tuple[int, int, int], threads: int
+    passed: list[_Step], source: Any, target: Any, seed: int, chunks: tuple[int, int, int], threads: int,
+    where: _Where,
 ) -> None:
     """One pass over the volume: its lead step (with halo or whole slices), then its voxel steps.
 
-    An empty pass copies `source` to `target`.
+    An empty pass copies `source` to `target`. `where` runs the steps: `_HostSteps`, or
+    `torch_blocks.DeviceSteps` (blocks moved to a torch device and back).
     """
     shape = tuple(int(n) for n in source.shape)
     head = passed[0] if passed else None
     halo = np.asarray(head.transform.halo(**head.params) if head else (0, 0, 0), dtype=np.int64)
+    functions = [where.step(step.transform) for step in passed]
 
     def block(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         lo, hi = box
-        out = _read_with_halo(source, lo, hi, halo)
+        out = where.put(_read_with_halo(source, lo, hi, halo))
         origin = tuple(int(v) for v in lo - halo)
-        for step in passed:
-            out = step.transform._transform_block(
+        for step, function in zip(passed, functions):
+            out = function(
                 out, np.random.default_rng([seed, step.index, _BLOCK, *map(int, lo)]),
                 np.random.SeedSequence([seed, step.index, _CALL]), origin, shape, **step.params)
             if step is head and halo.any():
                 out = out[tuple(slice(int(h), int(h) + int(n)) for h, n in zip(halo, hi - lo))]
                 origin = tuple(int(v) for v in lo)
-        return out
+        return where.get(out)
 
     by_slice = head is not None and head.transform.locality == "slice"
     for (lo, hi), values in bounded_map(block, _blocks(shape, chunks, by_slice), threads):
         target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
+
+
+def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
+    """What runs the steps: `torch_blocks.DeviceSteps` on `device` if every transform has a torch version."""
+    if device is None:
+        return _HostSteps()
+    from . import torch_blocks  # imports torch: only when a device is asked for
+
+    missing = torch_blocks.without_torch(steps(pipeline))
+    if missing:
+        logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
+                    ", ".join(sorted(set(missing))))
+        return _HostSteps()
+    logger.info("post-processing on %s", device)
+    return torch_blocks.DeviceSteps(device)
 
 
 def apply_blockwise(
@@ -152,6 +203,7 @@ def apply_blockwise(
     *,
     threads: int | None = None,
     scratch: Callable[[], Any] | None = None,
+    device: str | None = None,
 ) -> list[dict[str, Any]]:
     """Apply `pipeline` to the volume `source`, block by block, into `target`.
 
@@ -175,6 +227,11 @@ def apply_blockwise(
     scratch : callable, optional
         Returns a new array like `target`, for the intermediate volume of
         pipelines of more than one pass (see the module docstring).
+    device : str, optional
+        A torch device (``"cuda"``, ``"cuda:1"``, ``"cpu"``) to run the steps on
+        (`synthpack.artefacts.torch_blocks`): the same values within float32 rounding,
+        with the same random draws. A pipeline holding a transform without a torch
+        version runs on the CPU as a whole (logged). Default None: NumPy on the CPU.
 
     Returns
     -------
@@ -201,6 +258,7 @@ def apply_blockwise(
         raise SynthpackInputError(
             f"this pipeline needs {len(passes)} passes over the volume: give a scratch array factory"
         )
+    where = _steps_on(pipeline, device)
     spare = scratch() if len(passes) > 1 else None
     current = source
     for i, passed in enumerate(passes):
@@ -208,6 +266,6 @@ def apply_blockwise(
         out = target if (len(passes) - 1 - i) % 2 == 0 else spare
         logger.debug("artefact pass %d/%d: %s", i + 1, len(passes),
                      ", ".join(s.transform.name for s in passed) or "copy")
-        _run_pass(passed, current, out, seed, chunks, threads)
+        _run_pass(passed, current, out, seed, chunks, threads, where)
         current = out
     return [{"name": s.transform.name, **_plain(s.params)} for s in drawn]

@@ -15,10 +15,34 @@ from scipy import ndimage
 from ._base import Transform
 from ._param import Param, Range
 
-__all__ = ["GaussianBlur", "MotionBlur", "line_kernel"]
+__all__ = ["GaussianBlur", "MotionBlur", "gaussian_kernel", "line_kernel"]
 
 #: The Gaussian kernel is cut at this many standard deviations (SciPy's default).
 _TRUNCATE = 4.0
+
+
+def _radius(sigma: float) -> int:
+    """Half the side of the Gaussian kernel of `sigma`, as `scipy.ndimage.gaussian_filter` cuts it."""
+    return int(_TRUNCATE * sigma + 0.5)
+
+
+def gaussian_kernel(sigma: float) -> np.ndarray:
+    """The 1D kernel `GaussianBlur` applies along each axis: SciPy's ``gaussian_filter1d`` kernel.
+
+    Parameters
+    ----------
+    sigma : float
+        Standard deviation in voxels (> 0).
+
+    Returns
+    -------
+    ndarray of float64, shape (2 r + 1,)
+        ``exp(-x^2 / 2 sigma^2)`` at ``x = -r ... r``, ``r = int(4 sigma + 0.5)``, normalised to sum 1.
+    """
+    radius = _radius(sigma)
+    x = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 / (sigma * sigma) * x**2)
+    return weights / weights.sum()
 
 
 def line_kernel(length: float, angle: float) -> np.ndarray:
@@ -88,7 +112,7 @@ class GaussianBlur(Transform):
 
     def halo(self, *, sigma: float) -> tuple[int, int, int]:
         """The kernel radius of `scipy.ndimage.gaussian_filter`, ``int(4 sigma + 0.5)``, on every axis."""
-        radius = int(_TRUNCATE * sigma + 0.5)
+        radius = _radius(sigma)
         return (radius, radius, radius)
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, *, sigma: float) -> np.ndarray:

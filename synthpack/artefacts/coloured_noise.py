@@ -184,15 +184,24 @@ class ColouredNoise(Transform):
         super().__init__(pore_power=pore_power, grain_power=grain_power, pore_level=pore_level,
                          grain_level=grain_level, pore_std=pore_std, grain_std=grain_std, p=p)
 
+    @staticmethod
+    def _tiles(key: tuple[int, ...], **params: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The pore and the grain noise cubes of the white noise of `key`: float32, shape (TILE,) * 3, read-only."""
+        pore, grain = (_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,))
+                       for k, phase in enumerate(("pore", "grain")))
+        return pore, grain
+
+    @staticmethod
+    def _call_key(call: np.random.SeedSequence) -> tuple[int, ...]:
+        """The white noise's key of a block-by-block call: the same for every block."""
+        return tuple(int(v) for v in call.generate_state(2))
+
     def _noise(self, block: np.ndarray, key: tuple[int, ...], origin: tuple[int, ...], **params: Any) -> np.ndarray:
         """The noise over `block` (whose first voxel is the global index `origin`), float32."""
         contrast = params["grain_level"] - params["pore_level"]
         grain = (block - np.float32(params["pore_level"])) / np.float32(contrast if contrast else 1.0)
         grain = np.clip(grain, 0.0, 1.0, out=grain)
-        pore_field, grain_field = (
-            periodic_window(_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,)),
-                            origin, block.shape)
-            for k, phase in enumerate(("pore", "grain")))
+        pore_field, grain_field = (periodic_window(tile, origin, block.shape) for tile in self._tiles(key, **params))
         pore = np.subtract(1.0, grain, dtype=np.float32)
         pore_field *= np.sqrt(pore, out=pore)
         grain_field *= np.sqrt(grain, out=grain)
@@ -207,7 +216,6 @@ class ColouredNoise(Transform):
         self, block: np.ndarray, rng: np.random.Generator, call: np.random.SeedSequence,
         origin: tuple[int, int, int], shape: tuple[int, int, int], **params: Any,
     ) -> np.ndarray:
-        key = tuple(int(v) for v in call.generate_state(2))
-        noise = self._noise(block, key, origin, **params)
+        noise = self._noise(block, self._call_key(call), origin, **params)
         noise += block
         return noise

@@ -8,12 +8,16 @@ applies such a response point by point, between a pore and a grain level.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
+from .._arrays import float32_value as _f32
 from ._base import Transform
 from ._param import Param, Range
 
-__all__ = ["ContrastGamma"]
+__all__ = ["ContrastGamma", "response"]
 
 
 class ContrastGamma(Transform):
@@ -53,11 +57,30 @@ class ContrastGamma(Transform):
                  p: float = 1.0) -> None:
         super().__init__(contrast=contrast, gamma=gamma, pore_level=pore_level, grain_level=grain_level, p=p)
 
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, contrast: float, gamma: float,
-                   pore_level: float, grain_level: float) -> np.ndarray:
-        span = np.float32(grain_level - pore_level if grain_level != pore_level else 1.0)
-        t = (image - np.float32(pore_level)) / span
-        bent = np.sign(t) * np.abs(t) ** np.float32(gamma)
-        middle = np.float32(0.5 * (pore_level + grain_level))
-        out = np.float32(pore_level) + span * bent
-        return (middle + np.float32(contrast) * (out - middle)).astype(np.float32, copy=False)
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: float) -> np.ndarray:
+        return response(image, np.sign, **params).astype(np.float32, copy=False)
+
+
+def response(image: Any, sign: Callable[[Any], Any], *, contrast: float, gamma: float, pore_level: float,
+             grain_level: float) -> Any:
+    """`ContrastGamma`'s response of float32 intensities: a NumPy array, or a torch tensor on any device.
+
+    Parameters
+    ----------
+    image : ndarray or torch.Tensor of float32
+        Intensities; never modified.
+    sign : callable
+        The element-wise sign of that array type (`numpy.sign`, `torch.sign`).
+    contrast, gamma, pore_level, grain_level : float
+        The drawn parameters (see `ContrastGamma`); applied as float32 scalars.
+
+    Returns
+    -------
+    A new array of the type and dtype of `image`.
+    """
+    span = _f32(grain_level - pore_level if grain_level != pore_level else 1.0)
+    t = (image - _f32(pore_level)) / span
+    bent = sign(t) * abs(t) ** _f32(gamma)
+    middle = _f32(0.5 * (pore_level + grain_level))
+    out = _f32(pore_level) + span * bent
+    return middle + _f32(contrast) * (out - middle)

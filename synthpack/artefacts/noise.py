@@ -8,6 +8,8 @@ is bounded. The noise of different voxels is independent ("white").
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from .._arrays import slabs
@@ -17,11 +19,24 @@ from ._param import Param, Range
 __all__ = ["GaussianNoise", "PoissonNoise", "SpeckleNoise"]
 
 
+def _standard_noise(shape: tuple[int, ...], rng: np.random.Generator) -> Iterator[tuple[slice, np.ndarray]]:
+    """White ``N(0, 1)`` noise over an image of `shape`, drawn slab by slab in the order every noise transform draws.
+
+    Yields
+    ------
+    slab : slice
+        Rows of axis 0 (`~synthpack._arrays.slabs`).
+    noise : ndarray of float32, shape ``(rows, *shape[1:])``
+        A new array.
+    """
+    for s in slabs(shape):
+        yield s, rng.standard_normal((s.stop - s.start, *shape[1:]), dtype=np.float32)
+
+
 def _gaussian_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
     """``image + N(0, std^2)`` per voxel; float32, a new array."""
     out = np.empty(image.shape, dtype=np.float32)
-    for s in slabs(image.shape):
-        noise = rng.standard_normal(out[s].shape, dtype=np.float32)
+    for s, noise in _standard_noise(image.shape, rng):
         noise *= np.float32(std)
         np.add(image[s], noise, out=out[s])
     return out
@@ -30,8 +45,7 @@ def _gaussian_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> 
 def _speckle_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
     """``image * (1 + N(0, std^2))`` per voxel; float32, a new array."""
     out = np.empty(image.shape, dtype=np.float32)
-    for s in slabs(image.shape):
-        factor = rng.standard_normal(out[s].shape, dtype=np.float32)
+    for s, factor in _standard_noise(image.shape, rng):
         factor *= np.float32(std)
         factor += np.float32(1.0)
         np.multiply(image[s], factor, out=out[s])
