@@ -20,7 +20,7 @@ import numpy as np
 from . import __version__
 from ._atomic import check_output
 from ._chunks import bounded_map, chunk_boxes, thread_count
-from .artefacts.blockwise import apply_blockwise
+from .artefacts.blockwise import apply_blockwise, device_for
 from .config import PackConfig, ReconstructConfig
 from .deform import PackGrains, pack_grains
 from .errors import PackBuildError, SynthpackInputError
@@ -142,7 +142,6 @@ def build_pack(
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
     device = resolve_device(config.reconstruct.device, config.reconstruct.order)
-    postprocess_device = resolve_device(config.reconstruct.device)  # any render order post-processes there
     allocate = allocate or _numpy_volume
     chunks = tuple(config.reconstruct.chunks)
     timings: dict[str, float] = {}
@@ -160,6 +159,8 @@ def build_pack(
             grid=render.grid, packing_region=placements.checks.packing_region,
             pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
         )
+        # any render order post-processes on the device, if every transform has a torch version
+        postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.reconstruct.device))
         tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
     grid = render.grid
     manifest = dict(
@@ -170,6 +171,7 @@ def build_pack(
         wall=render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
+        devices=dict(render=device or "cpu", postprocess=postprocess_device or "cpu"),  # "cpu": NumPy
     )
     return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
 

@@ -23,7 +23,7 @@ from synthpack.artefacts import (
     RingArtefacts,
     SpeckleNoise,
 )
-from synthpack.artefacts.blockwise import apply_blockwise
+from synthpack.artefacts.blockwise import apply_blockwise, device_for
 
 CHUNKS = (8, 16, 13)  # cuts every axis unevenly; the blurs' halos cross block edges and the volume's border
 PORE, GRAIN = 0.2, 1.0
@@ -84,6 +84,7 @@ def test_a_pipeline_with_a_transform_without_a_torch_version_runs_on_the_cpu(vol
     assert torch_record == numpy_record
     assert torch_out.tobytes() == numpy_out.tobytes()  # all of it the NumPy path, not the blur on the device
     assert "no torch version of poisson_noise" in caplog.text
+    assert device_for(pipeline, "cpu") is None and device_for(_calibrated(), "cpu") == "cpu"
 
 
 def test_the_numpy_path_does_not_import_torch():

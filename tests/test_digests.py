@@ -36,9 +36,10 @@ from synthpack.physics import pour
 
 RECORDED = Path(__file__).parent / "data" / "digests.json"
 RECORD = os.environ.get("SYNTHPACK_RECORD_DIGESTS") == "1"
-#: JSON keys that describe how a run went, not what it made; a manifest's ``files`` (sizes and
+#: JSON keys that describe how a run went (and where: a GPU gives the same within float rounding), not
+#: what it made; a manifest's ``files`` (sizes and
 #: checksums) are derived from the files hashed here and from placements.json's timing.
-_RUN_KEYS = {"timings", "seconds", "versions", "files"}
+_RUN_KEYS = {"timings", "seconds", "versions", "files", "devices"}
 
 CONFIG = PackConfig().replace(pour={"n_particles": 48, "batch_size": 24}, reconstruct={"chunks": [32, 64, 64]})
 MODES = ("generic", "none", "match_source", "calibrated")

@@ -10,6 +10,7 @@ from synthpack.errors import PackBuildError
 from synthpack.generate import build_pack, generate_packs, pack_seed
 from synthpack.pack import is_complete_pack, open_pack
 from synthpack.pore_texture import PoreTexture
+from synthpack.render_torch import resolve_device
 
 SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
 
@@ -82,6 +83,8 @@ def test_generate_writes_complete_packs_and_skips_them_on_rerun(large_library, t
     assert manifest["config"]["pour"]["n_particles"] == 10
     assert {"pour", "reconstruct", "postprocess"} <= set(manifest["timings"])
     assert "numpy" in manifest["versions"] and "contested_voxels" in manifest
+    on = resolve_device(config.reconstruct.device) or "cpu"  # "cpu": NumPy
+    assert manifest["devices"] == {"render": on, "postprocess": on}
     pack = open_pack(path)
     assert isinstance(pack.labels, np.memmap)
     assert pack.voxel_size == large_library.voxel_size

@@ -57,7 +57,7 @@ from ._base import Compose, Transform, _plain
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["apply_blockwise", "steps"]
+__all__ = ["apply_blockwise", "device_for", "steps"]
 
 _PARAMS, _CALL, _BLOCK = 0, 1, 2
 
@@ -179,19 +179,34 @@ def _run_pass(
         target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
 
 
-def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
-    """What runs the steps: `torch_blocks.DeviceSteps` on `device` if every transform has a torch version."""
+def device_for(pipeline: Transform | Compose, device: str | None) -> str | None:
+    """The torch device `pipeline` runs on when `apply_blockwise` is asked for `device`.
+
+    `device` itself where every transform has a torch version
+    (`synthpack.artefacts.torch_blocks`), else None (NumPy on the CPU). Imports torch
+    only when `device` is not None.
+    """
     if device is None:
-        return _HostSteps()
+        return None
     from . import torch_blocks  # imports torch: only when a device is asked for
 
-    missing = torch_blocks.without_torch(steps(pipeline))
-    if missing:
-        logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
-                    ", ".join(sorted(set(missing))))
+    return None if torch_blocks.without_torch(steps(pipeline)) else device
+
+
+def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
+    """What runs the steps: `torch_blocks.DeviceSteps` on `device` if every transform has a torch version."""
+    runs_on = device_for(pipeline, device)
+    if runs_on is None:
+        if device is not None:
+            from . import torch_blocks
+
+            logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
+                        ", ".join(sorted(set(torch_blocks.without_torch(steps(pipeline))))))
         return _HostSteps()
-    logger.info("post-processing on %s", device)
-    return torch_blocks.DeviceSteps(device)
+    from . import torch_blocks
+
+    logger.info("post-processing on %s", runs_on)
+    return torch_blocks.DeviceSteps(runs_on)
 
 
 def apply_blockwise(
