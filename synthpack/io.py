@@ -7,7 +7,9 @@ turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
 `read_box` one box of a memory map, a Zarr array or an array, so a slice or a
 patch is read without the volume.
 `write_label_image` and `read_label_image` store 2D instance label images
-(PNG, TIFF, NPY), e.g. the truth and predictions of scored slices.
+(PNG, TIFF, NPY), e.g. the truth and predictions of scored slices. `write_tiff`,
+`write_zarr` and `write_nifti` (NIfTI-1, stored (x, y, z) as ITK and nnU-Net read it) write
+volumes with their voxel size.
 Writers are atomic: the data go to a temporary sibling first and are renamed
 into place only once complete, so a failed write leaves nothing behind.
 Their helpers, public for other writers: `atomic_file`, `atomic_directory`.

@@ -1,11 +1,12 @@
 """The part every dataset export shares: sources, splits, intensity window and PNG slices.
 
-An export (`synthpack.export.yolo`, `synthpack.export.coco`) turns synthetic packs and
+A 2D export (`synthpack.export.yolo`, `synthpack.export.coco`) turns synthetic packs and
 labelled real scans into 2D slices along one axis: `plan_slices` opens the sources and
 chooses the split of each one's slices and the intensity window, and
 `SlicedVolumes.write_images` writes the 8-bit images and hands each slice's labels to the
 format's own writer. So two exports of the same inputs with the same settings hold the
-same images under the same names in the same splits, whatever their format.
+same images under the same names in the same splits, whatever their format. A 3D
+export (`synthpack.export.nnunet`) opens the same sources with `open_sources`.
 
 Names
     Images are ``images/<split>/<source>_a<axis>_s<slice:04d>.png`` where ``<source>``
