@@ -49,6 +49,7 @@ _OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
     "demo": (("out", "synthpack.cli:DEMO_OUTPUT"),),
     "export-yolo": (("out", "synthpack.export.yolo:YOLO_OUTPUT"),),
     "export-coco": (("out", "synthpack.export.coco:COCO_OUTPUT"),),
+    "export-nnunet": (("out", "synthpack.export.nnunet:NNUNET_OUTPUT"),),
     "evaluate": (("out", "synthpack.metrics:EVALUATION_OUTPUT"),),
     "label": (("out", "synthpack.cli:LABELS_OUTPUT"),),
 }
@@ -341,12 +342,16 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
 
 
-def _slice_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The keyword arguments every export takes from the options of `_add_export_arguments`."""
+def _source_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments every export takes from the options of `_add_source_arguments`."""
     return {"packs": args.packs or (), "real": [tuple(pair) for pair in args.real or ()], "axis": args.axis,
-            "split": args.split, "val_fraction": args.val_fraction, "postprocess": args.postprocess,
-            "window": None if args.window is None else tuple(args.window), "min_area": args.min_area,
-            "overwrite": args.overwrite}
+            "split": args.split, "postprocess": args.postprocess, "overwrite": args.overwrite}
+
+
+def _slice_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments every slice export takes from the options of `_add_export_arguments`."""
+    return {**_source_options(args), "val_fraction": args.val_fraction,
+            "window": None if args.window is None else tuple(args.window), "min_area": args.min_area}
 
 
 def _print_export(summary: Any, what: str, path: Path) -> None:
@@ -368,6 +373,16 @@ def _cmd_export_coco(args: argparse.Namespace) -> None:
 
     summary = export_coco(args.out, **_slice_options(args))
     _print_export(summary, "COCO dataset", args.out / "annotations")
+
+
+def _cmd_export_nnunet(args: argparse.Namespace) -> None:
+    from .export import export_nnunet
+
+    summary = export_nnunet(args.out, **_source_options(args))
+    print(summary.table())
+    print(f"\nnnU-Net dataset {args.out}: {summary.count('Tr')} training and {summary.count('Ts')} test case(s) "
+          f"from {len(summary.sources)} source(s), voxel sizes in {summary.unit}; "
+          f"nnUNetv2_plan_and_preprocess -d {summary.dataset_id} --verify_dataset_integrity")
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> None:
@@ -521,30 +536,40 @@ def _add_pour_command(commands: Any) -> None:
 
 
 
-def _add_export_arguments(export: argparse.ArgumentParser, pieces: str) -> None:
-    """The options every export command shares (what is sliced, how, and where to); `pieces`: what --min-area counts."""
-    from .export.slices import MIN_AREA, SPLIT_MODES
-    from .split import VAL_FRACTION
+def _add_source_arguments(export: argparse.ArgumentParser, split: str, out: str, axis: str) -> None:
+    """The options every export command shares: what is exported, where to, and how it is split.
+
+    `split`: the default split mode; `out`: help of --out; `axis`: what --axis is.
+    """
+    from .export.slices import SPLIT_MODES
 
     export.add_argument("--packs", type=Path, nargs="+", action="extend", metavar="DIR",
                         help="pack folders, or folders holding pack_NNNN folders")
     export.add_argument("--real", type=Path, nargs=2, action="append", metavar=("TOMOGRAM", "LABELS"),
                         help="a labelled real scan (repeat for several)")
-    export.add_argument("--out", type=Path, required=True, help="dataset folder (new, empty or an earlier export)")
-    export.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help="slicing axis (default 0)")
-    export.add_argument("--split", choices=SPLIT_MODES, default=SPLIT_MODES[0],
-                        help="paper: every volume gives train/val/test (central 20%% test); "
-                             f"real-test: synthetic packs give training slices only (default {SPLIT_MODES[0]})")
-    export.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
-                        help=f"validation slices per volume, next to the test block (default {VAL_FRACTION})")
+    export.add_argument("--out", type=Path, required=True, help=out)
+    export.add_argument("--axis", type=int, choices=(0, 1, 2), default=0, help=f"{axis} (default 0)")
+    export.add_argument("--split", choices=SPLIT_MODES, default=split,
+                        help="paper: every volume is split (central 20%% test); real-test: synthetic packs are "
+                             f"for training only, whole (default {split})")
     export.add_argument("--postprocess", action=argparse.BooleanOptionalAction, default=True,
                         help="synthetic images from the post-processed tomogram (default) or the clean volume")
+    _add_overwrite_argument(export)
+
+
+def _add_export_arguments(export: argparse.ArgumentParser, pieces: str) -> None:
+    """The options every slice export command shares (what is sliced, how, and where to); `pieces`: what --min-area counts."""
+    from .export.slices import MIN_AREA, SPLIT_MODES
+    from .split import VAL_FRACTION
+
+    _add_source_arguments(export, SPLIT_MODES[0], "dataset folder (new, empty or an earlier export)", "slicing axis")
+    export.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
+                        help=f"validation slices per volume, next to the test block (default {VAL_FRACTION})")
     export.add_argument("--window", type=float, nargs=2, metavar=("LO", "HI"),
                         help="intensity window for 8 bits (default: 0.5/99.5 percentiles of the real scans, "
                              "else of the first pack's clean volume)")
     export.add_argument("--min-area", type=int, default=MIN_AREA,
                         help=f"{pieces} below this many pixels get no label (default {MIN_AREA})")
-    _add_overwrite_argument(export)
 
 
 def _add_export_command(commands: Any) -> None:
@@ -559,6 +584,14 @@ def _add_export_command(commands: Any) -> None:
                                                    "dataset (RLE masks)")
     _add_export_arguments(coco, "instances (all pieces of a label in a slice)")
     coco.set_defaults(run=_cmd_export_coco)
+    from .export.nnunet import DEFAULT_SPLIT
+
+    nnunet = commands.add_parser("export-nnunet", help="write packs and real scans as an nnU-Net v2 raw dataset "
+                                                       "(3D NIfTI; target: background 0, grain 1, boundary 2)")
+    _add_source_arguments(nnunet, DEFAULT_SPLIT, "dataset folder named DatasetNNN_Name, e.g. "
+                                                 "$nnUNet_raw/Dataset501_Grains (new, empty or an earlier export)",
+                          "axis of the central 20%% test block")
+    nnunet.set_defaults(run=_cmd_export_nnunet)
 
 
 

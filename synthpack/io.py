@@ -7,7 +7,9 @@ turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
 `read_box` one box of a memory map, a Zarr array or an array, so a slice or a
 patch is read without the volume.
 `write_label_image` and `read_label_image` store 2D instance label images
-(PNG, TIFF, NPY), e.g. the truth and predictions of scored slices.
+(PNG, TIFF, NPY), e.g. the truth and predictions of scored slices. `write_tiff`,
+`write_zarr` and `write_nifti` (NIfTI-1, stored (x, y, z) as ITK and nnU-Net read it) write
+volumes with their voxel size.
 Writers are atomic: the data go to a temporary sibling first and are renamed
 into place only once complete, so a failed write leaves nothing behind.
 Their helpers, public for other writers: `atomic_file`, `atomic_directory`.
@@ -88,6 +90,8 @@ __all__ = [
     "SUPPORTED_FORMATS",
     "atomic_directory",
     "atomic_file",
+    "check_nifti_writer",
+    "convert_voxel_size",
     "create_zarr_volume",
     "memmap_volume",
     "read_box",
@@ -97,6 +101,7 @@ __all__ = [
     "read_slice",
     "read_volume",
     "write_label_image",
+    "write_nifti",
     "write_tiff",
     "write_zarr",
 ]
@@ -168,6 +173,8 @@ _OPTIONAL = {
     "nibabel": ("nibabel", "formats"),
     "SimpleITK": ("SimpleITK", "metaimage"),
 }
+# NIfTI's spatial units (xyzt_units) of synthpack's canonical length units; write_nifti writes others as "unknown".
+_NIFTI_UNITS = {"m": "meter", "mm": "mm", "um": "micron"}
 # Above this many bytes write_tiff writes BigTIFF (same margin as tifffile).
 _BIGTIFF_BYTES = 2**32 - 2**25
 
@@ -400,6 +407,78 @@ def write_tiff(
             resolution=(1.0 / dx, 1.0 / dy),
             metadata={"spacing": dz, "unit": _imagej_unit(unit), "axes": "ZYX"},
         )
+    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    return path
+
+
+def check_nifti_writer() -> None:
+    """Raise the one-line install message unless nibabel, which `write_nifti` needs, is installed."""
+    _optional("nibabel", "NIfTI files", "writing")
+
+
+def write_nifti(
+    path: PathLike,
+    volume: np.ndarray,
+    voxel_size: float | tuple[float, float, float],
+    unit: str = "um",
+    *,
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Path:
+    """Write a volume as a NIfTI-1 file that nibabel, ITK (SimpleITK, 3D Slicer) and nnU-Net read with its voxel size.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file, ``.nii`` or ``.nii.gz`` (gzip, nibabel's level 1);
+        parent folders are created. An existing file is replaced atomically.
+    volume : ndarray, shape (Z, Y, X)
+        The volume, written in its dtype (bool as uint8).
+    voxel_size : float or tuple of 3 float
+        Voxel edge lengths ``(dz, dy, dx)`` in `unit`.
+    unit : str
+        Length unit. NIfTI records only metres, millimetres and micrometres
+        (``xyzt_units``); another unit is written as "unknown", which ITK and
+        `read_volume` read as millimetres.
+    origin : tuple of 3 float
+        Position ``(z, y, x)`` of the first voxel's centre in `unit` (the
+        affine's translation), e.g. where a crop starts in its whole scan.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Notes
+    -----
+    NIfTI stores its first axis fastest, so the array is stored as
+    ``volume.T``, shape (X, Y, Z), with zooms ``(dx, dy, dz)`` and the affine
+    ``diag(dx, dy, dz, 1)`` plus the translation ``origin[::-1]``, as both its
+    qform and sform (code 1, scanner). So `read_volume` gives back `volume`
+    and ``voxel_size``, and ITK's ``GetArrayFromImage`` gives the (Z, Y, X)
+    array with ``GetSpacing() == (dx, dy, dz)``: nnU-Net's spacing, which
+    reverses ITK's, is ``(dz, dy, dx)``.
+    """
+    path = Path(path)
+    if not path.name.endswith((".nii", ".nii.gz")):
+        raise SynthpackInputError(f"cannot write the NIfTI file {path}: give a file name ending in .nii or .nii.gz")
+    nibabel = _optional("nibabel", "NIfTI files", "writing")
+    size = validate_voxel_size(voxel_size)
+    data = _require_volume(volume)
+    data = data.astype(np.uint8) if data.dtype == bool else data
+    affine = np.diag([*size[::-1], 1.0])
+    affine[:3, 3] = np.asarray(origin, dtype=float)[::-1]
+    image = nibabel.Nifti1Image(data.T, affine)
+    image.set_qform(affine, code=1)
+    image.set_sform(affine, code=1)
+    image.header.set_xyzt_units(xyz=_NIFTI_UNITS.get(_normalise_unit(unit), "unknown"))
+    with atomic_file(path) as tmp:
+        # nibabel picks gzip from the name, so the temporary name keeps the suffix
+        staged = tmp.with_name(tmp.name + (".nii.gz" if path.name.endswith(".gz") else ".nii"))
+        try:
+            nibabel.save(image, staged)
+            os.replace(staged, tmp)
+        finally:
+            staged.unlink(missing_ok=True)
     logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
     return path
 
@@ -1137,14 +1216,14 @@ def _attribute_voxel_size(voxel_size: object, unit: object, path: Path) -> Metad
     return (None, None) if unit == "px" else (size, unit)
 
 
-def _optional(module: str, what: str) -> Any:
-    """Import the optional package `module` that reads `what`, or say how to install it."""
+def _optional(module: str, what: str, doing: str = "reading") -> Any:
+    """Import the optional package `module` that reads (or, `doing`, writes) `what`, or say how to install it."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
         package, extra = _OPTIONAL[module]
         raise SynthpackInputError(
-            f"reading {what} needs the Python package {package}, which is not installed: "
+            f"{doing} {what} needs the Python package {package}, which is not installed: "
             f'pip install "synthpack[{extra}]" (or pip install {package})'
         ) from exc
 
@@ -1312,8 +1391,8 @@ def _normalise_unit(unit: str) -> str:
     return _UNIT_ALIASES.get(key.lower(), _UNIT_ALIASES.get(key, key))
 
 
-def _convert(size: VoxelSize, unit: str, to: str) -> VoxelSize | None:
-    """`size` from `unit` into `to`, or None if either is not a known length unit."""
+def convert_voxel_size(size: VoxelSize, unit: str, to: str) -> VoxelSize | None:
+    """Voxel size `size` from `unit` into `to`, or None if either is not a known length unit (nm, um, mm, cm, m)."""
     if unit not in _MICROMETRES or to not in _MICROMETRES:
         return None
     factor = _MICROMETRES[unit] / _MICROMETRES[to]
@@ -1345,7 +1424,7 @@ def _resolve_voxel_size(
     if meta_size is not None:
         if unit is None or unit == meta_unit:
             return meta_size, meta_unit, origin
-        converted = _convert(meta_size, meta_unit, unit)
+        converted = convert_voxel_size(meta_size, meta_unit, unit)
         if converted is not None:
             return converted, unit, origin
         logger.info("unit %r given explicitly overrides %r from the %s (no conversion "

@@ -1,11 +1,12 @@
 """The part every dataset export shares: sources, splits, intensity window and PNG slices.
 
-An export (`synthpack.export.yolo`, `synthpack.export.coco`) turns synthetic packs and
+A 2D export (`synthpack.export.yolo`, `synthpack.export.coco`) turns synthetic packs and
 labelled real scans into 2D slices along one axis: `plan_slices` opens the sources and
 chooses the split of each one's slices and the intensity window, and
 `SlicedVolumes.write_images` writes the 8-bit images and hands each slice's labels to the
 format's own writer. So two exports of the same inputs with the same settings hold the
-same images under the same names in the same splits, whatever their format.
+same images under the same names in the same splits, whatever their format. A 3D
+export (`synthpack.export.nnunet`) opens the same sources with `open_sources`.
 
 Names
     Images are ``images/<split>/<source>_a<axis>_s<slice:04d>.png`` where ``<source>``
@@ -49,7 +50,8 @@ from ..scan import Scan
 from ..split import SPLITS, slice_splits
 
 __all__ = [
-    "SPLIT_MODES", "MIN_AREA", "to_uint8", "check_slicing", "Source", "ExportSlice", "SlicedVolumes", "plan_slices",
+    "SPLIT_MODES", "MIN_AREA", "to_uint8", "check_slicing", "Source", "open_sources", "ExportSlice", "SlicedVolumes",
+    "plan_slices",
     "ExportSummaryBase", "split_counts",
 ]
 
@@ -83,7 +85,11 @@ def check_slicing(axis: int, split: str, anything: bool) -> None:
 
 @dataclass
 class Source:
-    """One volume to export: file-name prefix, origin, and image and label volumes, shape (Z, Y, X)."""
+    """One volume to export: file-name prefix, origin, image and label volumes, shape (Z, Y, X), and voxel size.
+
+    ``voxel_size`` is ``(dz, dy, dx)`` in ``unit``: a pack's, a `Scan`'s, or a real scan
+    file's metadata when `open_sources` is asked for it (else 1.0 px: slices need none).
+    """
 
     name: str
     kind: str  # "real" or "synthetic"
@@ -91,6 +97,8 @@ class Source:
     volume: str  # which volume the images come from
     tomogram: Any
     labels: Any
+    voxel_size: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    unit: str = "px"
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -105,20 +113,26 @@ def _pack_source(pack: Pack, postprocess: bool) -> Source:
     """A synthetic pack's images (post-processed tomogram or clean volume) and labels."""
     volume = "tomogram" if postprocess else "clean"
     return Source(f"syn_{_safe(pack.path.name)}", "synthetic", str(pack.path), volume, getattr(pack, volume),
-                  pack.labels)
+                  pack.labels, pack.voxel_size, pack.unit)
 
 
-def _real_source(item: Scan | tuple, index: int) -> Source:
-    """A real scan, given as a `Scan` or read from a ``(tomogram, labels)`` pair of paths."""
+def _real_source(item: Scan | tuple, index: int, voxel_size: bool) -> Source:
+    """A real scan, given as a `Scan` or read from a ``(tomogram, labels)`` pair of paths.
+
+    `voxel_size`: read the files' voxel size (with the missing-metadata warning), else
+    read them in pixels.
+    """
     if isinstance(item, Scan):
-        return Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels)
+        return Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels,
+                      item.voxel_size, item.unit)
     if not (isinstance(item, (tuple, list)) and len(item) == 2):
         raise SynthpackInputError(f"a real scan is a Scan or a (tomogram, labels) pair of paths, got {item!r}")
     tomogram, labels = (Path(p) for p in item)
-    # the export works in pixels: an explicit voxel size skips the missing-metadata warning
-    scan = read_scan(tomogram, labels, voxel_size=1.0, unit="px")
+    # in pixels, an explicit voxel size skips the missing-metadata warning
+    scan = read_scan(tomogram, labels) if voxel_size else read_scan(tomogram, labels, voxel_size=1.0, unit="px")
     name = tomogram.name[: -len(".zarr")] if tomogram.name.endswith(".zarr") else tomogram.stem
-    return Source(f"real_{_safe(name)}", "real", f"{tomogram} + {labels}", "tomogram", scan.tomogram, scan.labels)
+    return Source(f"real_{_safe(name)}", "real", f"{tomogram} + {labels}", "tomogram", scan.tomogram, scan.labels,
+                  scan.voxel_size, scan.unit)
 
 
 def _unique_names(sources: list[Source]) -> None:
@@ -128,6 +142,42 @@ def _unique_names(sources: list[Source]) -> None:
         seen[source.name] = count
         if count > 1:
             source.name = f"{source.name}-{count}"
+
+
+def open_sources(
+    packs: Sequence[str | os.PathLike],
+    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]],
+    *,
+    postprocess: bool,
+    voxel_size: bool = False,
+) -> tuple[list[Source], list[Pack]]:
+    """Open the packs (verified) and the real scans of an export.
+
+    Parameters
+    ----------
+    packs, real, postprocess
+        As in `synthpack.export.export_yolo`.
+    voxel_size : bool
+        Read the real scan files' voxel size from their metadata (a 3D export
+        needs it); else they are read in pixels (1.0 px), without a warning.
+
+    Returns
+    -------
+    sources : list of Source
+        Packs first, then real scans, with unique names.
+    opened : list of Pack
+        The packs, in the sources' order.
+
+    Raises
+    ------
+    SynthpackInputError
+        When a pack or scan cannot be read.
+    """
+    opened = [open_pack(directory, verify=True) for path in packs for directory in find_packs(path)]
+    sources = [_pack_source(pack, postprocess) for pack in opened]
+    sources += [_real_source(item, k, voxel_size) for k, item in enumerate(real)]
+    _unique_names(sources)
+    return sources, opened
 
 
 def _choose_window(window: tuple[float, float] | None, reals: list[Source],
@@ -263,10 +313,8 @@ def plan_slices(
     `check_slicing` first. Raises `SynthpackInputError` when a pack or scan cannot be
     read, the window is empty, or a split would get no slices.
     """
-    opened = [open_pack(directory, verify=True) for path in packs for directory in find_packs(path)]
-    reals = [_real_source(item, k) for k, item in enumerate(real)]
-    sources = [_pack_source(pack, postprocess) for pack in opened] + reals
-    _unique_names(sources)
+    sources, opened = open_sources(packs, real, postprocess=postprocess)
+    reals = [source for source in sources if source.kind == "real"]
     chosen, window_from = _choose_window(window, reals, opened)
     plans = [_slice_plan(source, axis, split, val_fraction) for source in sources]
     _check_plans(plans)
