@@ -21,7 +21,12 @@ Supported inputs
 - NumPy ``.npy`` files;
 - Zarr stores (a directory): a single array, or a group holding one array or
   arrays named ``tomogram`` / ``labels``; voxel size from the attributes
-  ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`;
+  ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`. An OME-Zarr
+  image (NGFF 0.5 or 0.4, e.g. the ``pack.zarr`` of a Zarr pack): its
+  full-resolution level, voxel size and unit from its ``multiscales`` scale and
+  axes (`synthpack.ngff.full_resolution`); for the labels (or ``name="labels"``)
+  its first label image under ``labels/``, or by `name` another image group in
+  it (``"clean"``, ``"labels/instances"``);
 - NetCDF files as written by the ANU CT lab's Mango tools (``.nc``), with the
   variable ``tomo`` (or ``tomo_float``) and/or ``labels``, or a folder of
   such files split along z (``block00000000.nc``, ``block00000001.nc``, ...).
@@ -316,9 +321,11 @@ def read_volume(path: PathLike, name: str | None = None) -> Volume:
         module docstring). An HDF5 path may name its dataset after a colon,
         ``scan.h5:/entry/data``.
     name : str, optional
-        The array to read from a Zarr group, the variable to read from a
-        NetCDF file, or the dataset to read from an HDF5 file (the same as
-        after a colon). Needed only when the file holds several candidates.
+        The array to read from a Zarr group (in an OME-Zarr image: ``"labels"``,
+        a label image ``"labels/<name>"`` or another image group in it), the
+        variable to read from a NetCDF file, or the dataset to read from an HDF5
+        file (the same as after a colon). Needed only when the file holds
+        several candidates.
 
     Returns
     -------
