@@ -54,8 +54,8 @@ from .errors import SynthpackInputError
 from .io import create_zarr_volume, memmap_volume, write_tiff
 from .zarr_pack import STORE_NAME, create_volume, open_volumes, volume_paths, write_levels, write_volume
 
-__all__ = ["PACK_VOLUMES", "PACK_FORMATS", "pack_format", "Pack", "StagedPack", "find_packs", "stage_pack", "is_complete_pack",
-           "open_pack", "verify_pack"]
+__all__ = ["PACK_VOLUMES", "PACK_FORMATS", "pack_format", "Pack", "StagedPack", "find_packs", "stage_pack",
+           "is_complete_pack", "open_pack", "verify_pack"]
 
 #: Volume names of a pack, as TIFF files (``<name>.tif``) or the images of its OME-Zarr store.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
@@ -132,7 +132,7 @@ class StagedPack:
         and the export's default slicing). A pack volume (``tomogram``, ``clean``,
         ``labels``) is the full-resolution level of its image in the OME-Zarr store;
         other arrays (e.g. a ``scratch`` volume for intermediate results) go to a
-        separate store removed by :meth:`finish`.
+        separate store, removed when the levels are built (:meth:`write_levels`).
         """
         if self.format != "zarr":
             raise SynthpackInputError(f"a {self.format} pack has no Zarr store: write its volumes with write_volumes")
@@ -251,7 +251,8 @@ def _size_problem(directory: Path, manifest: dict) -> str | None:
 
 def _volume_paths(directory: Path, manifest: dict) -> list[Path]:
     if manifest.get("format") == "zarr":
-        return list(volume_paths(directory / STORE_NAME).values())
+        paths = volume_paths(directory / STORE_NAME)
+        return [paths[name] for name in PACK_VOLUMES]
     return [directory / f"{name}.tif" for name in PACK_VOLUMES]
 
 
