@@ -454,7 +454,7 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
     generate.add_argument("--format", choices=PACK_FORMATS, default="tiff",
                           help="volume format (default tiff); zarr (also called ome-zarr) writes each pack as "
-                               "an OME-Zarr image with its labels (pack.zarr; opens in napari and Fiji), chunk by "
+                               "an OME-Zarr image with its labels (pack.zarr; opens in napari), chunk by "
                                "chunk, for volumes larger than memory")
     where = generate.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, metavar="W",
