@@ -150,11 +150,11 @@ def write_levels(store: Path, voxel_size: tuple[float, float, float], unit: str,
     int
         The number of levels, level 0 included.
     """
-    arrays = {name: zarr.open_array(str(store / path), mode="r+") for name, path in VOLUME_PATHS.items()}
-    shapes = level_shapes(arrays["tomogram"].shape, min_size)
     workers = thread_count(threads)
-    for name, reduce in (("tomogram", _mean_2x), ("labels", _every_second)):
-        image, level = (store / VOLUME_PATHS[name]).parent, arrays[name]
+    shapes = level_shapes(zarr.open_array(str(store / VOLUME_PATHS["tomogram"]), mode="r").shape, min_size)
+    for name, reduce in (("tomogram", _mean_2x), ("labels", _every_second)):  # the same shape (open_pack checks)
+        level = zarr.open_array(str(store / VOLUME_PATHS[name]), mode="r")
+        image = (store / VOLUME_PATHS[name]).parent
         for index, shape in enumerate(shapes[1:], 1):
             level = _write_level(level, image / str(index), shape, reduce,
                                  [v * 2**index for v in voxel_size], unit, workers)
@@ -182,7 +182,7 @@ def _write_level(source: zarr.Array, path: Path, shape: tuple[int, int, int],
                  threads: int) -> zarr.Array:
     """Level `path` of `shape` made from `source` (the previous level) by `reduce`, block by block."""
     block = tuple(min(b, n) for b, n in zip(source.shards or source.chunks, shape))
-    chunks = tuple(min(c, b) for c, b in zip(source.chunks, block))
+    chunks = tuple(c if b % c == 0 else b for c, b in zip(source.chunks, block))  # chunks tile a shard
     target = create_zarr_volume(path, shape, source.dtype, tuple(voxel_size), unit, chunks=chunks,
                                 shards=block if source.shards else None)
 

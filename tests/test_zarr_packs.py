@@ -22,7 +22,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.generate import build_pack, generate_packs
 from synthpack.io import read_scan, read_volume
 from synthpack.pack import _file_records, open_pack, pack_format
-from synthpack.zarr_pack import create_volume, level_shapes, write_levels
+from synthpack.zarr_pack import create_volume, level_shapes, open_volumes, write_levels, write_volume
 
 CONFIG = PackConfig().replace(pour={"n_particles": 8, "batch_size": 8})
 
@@ -148,16 +148,21 @@ def test_downsampled_levels_have_their_scale_and_overlay_the_labels(packs, tmp_p
     _validated(store)  # ome-zarr-models also checks that the label levels match the image's
 
 
-def test_levels_written_block_by_block_equal_those_of_the_whole_volume(tmp_path):
+@pytest.mark.parametrize("written", ["chunk by chunk", "whole"])
+def test_levels_written_block_by_block_equal_those_of_the_whole_volume(tmp_path, written):
     rng = np.random.default_rng(0)
     shape = (37, 50, 45)  # odd sizes: the last voxel of an odd axis is averaged with itself
     tomogram = rng.random(shape, dtype=np.float32)
     labels = rng.integers(0, 9, shape).astype(np.int32)
     store = tmp_path / "pack.zarr"
     for name, volume in (("tomogram", tomogram), ("clean", tomogram), ("labels", labels)):
-        array = create_volume(store, name, shape, volume.dtype, (2.0, 1.0, 1.0), "mm", chunks=(1, 16, 16),
-                              shards=(8, 16, 16))
-        array[...] = volume
+        if written == "whole":  # in memory, Zarr's own chunks: as StagedPack.write_volumes writes it
+            write_volume(store, name, volume, (2.0, 1.0, 1.0), "mm")
+        else:
+            array = create_volume(store, name, shape, volume.dtype, (2.0, 1.0, 1.0), "mm", chunks=(1, 16, 16),
+                                  shards=(8, 16, 16))
+            for z in range(0, shape[0], 8):
+                array[z:z + 8] = volume[z:z + 8]
     assert level_shapes(shape, 8) == [shape, (19, 25, 23), (10, 13, 12)]
     assert write_levels(store, (2.0, 1.0, 1.0), "mm", min_size=8, threads=2) == 3
     group = zarr.open_group(str(store), mode="r")
@@ -168,6 +173,7 @@ def test_levels_written_block_by_block_equal_those_of_the_whole_volume(tmp_path)
         np.testing.assert_array_equal(group[f"labels/instances/{level}"][...], expected_labels)
         assert group[str(level)].attrs["voxel_size"] == [2.0 * 2**level, 2**level, 2**level]
     assert group.attrs["ome"]["multiscales"][0]["axes"][0]["unit"] == "millimeter"
+    np.testing.assert_array_equal(open_volumes(store)["labels"][...], labels)
     _validated(store)
 
 
