@@ -23,6 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from ._atomic import Output, check_output, remove_stale_staging
+from ._formats import PACK_FORMATS
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
 from .deform import Deform
@@ -466,9 +467,10 @@ def _add_generate_command(commands: Any) -> None:
     generate.add_argument("--deform-strength", type=float, metavar="S",
                           help=help_of(Deform, "strength") + " (config grains.deform.strength)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
-    generate.add_argument("--format", choices=("tiff", "zarr"), default="tiff",
-                          help="volume format (default tiff); zarr packs are written chunk by chunk, "
-                               "for volumes larger than memory")
+    generate.add_argument("--format", choices=PACK_FORMATS, default="tiff",
+                          help="volume format (default tiff); zarr (also called ome-zarr) writes each pack as "
+                               "an OME-Zarr image with its labels (pack.zarr; opens in napari), chunk by "
+                               "chunk, for volumes larger than memory")
     where = generate.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, metavar="W",
                        help="build the packs on a local Dask cluster of W worker processes (0: in this "

@@ -25,7 +25,7 @@ from .config import PackConfig, ReconstructConfig
 from .deform import PackGrains, pack_grains
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
-from .pack import PACKS_OUTPUT, is_complete_pack, stage_pack
+from .pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from .partial_volume import PartialVolume
 from .physics import Placements, Tube, pour
 from .physics.compaction import expected_fraction
@@ -329,8 +329,8 @@ def generate_pack(
         The run's config.
     out : path-like
         Output directory of the run.
-    format : {"tiff", "zarr"}
-        Volume format.
+    format : {"tiff", "zarr", "ome-zarr"}
+        Volume format (`synthpack.pack.PACK_FORMATS`); Zarr packs are OME-Zarr stores.
     source : str
         Description of the source scan, for the manifest.
     threads : int, optional
@@ -347,10 +347,11 @@ def generate_pack(
     seed = pack_seed(config.seed, index)
     with stage_pack(path, voxel_size=library.voxel_size, unit=library.unit, format=format) as staged:
         pack = build_pack(library, config, seed, progress=progress, threads=threads,
-                          allocate=staged.zarr_array if format == "zarr" else None)
+                          allocate=staged.zarr_array if staged.format == "zarr" else None)
         start = time.perf_counter()
-        if format == "tiff":
+        if staged.format == "tiff":
             staged.write_volumes({"tomogram": pack.tomogram, "clean": pack.clean, "labels": pack.labels})
+        staged.write_levels(threads)
         manifest = dict(pack.manifest, pack_index=index, run_seed=config.seed,
                         source=source or library.source, versions=_versions())
         manifest["timings"]["write"] = time.perf_counter() - start
@@ -385,9 +386,10 @@ def generate_packs(
         Number of packs; pack ``k`` uses seed :func:`pack_seed` ``(config.seed, k)``.
     config : PackConfig, optional
         Defaults to ``PackConfig()``.
-    format : {"tiff", "zarr"}
-        Volume format of the packs. Zarr packs are written chunk by chunk, for
-        volumes larger than memory.
+    format : {"tiff", "zarr", "ome-zarr"}
+        Volume format of the packs (`synthpack.pack.PACK_FORMATS`). Zarr packs
+        (``"ome-zarr"`` is another name) are OME-Zarr stores written chunk by
+        chunk, for volumes larger than memory, with downsampled levels for viewing.
     source : str
         Description of the source scan, for the manifests.
     progress : bool
@@ -419,8 +421,7 @@ def generate_packs(
     """
     if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
         raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
-    if format not in ("tiff", "zarr"):
-        raise SynthpackInputError(f"pack format must be tiff or zarr, got {format!r}")
+    format = pack_format(format)
     config = config or PackConfig()
     out = check_output(out, PACKS_OUTPUT, overwrite=overwrite)
     check_postprocess(config.postprocess, library.statistics)

@@ -23,7 +23,12 @@ Supported inputs
 - NumPy ``.npy`` files;
 - Zarr stores (a directory): a single array, or a group holding one array or
   arrays named ``tomogram`` / ``labels``; voxel size from the attributes
-  ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`;
+  ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`. An OME-Zarr
+  image (NGFF 0.5 or 0.4, e.g. the ``pack.zarr`` of a Zarr pack): its
+  full-resolution level, voxel size and unit from its ``multiscales`` scale and
+  axes (`synthpack.ngff.full_resolution`); for the labels (or ``name="labels"``)
+  its first label image under ``labels/``, or by `name` another image group in
+  it (``"clean"``, ``"labels/instances"``);
 - NetCDF files as written by the ANU CT lab's Mango tools (``.nc``), with the
   variable ``tomo`` (or ``tomo_float``) and/or ``labels``, or a folder of
   such files split along z (``block00000000.nc``, ``block00000001.nc``, ...).
@@ -79,6 +84,7 @@ import tifffile
 import zarr
 from PIL import Image
 
+from .ngff import full_resolution, label_names
 from ._atomic import Output, atomic_directory, atomic_file
 from .errors import SynthpackInputError
 from .scan import Scan, validate_tomogram, validate_voxel_size
@@ -322,9 +328,11 @@ def read_volume(path: PathLike, name: str | None = None) -> Volume:
         module docstring). An HDF5 path may name its dataset after a colon,
         ``scan.h5:/entry/data``.
     name : str, optional
-        The array to read from a Zarr group, the variable to read from a
-        NetCDF file, or the dataset to read from an HDF5 file (the same as
-        after a colon). Needed only when the file holds several candidates.
+        The array to read from a Zarr group (in an OME-Zarr image: ``"labels"``,
+        a label image ``"labels/<name>"`` or another image group in it), the
+        variable to read from a NetCDF file, or the dataset to read from an HDF5
+        file (the same as after a colon). Needed only when the file holds
+        several candidates.
 
     Returns
     -------
@@ -1064,6 +1072,8 @@ def _tag_ratio(page: tifffile.TiffPage, tag: str) -> float | None:
 
 def _read_zarr(path: Path, role: str | None, name: str | None) -> Volume:
     node = zarr.open(str(path), mode="r")
+    if isinstance(node, zarr.Group) and full_resolution(node.attrs) is not None:
+        return _read_ome_zarr(node, role, name, path)
     group_attrs: dict = {}
     if isinstance(node, zarr.Group):
         arrays = dict(node.arrays())
@@ -1072,6 +1082,24 @@ def _read_zarr(path: Path, role: str | None, name: str | None) -> Volume:
     attrs = {**group_attrs, **dict(node.attrs)}
     size, unit = _attribute_voxel_size(attrs.get("voxel_size"), attrs.get("unit"), path)
     return node[...], size, unit
+
+
+def _read_ome_zarr(image: zarr.Group, role: str | None, name: str | None, path: Path) -> Volume:
+    """Level 0 of an OME-Zarr image: the image itself (`name` ``"."``), a label image (``labels/<name>``; the
+    first for the labels role or `name` ``"labels"``) or another image group in it (`name`, e.g. ``clean``)."""
+    labels = image.get("labels")
+    label_images = [f"labels/{n}" for n in label_names(labels.attrs)] if isinstance(labels, zarr.Group) else []
+    images = {".": image, **{key: image[key] for key in label_images}}
+    images.update({key: group for key, group in image.groups()
+                   if key != "labels" and full_resolution(group.attrs) is not None})
+    if (name is None and role == "labels" or name == "labels") and label_images:
+        name = label_images[0]
+    chosen = images[_choose(sorted(images), None, name or ".", path, "image")]
+    level, size, unit = full_resolution(chosen.attrs)  # type: ignore[misc]
+    array = chosen[level]
+    if size is None:
+        size, unit = array.attrs.get("voxel_size"), array.attrs.get("unit")
+    return array[...], *_attribute_voxel_size(size, unit or "px", path)
 
 
 def _read_netcdf(path: Path, role: str | None, name: str | None) -> Volume:

@@ -9,8 +9,17 @@ Layout of one pack directory (names scripts and the dataset rely on)::
     manifest.json    config, seeds, source, versions, timings, counts, and the size and
                      SHA-256 of every other file (``files``); written last
 
-With ``format="zarr"`` the three volumes are arrays of one store ``pack.zarr``
-under the same names (``tomogram``, ``clean``, ``labels``).
+With ``format="zarr"`` (also called ``"ome-zarr"``) the three volumes are one
+OME-Zarr store (NGFF 0.5, on Zarr v3) instead of the TIFF files::
+
+    pack.zarr/                      the tomogram, a multiscales image: levels 0 (full resolution), 1, ...
+        labels/instances/           the instance labels, a label image of the same levels
+        clean/                      the noise-free volume, an image of level 0 only
+
+with the voxel size and unit as each level's coordinate transformations, readable by
+ome-zarr-py, napari and Fiji; `synthpack.zarr_pack` describes it. Packs from before
+OME-Zarr, with plain arrays ``tomogram``, ``clean`` and ``labels`` in ``pack.zarr``,
+are still read.
 
 A pack is complete when its manifest says so and every file it lists has the recorded
 size (:func:`is_complete_pack`, cheap: a rerun rebuilds a pack whose file was cut
@@ -21,7 +30,7 @@ The directory is built under a temporary name and renamed when complete, so an
 interrupted run leaves no directory that looks complete. `stage_pack` gives the
 temporary directory: volumes held in memory are written whole, and a Zarr pack's
 volumes can be filled chunk by chunk (volumes larger than memory), before the
-pack is published.
+pack is published (its downsampled levels are then built block by block).
 """
 
 from __future__ import annotations
@@ -40,15 +49,18 @@ import numpy as np
 import zarr
 
 from ._atomic import Output, atomic_directory
+from ._formats import PACK_FORMATS, pack_format
 from .errors import SynthpackInputError
-from .io import create_zarr_volume, memmap_volume, write_tiff, write_zarr
+from .io import create_zarr_volume, memmap_volume, write_tiff
+from .zarr_pack import STORE_NAME, create_volume, open_volumes, volume_paths, write_levels, write_volume
 
-__all__ = ["PACK_VOLUMES", "Pack", "StagedPack", "find_packs", "stage_pack", "is_complete_pack",
-           "open_pack", "verify_pack"]
+__all__ = ["PACK_VOLUMES", "PACK_FORMATS", "pack_format", "Pack", "StagedPack", "find_packs", "stage_pack",
+           "is_complete_pack", "open_pack", "verify_pack"]
 
-#: Volume names of a pack, as TIFF files (``<name>.tif``) or Zarr arrays.
+#: Volume names of a pack, as TIFF files (``<name>.tif``) or the images of its OME-Zarr store.
 PACK_VOLUMES = ("tomogram", "clean", "labels")
-_FORMATS = ("tiff", "zarr")
+# Intermediate arrays of a Zarr pack being built (e.g. ``scratch``), removed by finish.
+_SCRATCH = "scratch.zarr"
 #: A pack folder: an earlier pack (``manifest.json``) is replaced, anything else is refused.
 PACK_OUTPUT = Output("pack", marker="manifest.json")
 #: The output folder of a run: synthpack's own when it holds packs (complete or staged) of an earlier run.
@@ -108,6 +120,7 @@ class StagedPack:
         self.voxel_size = tuple(float(v) for v in voxel_size)
         self.unit = unit
         self.finished = False
+        self.levels: int | None = None
 
     def zarr_array(self, name: str, shape: tuple[int, int, int], dtype: np.dtype | type,
                    chunks: tuple[int, int, int]) -> zarr.Array:
@@ -116,18 +129,21 @@ class StagedPack:
         Each block of `chunks` is one shard file, stored as compressed chunks of
         one slice ``(1, Y, X)`` of the block: a block is written at once, and a
         slice along z is read without decoding its neighbours (the dataset's
-        and the export's default slicing). Arrays other than the pack volumes
-        (e.g. a ``scratch`` volume for intermediate results) are removed by
-        :meth:`finish`.
+        and the export's default slicing). A pack volume (``tomogram``, ``clean``,
+        ``labels``) is the full-resolution level of its image in the OME-Zarr store;
+        other arrays (e.g. a ``scratch`` volume for intermediate results) go to a
+        separate store, removed when the levels are built (:meth:`write_levels`).
         """
         if self.format != "zarr":
             raise SynthpackInputError(f"a {self.format} pack has no Zarr store: write its volumes with write_volumes")
-        store = self.path / "pack.zarr"
-        if not store.exists():
-            zarr.open_group(str(store), mode="w")
         shards = tuple(int(c) for c in chunks)
-        return create_zarr_volume(store / name, shape, dtype, self.voxel_size, self.unit,
-                                  chunks=(1, *shards[1:]), shards=shards)
+        layout = dict(chunks=(1, *shards[1:]), shards=shards)
+        if name in PACK_VOLUMES:
+            return create_volume(self.path / STORE_NAME, name, shape, dtype, self.voxel_size, self.unit, **layout)
+        scratch = self.path / _SCRATCH
+        if not scratch.exists():
+            zarr.open_group(str(scratch), mode="w")
+        return create_zarr_volume(scratch / name, shape, dtype, self.voxel_size, self.unit, **layout)
 
     def write_volumes(self, volumes: dict[str, np.ndarray]) -> None:
         """Write the in-memory volumes ``{"tomogram", "clean", "labels"}`` in the pack's format."""
@@ -139,7 +155,18 @@ class StagedPack:
                 write_tiff(self.path / f"{name}.tif", volumes[name], self.voxel_size, self.unit,
                            labels=name == "labels")
             else:
-                write_zarr(self.path / "pack.zarr", volumes[name], self.voxel_size, self.unit, name=name)
+                write_volume(self.path / STORE_NAME, name, volumes[name], self.voxel_size, self.unit)
+
+    def write_levels(self, threads: int | None = None) -> None:
+        """Build the downsampled levels and write the OME-Zarr metadata of a Zarr pack whose volumes are written.
+
+        Nothing for a TIFF pack. :meth:`finish` calls it if it was not called
+        (call it first to time it, or to give it `threads`); see
+        `synthpack.zarr_pack.write_levels`.
+        """
+        if self.format == "zarr" and self.levels is None:
+            shutil.rmtree(self.path / _SCRATCH, ignore_errors=True)
+            self.levels = write_levels(self.path / STORE_NAME, self.voxel_size, self.unit, threads=threads)
 
     def finish(self, placements, manifest: dict) -> None:
         """Write ``placements.json`` and, last, ``manifest.json`` (``complete: true``).
@@ -151,10 +178,7 @@ class StagedPack:
         manifest : dict
             JSON-able; ``format``, ``voxel_size``, ``unit`` and ``complete`` are added.
         """
-        store = self.path / "pack.zarr"
-        if store.is_dir():
-            for extra in sorted(p for p in store.iterdir() if p.is_dir() and p.name not in PACK_VOLUMES):
-                shutil.rmtree(extra)
+        self.write_levels()
         placements.save(self.path / "placements.json")
         full = dict(manifest, format=self.format, voxel_size=list(self.voxel_size), unit=self.unit,
                     files=_file_records(self.path), complete=True)
@@ -177,8 +201,7 @@ def stage_pack(
     ...     labels = staged.zarr_array("labels", shape, np.int32, chunks)   # fill chunk by chunk
     ...     staged.finish(placements, manifest)
     """
-    if format not in _FORMATS:
-        raise SynthpackInputError(f"pack format must be one of {', '.join(_FORMATS)}, got {format!r}")
+    format = pack_format(format)
     with atomic_directory(directory, PACK_OUTPUT) as staging:
         staged = StagedPack(staging, format, voxel_size, unit)
         yield staged
@@ -228,7 +251,8 @@ def _size_problem(directory: Path, manifest: dict) -> str | None:
 
 def _volume_paths(directory: Path, manifest: dict) -> list[Path]:
     if manifest.get("format") == "zarr":
-        return [directory / "pack.zarr" / name for name in PACK_VOLUMES]
+        paths = volume_paths(directory / STORE_NAME)
+        return [paths[name] for name in PACK_VOLUMES]
     return [directory / f"{name}.tif" for name in PACK_VOLUMES]
 
 
@@ -331,8 +355,8 @@ def open_pack(directory: str | os.PathLike, *, verify: bool = False) -> Pack:
         )
     try:
         if manifest["format"] == "zarr":
-            store = zarr.open_group(str(directory / "pack.zarr"), mode="r")
-            arrays = [store[name] for name in PACK_VOLUMES]
+            volumes = open_volumes(directory / STORE_NAME)
+            arrays = [volumes[name] for name in PACK_VOLUMES]
         else:
             arrays = [memmap_volume(path) for path in _volume_paths(directory, manifest)]
     except Exception as error:

@@ -6,7 +6,9 @@ recipe ``default`` became ``generic`` (the same volumes) and the manifests gaine
 resolved post-processing mode; and for 0.4.0, where packs are poured to the source's solid
 fraction with margin-corrected collision shapes (new placements and labels), the calibrated
 post-processing and the library gained the measured scanner artefacts and pore histogram,
-and the YOLO export's files name the new version. A refactor that does not mean to change behaviour must
+and the YOLO export's files name the new version; and when Zarr packs became OME-Zarr
+stores (the same level-0 arrays under the new paths ``0``, ``clean/0`` and
+``labels/instances/0``). A refactor that does not mean to change behaviour must
 keep them; a change that must change the bytes re-records them with
 ``SYNTHPACK_RECORD_DIGESTS=1 pytest tests/test_digests.py`` and says why in its commit.
 
@@ -14,7 +16,7 @@ What is hashed: every file of a library, a placements file, packs (TIFF and Zarr
 each post-processing mode) and a YOLO export. JSON files are hashed without the values
 that describe the run rather than the result (timings, versions), and text files with the
 run's temporary folder replaced by a placeholder; ``.npz``
-archives by their arrays (zip entries carry a timestamp); Zarr stores by their arrays.
+archives by their arrays (zip entries carry a timestamp); Zarr stores by all their arrays.
 """
 
 from __future__ import annotations
@@ -79,8 +81,9 @@ def tree_digest(root: Path) -> dict[str, str]:
             digests[name] = hashlib.sha256(path.read_bytes()).hexdigest()
     for store in sorted(root.rglob("*.zarr")):
         group = zarr.open_group(str(store), mode="r")
-        for key in sorted(group.array_keys()):
-            digests[f"{store.relative_to(root).as_posix()}/{key}"] = _array_digest(group[key][...])
+        for key, node in sorted(group.members(max_depth=None), key=lambda member: member[0]):
+            if isinstance(node, zarr.Array):  # every level of every image of an OME-Zarr store
+                digests[f"{store.relative_to(root).as_posix()}/{key}"] = _array_digest(node[...])
     return digests
 
 

@@ -466,3 +466,19 @@ def test_failed_zarr_write_keeps_the_other_arrays(tmp_path, monkeypatch, tomogra
     monkeypatch.undo()
     np.testing.assert_array_equal(read_volume(store, name="labels")[0], labels)
     assert sorted(p.name for p in store.iterdir()) == ["labels", "tomogram", "zarr.json"]
+
+
+def test_an_ome_zarr_0_4_image_reads_its_full_resolution_level_with_scale_and_unit(tmp_path, tomogram):
+    """NGFF 0.4 on Zarr v2: ``multiscales`` at the top of the attributes, a global scale on top of the level's."""
+    root = zarr.open_group(str(tmp_path / "image.zarr"), mode="w", zarr_format=2)
+    root.create_array("s0", data=tomogram)
+    root.create_array("s1", data=tomogram[::2, ::2, ::2])
+    root.attrs["multiscales"] = [{
+        "version": "0.4", "axes": [{"name": axis, "type": "space", "unit": "millimeter"} for axis in "zyx"],
+        "datasets": [{"path": f"s{k}", "coordinateTransformations": [{"type": "scale", "scale": [f, f / 2, f / 2]}]}
+                     for k, f in ((0, 1.0), (1, 2.0))],
+        "coordinateTransformations": [{"type": "scale", "scale": [2.0, 1.0, 1.0]}],
+    }]
+    volume, size, unit = read_volume(tmp_path / "image.zarr")
+    np.testing.assert_array_equal(volume, tomogram)
+    assert size == (2.0, 0.5, 0.5) and unit == "mm"

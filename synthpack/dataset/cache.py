@@ -57,7 +57,7 @@ class PackCache:
     config : PackConfig
         Pack configuration, seed included.
     format : {"tiff", "zarr"}
-        Pack format.
+        Pack format, as `synthpack.pack.pack_format` names it.
 
     Attributes
     ----------

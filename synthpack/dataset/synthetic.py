@@ -10,15 +10,12 @@ from torch.utils.data import get_worker_info
 
 from ..config import PackConfig, load_config
 from ..errors import SynthpackInputError
-from ..pack import Pack, open_pack
+from ..pack import Pack, open_pack, pack_format
 from .base import SliceDataset, check_seed
 from .cache import PackCache
 from .source import PackSource
 
 __all__ = ["SyntheticParticlePackDataset"]
-
-_FORMATS = ("tiff", "zarr")
-
 
 class SyntheticParticlePackDataset(SliceDataset):
     """Slices of synthetic particle packs, built on demand and cached on disk.
@@ -66,10 +63,11 @@ class SyntheticParticlePackDataset(SliceDataset):
         True: ``target["masks"]`` (N, H, W). False: the compact
         ``target["instance_map"]`` (H, W) instead, N times cheaper to send from
         DataLoader workers; :func:`expand_masks` turns it into ``masks``.
-    format : {"tiff", "zarr"}
-        Format of the cached packs. Zarr packs are built chunk by chunk, for
-        volumes larger than memory, and an item reads only the Zarr chunks its
-        slice crosses; the voxels are the same in both formats.
+    format : {"tiff", "zarr", "ome-zarr"}
+        Format of the cached packs (`synthpack.pack.PACK_FORMATS`). Zarr packs
+        (OME-Zarr stores; ``"ome-zarr"`` is another name) are built chunk by
+        chunk, for volumes larger than memory, and an item reads only the Zarr
+        chunks its slice crosses; the voxels are the same in both formats.
 
     Notes
     -----
@@ -110,8 +108,7 @@ class SyntheticParticlePackDataset(SliceDataset):
     ) -> None:
         if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
             raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
-        if format not in _FORMATS:
-            raise SynthpackInputError(f"format must be 'tiff' or 'zarr', got {format!r}")
+        format = pack_format(format)
         config = _as_config(config)
         if seed is not None:
             config = config.replace(seed=check_seed(seed, "seed"))
