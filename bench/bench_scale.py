@@ -46,6 +46,7 @@ from synthpack.library import ParticleLibrary
 from synthpack.pack import PACK_VOLUMES
 from synthpack.physics import Tube, pour
 from synthpack.samples import sample_scan
+from synthpack.zarr_pack import VOLUME_PATHS
 
 from _measure import generate_zarr_pack, load_average
 
@@ -75,7 +76,7 @@ def bandwidth_floor(store: Path, workdir: Path) -> dict[str, dict[str, float]]:
     """
     floor = {}
     for name in PACK_VOLUMES:
-        array = zarr.open_array(str(store / name), mode="r")
+        array = zarr.open_array(str(store / VOLUME_PATHS[name]), mode="r")  # full resolution
         depth = min(SLAB_SLICES, array.shape[0])
         start = (array.shape[0] - depth) // 2
         slab = np.ascontiguousarray(array[start:start + depth])
