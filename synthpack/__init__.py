@@ -18,7 +18,7 @@ from typing import Any
 from .errors import SynthpackInputError
 from .scan import Scan
 
-__version__ = "0.5.0"
+__version__ = "0.6.0"
 
 _LAZY = {
     "read_scan": "synthpack.io",
