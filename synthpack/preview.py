@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import Output, atomic_file
+from ._plotting import pyplot
 from .library import ParticleLibrary
 from .particles import equivalent_diameter
 from .scan import Scan
@@ -98,10 +99,7 @@ def save_library_preview(
     overwrite : bool
         Replace an existing file at `path` that is not a synthpack preview.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     n_meshes = max(3, 3 * (n_meshes // 3))
     fig = plt.figure(figsize=(13, 7.5), layout="constrained")
@@ -172,10 +170,7 @@ def save_pack_preview(
     overwrite : bool
         Replace an existing file at `path` that is not a synthpack preview.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")
     views = _middle_slices(labels.shape)
@@ -230,10 +225,7 @@ def save_label_preview(
     overwrite : bool
         Replace an existing file at `path` that is not a synthpack preview.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from skimage.segmentation import mark_boundaries
 
     fig, axes = plt.subplots(2, 3, figsize=(14, 9.5), layout="constrained")

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_file
+from .._plotting import pyplot
 from .discriminator import ClassifierTest
 from .report import Measurements
 
@@ -19,19 +20,10 @@ _DPI = 72
 _SHOWN = 16
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path: str | os.PathLike) -> Path:
     with atomic_file(path) as staging:
         fig.savefig(staging, dpi=_DPI, format="png")
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return Path(path)
 
 
@@ -50,7 +42,7 @@ def save_structure_plot(source: Measurements, packs: Sequence[Measurements], pat
     path : path-like
         Output PNG.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), layout="constrained")
     unit = source.specimen.unit
     panels = [
@@ -79,7 +71,7 @@ def save_appearance_plot(source: Measurements, packs: Sequence[Measurements], pa
     path : path-like
         Output PNG.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), layout="constrained")
     everyone = (source, *packs)
     for ax, phase in zip(axes[0], ("grains", "pores", "edges")):
@@ -124,7 +116,7 @@ def save_slices_plot(
     path : path-like
         Output PNG.
     """
-    plt = _pyplot()
+    plt = pyplot()
     everyone = (source, *packs)
     fig, axes = plt.subplots(1, len(everyone), figsize=(3.6 * len(everyone), 3.9), layout="constrained",
                              squeeze=False)
@@ -169,7 +161,7 @@ def save_cnn_patches_plot(
     seed : int
         Seed of the draw of the real patches.
     """
-    plt = _pyplot()
+    plt = pyplot()
     rng = np.random.default_rng(seed)
     fig, axes = plt.subplots(len(packs), 2, figsize=(8, 4.2 * len(packs)), layout="constrained", squeeze=False)
     cmap = plt.get_cmap("gray").with_extremes(bad="tab:blue")
