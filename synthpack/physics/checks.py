@@ -98,7 +98,7 @@ class PourChecks:
     fill_height: float
     steps_per_batch: list[int] = field(default_factory=list)
     settled_per_batch: list[bool] = field(default_factory=list)
-    seconds: float = 0.0
+    seconds: float = field(default=0.0, compare=False)  # wall-clock: not part of the result
     target_packing_fraction: float | None = None
     target_reached: bool | None = None
     compaction: dict[str, Any] | None = None
