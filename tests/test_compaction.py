@@ -112,8 +112,9 @@ def test_the_knob_compacts_above_zero_and_spaces_below():
 
 def test_the_controller_stops_steering_when_the_bulk_layers_hold_no_solid(caplog):
     """A layer measured at 0 used to make the knob 'wanted / 0' (ZeroDivisionError mid-pour)."""
-    cube = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
-    controller = PackingController(0.45, 0.6, [cube], inner_radius=3.0)
+    tetrahedron = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                   np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    controller = PackingController(0.45, 0.6, [tetrahedron], inner_radius=3.0)
     first = controller.next_batch()
     controller.layers.append((1.0, 2.0, 0.0, first.knob))  # a bulk layer that no grain reached
     with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
@@ -136,8 +137,9 @@ def test_a_target_no_rigid_grain_pack_reaches_is_refused_naming_the_limit(value)
 
 def test_the_cli_refuses_an_unreachable_target_before_any_work(tmp_path):
     out = tmp_path / "packs"
-    run = subprocess.run([sys.executable, "-m", "synthpack", "-q", "generate", "--sample", "small", "--n-particles", "4",
-                          "--target-solid-fraction", "0.99", "--out", str(out)], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-m", "synthpack", "-q", "generate", "--sample", "small",
+                          "--n-particles", "4", "--target-solid-fraction", "0.99", "--out", str(out)],
+                         capture_output=True, text=True)
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert run.stderr.splitlines()[0].startswith("synthpack: error: config key 'pour.target_solid_fraction'")
     assert "0.8]" in run.stderr.splitlines()[0] and not out.exists()

@@ -200,7 +200,7 @@ class PackingController:
     knobs: list[float] = field(default_factory=list)
     #: Measured bulk layers: (z0, z1, packing fraction, knob of the batch that completed it).
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
-    #: Set when the bulk layers measured no solid: the control stops steering (see :meth:`next_batch`).
+    #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
 
@@ -214,14 +214,15 @@ class PackingController:
         Layers whose measured fraction is not a positive number (no grain reached the
         measured region) say nothing of how the knob works: they are left out. When
         every layer so far is such, the control stops steering (:attr:`degenerate`,
-        logged as a warning once) and the batch gets the prior's knob for the target.
+        logged as a warning once) and the batch gets the prior's knob for the target,
+        until a layer holds solid.
         """
         measured = [(z1 - z0, f, k) for z0, z1, f, k in self.layers if math.isfinite(f) and f > 0]
         wanted, ratio = self.target, 1.0
         if self.layers and not measured and not self.degenerate:
             self.degenerate = True
-            logger.warning("Target packing fraction %.3f: the bulk layers measured so far hold no solid, so "
-                           "the pour cannot be steered; the remaining batches use the prior model.", self.target)
+            logger.warning("Target packing fraction %.3f: the bulk layers measured so far hold no solid, so the "
+                           "pour cannot be steered: batches get the prior model's knob until one does.", self.target)
         if measured:
             heights, fractions, knobs = (np.array(column) for column in zip(*measured))
             priors = np.array([prior_fraction(k) for k in knobs])
@@ -336,7 +337,9 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     if not checks.target_reached:
         limit = 1.0 if reached < target else -MAX_INFLATION
         knobs = [] if controller is None else controller.knobs
-        if knobs and np.mean(np.isclose(knobs, limit)) >= 0.5:
+        if controller is not None and controller.degenerate and not any(f > 0 for _, _, f, _ in controller.layers):
+            why = "the bulk layers measured while pouring held no solid, so the pour was not steered"
+        elif knobs and np.mean(np.isclose(knobs, limit)) >= 0.5:
             why = ("denser than these grains pack under full compaction" if reached < target
                    else "looser than the largest spacing gives")
         else:
@@ -354,7 +357,7 @@ def _why_no_bulk(checks: PourChecks, n_grains: int | None) -> str:
     if region["radius"] <= 0:
         return ("the tube is too narrow for a bulk region (its inner radius is under one grain diameter): "
                 "use a wider tube (pour.tube_radius)")
-    margin = float(region["z_min"])  # one median grain diameter: the bulk starts 1 above the floor, ends 2 below the top
+    margin = float(region["z_min"])  # one grain diameter: the bulk starts 1 above the floor and ends 2 below the top
     needed = "more grains" if not n_grains or checks.fill_height <= 0 else \
         f"about {math.ceil(n_grains * 4 * margin / checks.fill_height)} grains in this tube"
     return (f"the pack is too shallow for a bulk region ({checks.fill_height / margin:.1f} grain diameters deep; "
