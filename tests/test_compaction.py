@@ -120,7 +120,7 @@ def test_the_controller_stops_steering_when_the_bulk_layers_hold_no_solid(caplog
     with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
         second = controller.next_batch()
     assert np.isfinite(second.knob) and second.knob == first.knob  # the prior's knob for the target
-    assert controller.degenerate and controller.record()["degenerate"] is True
+    assert controller.degenerate and controller.record()["layers"][0]["packing_fraction"] == 0
     assert "cannot be steered" in caplog.text
     assert -1 < first.knob < 0  # spaced: 0.45 is looser than a free pour
     controller.layers.append((2.0, 3.0, 0.55, second.knob))  # denser than the prior says: steering again

@@ -269,7 +269,6 @@ class PackingController:
         """The knob of every batch and the measured bulk layers, JSON-able."""
         return {
             "knobs": [round(k, 4) for k in self.knobs],
-            "degenerate": self.degenerate,
             "layers": [{"z0": z0, "z1": z1, "packing_fraction": f, "knob": round(k, 4)}
                        for z0, z1, f, k in self.layers],
         }
