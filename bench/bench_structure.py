@@ -98,8 +98,8 @@ def main() -> None:
             generate_packs(library, Path(tmp) / "packs", 1, config, workers=0, progress=False)
             pack = Path(tmp) / "packs" / "pack_0000"
             coordination, solid, n = measure(Specimen.from_pack(pack))
-            checks = open_pack(pack).manifest["pour_checks"]
-        pour_s = checks["seconds"]
+            manifest = open_pack(pack).manifest
+        checks, pour_s = manifest["pour_checks"], manifest["timings"]["pour_engine"]
         print(f"| {variant} | {pour_s:.1f} | {pour_s / args.grains:.4f} | {coordination:.2f} | {solid:.3f} "
               f"| {checks['packing_fraction']:.3f} | {checks.get('target_reached', '-')} | {n} |", flush=True)
 

@@ -151,6 +151,7 @@ def build_pack(
             grains = pack_grains(library, config.pour.n_particles, config.grains.deform, seed)
     with _timed(timings, "pour"):
         placements = _pour(library, config, seed, progress, grains)
+    timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
     with _timed(timings, "reconstruct"):
         render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains, device)
     with _timed(timings, "postprocess"):
@@ -167,7 +168,7 @@ def build_pack(
         seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
-        pour_checks=dataclasses.asdict(placements.checks), pore_texture=render.background.texture_record(seed),
+        pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
         wall=render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,

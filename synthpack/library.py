@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
+from ._json import dumps as strict_json
 from ._arrays import cupping_factor
 from ._atomic import Output, atomic_directory
 from ._schema import in_range, positive, setting
@@ -316,7 +317,7 @@ class ParticleLibrary(Sequence[Particle]):
             particles=rows,
         )
         with atomic_directory(directory, LIBRARY_OUTPUT, overwrite=overwrite) as staging:
-            (staging / "library.json").write_text(json.dumps(meta, indent=1))
+            (staging / "library.json").write_text(strict_json(meta, indent=1))
             with open(staging / "particles.csv", "w", newline="") as handle:
                 writer = csv.DictWriter(handle, fieldnames=_TABLE_COLUMNS)
                 writer.writeheader()

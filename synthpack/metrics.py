@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import logging
 import os
 from dataclasses import dataclass, fields
@@ -62,6 +61,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ._json import dumps as strict_json
 from ._atomic import Output, atomic_directory
 from .errors import SynthpackInputError
 from .io import LABEL_IMAGE_SUFFIXES, read_label_image
@@ -512,7 +512,7 @@ class EvaluationReport:
         anything else receives the report's files and keeps its other files.
         """
         out = Path(out)
-        texts = {"json": json.dumps(self.to_dict(), indent=1), "csv": self.csv(), "md": self.markdown()}
+        texts = {"json": strict_json(self.to_dict(), indent=1), "csv": self.csv(), "md": self.markdown()}
         with atomic_directory(out, EVALUATION_OUTPUT, overwrite=overwrite) as staging:
             for kind, text in texts.items():
                 (staging / f"evaluation.{kind}").write_text(text)

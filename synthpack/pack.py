@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 import zarr
 
+from ._json import dumps as strict_json
 from ._atomic import Output, atomic_directory
 from ._formats import PACK_FORMATS, pack_format
 from .errors import SynthpackInputError
@@ -182,7 +183,7 @@ class StagedPack:
         placements.save(self.path / "placements.json")
         full = dict(manifest, format=self.format, voxel_size=list(self.voxel_size), unit=self.unit,
                     files=_file_records(self.path), complete=True)
-        (self.path / "manifest.json").write_text(json.dumps(full, indent=1, default=_json_default))
+        (self.path / "manifest.json").write_text(strict_json(full, indent=1))
         self.finished = True
 
 
@@ -207,16 +208,6 @@ def stage_pack(
         yield staged
         if not staged.finished:
             raise RuntimeError(f"the pack {directory} was staged but never finished: call finish()")
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 def _read_manifest(directory: Path) -> dict | None:

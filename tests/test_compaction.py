@@ -1,6 +1,9 @@
 """Packing to a target solid fraction (synthpack.physics.compaction): reached, reported, reproducible."""
 
 import logging
+import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -9,7 +12,8 @@ from synthpack.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.library import ParticleLibrary
 from synthpack.physics import PourConfig, Tube, get_engine, pour
-from synthpack.physics.compaction import TARGET_TOLERANCE, BatchCompaction, resolve_target
+from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
+                                          resolve_target)
 from synthpack.samples import sample_scan
 from synthpack.source.specimen import solid_fraction, specimen_mask
 
@@ -104,3 +108,48 @@ def test_the_knob_compacts_above_zero_and_spaces_below():
     assert dense.compacts and dense.settle_friction < 0.6 and dense.inflation == 0
     assert not free.compacts and free.settle_friction == 0.6 and free.inflation == 0
     assert not loose.compacts and loose.inflation == pytest.approx(0.2)
+
+
+def test_the_controller_stops_steering_when_the_bulk_layers_hold_no_solid(caplog):
+    """A layer measured at 0 used to make the knob 'wanted / 0' (ZeroDivisionError mid-pour)."""
+    tetrahedron = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                   np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    controller = PackingController(0.45, 0.6, [tetrahedron], inner_radius=3.0)
+    first = controller.next_batch()
+    controller.layers.append((1.0, 2.0, 0.0, first.knob))  # a bulk layer that no grain reached
+    with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
+        second = controller.next_batch()
+    assert np.isfinite(second.knob) and second.knob == first.knob  # the prior's knob for the target
+    assert controller.degenerate and controller.record()["layers"][0]["packing_fraction"] == 0
+    assert "cannot be steered" in caplog.text
+    assert -1 < first.knob < 0  # spaced: 0.45 is looser than a free pour
+    controller.layers.append((2.0, 3.0, 0.55, second.knob))  # denser than the prior says: steering again
+    assert controller.next_batch().knob < second.knob  # spaced wider
+
+
+@pytest.mark.parametrize("value", [0.81, 0.99])
+def test_a_target_no_rigid_grain_pack_reaches_is_refused_naming_the_limit(value):
+    with pytest.raises(SynthpackInputError, match=r"target_solid_fraction.*0\.8\]"):
+        PackConfig.from_dict({"pour": {"target_solid_fraction": value}})
+    with pytest.raises(SynthpackInputError, match="cannot be reached"):
+        parse_target(value)
+
+
+def test_the_cli_refuses_an_unreachable_target_before_any_work(tmp_path):
+    out = tmp_path / "packs"
+    run = subprocess.run([sys.executable, "-m", "synthpack", "-q", "generate", "--sample", "small",
+                          "--n-particles", "4", "--target-solid-fraction", "0.99", "--out", str(out)],
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.splitlines()[0].startswith("synthpack: error: config key 'pour.target_solid_fraction'")
+    assert "0.8]" in run.stderr.splitlines()[0] and not out.exists()
+
+
+def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_needs(large_library, caplog):
+    with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
+        placements = pour(large_library, 4, 4, seed=2, progress=False, target_solid_fraction=0.6)
+    assert placements.checks.target_reached is None and np.isnan(placements.checks.packing_fraction)
+    (line,) = [r.getMessage() for r in caplog.records if "0.600" in r.getMessage()]
+    assert "unknown whether it was reached" in line and "target_reached: null" in line
+    needed = int(re.search(r"pour about (\d+) grains", line).group(1))
+    assert needed > 4

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .. import __version__
+from .._json import dumps as strict_json
 from .._atomic import atomic_file
 from ..config import PackConfig
 from ..errors import SynthpackInputError
@@ -103,7 +104,7 @@ class PackCache:
             shapes.append(shape)
         if self.directory.is_dir():
             with atomic_file(stamps_path) as tmp:
-                tmp.write_text(json.dumps(verified, indent=1, sort_keys=True))
+                tmp.write_text(strict_json(verified, indent=1, sort_keys=True))
         return shapes
 
     def build(self, shapes: Sequence[Shape | None], *, progress: bool = False) -> list[Shape]:
@@ -152,7 +153,7 @@ def _digest(data: dict) -> str:
 def _write_key(directory: Path, key: dict) -> None:
     directory.mkdir(parents=True, exist_ok=True)
     with atomic_file(directory / "key.json") as tmp:
-        tmp.write_text(json.dumps(key, indent=1, sort_keys=True))
+        tmp.write_text(strict_json(key, indent=1, sort_keys=True))
 
 
 def _stamp(path: Path) -> dict[str, list[int]]:

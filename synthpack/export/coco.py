@@ -51,7 +51,6 @@ an existing folder is only replaced if it is an earlier COCO export.
 from __future__ import annotations
 
 import importlib
-import json
 import logging
 import os
 from collections.abc import Sequence
@@ -63,6 +62,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .. import __version__
+from .._json import dumps as strict_json
 from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
 from ..scan import Scan
@@ -238,8 +238,8 @@ def export_coco(
         summary.sources = volumes.source_records()
         (staging / "annotations").mkdir()
         for s, dataset in datasets.items():
-            (staging / "annotations" / f"instances_{s}.json").write_text(json.dumps(dataset))
-        (staging / "coco_export.json").write_text(json.dumps(summary.to_dict(), indent=1))
+            (staging / "annotations" / f"instances_{s}.json").write_text(strict_json(dataset))
+        (staging / "coco_export.json").write_text(strict_json(summary.to_dict(), indent=1))
     logger.info("COCO dataset in %s: %s images, %s annotations", out, summary.images, summary.annotations)
     return summary
 

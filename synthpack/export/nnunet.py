@@ -82,7 +82,6 @@ existing folder is only replaced if it is an earlier nnU-Net export.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import re
@@ -95,6 +94,7 @@ from scipy import ndimage
 from tqdm.auto import tqdm
 
 from .. import __version__
+from .._json import dumps as strict_json
 from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
 from ..io import check_nifti_writer, convert_voxel_size, read_box, write_nifti
@@ -368,8 +368,8 @@ def export_nnunet(
             "test_block": next(([start, stop] for part, start, stop in _parts(source, axis, split)
                                 if part == "test"), None),
         } for source in sources]
-        (staging / "dataset.json").write_text(json.dumps(_dataset_json(summary), indent=1))
-        (staging / "nnunet_export.json").write_text(json.dumps(summary.to_dict(), indent=1))
+        (staging / "dataset.json").write_text(strict_json(_dataset_json(summary), indent=1))
+        (staging / "nnunet_export.json").write_text(strict_json(summary.to_dict(), indent=1))
     logger.info("nnU-Net dataset %s: %d training and %d test cases", out, summary.count("Tr"), summary.count("Ts"))
     return summary
 

@@ -78,6 +78,7 @@ from skimage.measure import approximate_polygon, find_contours
 from skimage.measure import label as connected_parts
 
 from .. import __version__
+from .._json import dumps as strict_json
 from .._atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
 from ..io import write_label_image
@@ -400,7 +401,7 @@ def export_yolo(
             summary._count(item.split, _write_labels(staging, item, min_area, tolerance, truth_splits))
         summary.sources = volumes.source_records()
         (staging / "data.yaml").write_text(_data_yaml(out, summary))
-        (staging / "export.json").write_text(json.dumps(summary.to_dict(), indent=1))
+        (staging / "export.json").write_text(strict_json(summary.to_dict(), indent=1))
     logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
     return summary
 

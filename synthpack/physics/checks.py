@@ -72,7 +72,8 @@ class PourChecks:
     settled_per_batch : list of bool
         Whether each batch met the settle criteria (False: hit the step cap).
     seconds : float
-        Wall-clock time of the engine run.
+        Wall-clock time of the engine run. Not saved (:meth:`to_dict` leaves it out, so the same
+        pour saves the same bytes): the pack's manifest keeps it, as ``timings.pour_engine``.
     target_packing_fraction : float or None
         The packing fraction the pour aimed at (:mod:`synthpack.physics.compaction`);
         None for a free pour.
@@ -97,19 +98,20 @@ class PourChecks:
     fill_height: float
     steps_per_batch: list[int] = field(default_factory=list)
     settled_per_batch: list[bool] = field(default_factory=list)
-    seconds: float = 0.0
+    seconds: float = field(default=0.0, compare=False)  # wall-clock: not part of the result
     target_packing_fraction: float | None = None
     target_reached: bool | None = None
     compaction: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able dictionary (NaN becomes None)."""
+        """JSON-able dictionary (NaN becomes None), without the wall-clock `seconds`."""
         data = asdict(self)
+        data.pop("seconds")
         return {k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in data.items()}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> PourChecks:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (`seconds` 0 unless given, as older placements files do)."""
         values = dict(data)
         if values.get("packing_fraction") is None:
             values["packing_fraction"] = float("nan")

@@ -56,6 +56,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "BatchCompaction",
+    "MAX_TARGET",
     "PackingController",
     "TARGET_SOURCE",
     "TARGET_TOLERANCE",
@@ -78,6 +79,9 @@ FALL_STEPS = 4000
 FALL_QUIET = 8.0
 #: Largest shell inflation, as a fraction of the grain's size (u = -MAX_INFLATION).
 MAX_INFLATION = 0.6
+#: Densest target accepted: random packings of rigid grains stay below it (spheres jam at
+#: 0.64, ellipsoids at 0.74, the densest random packings known, of tetrahedra and cubes, at about 0.78).
+MAX_TARGET = 0.8
 #: Prior model: packing fraction of a free pour and of a fully compacted one.
 PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
 #: The next layer aims at most this far from the target to make up for past layers.
@@ -87,7 +91,7 @@ _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
 
 
 def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str | None:
-    """A checked target: ``"source"``, a number in (0, 1), or None (a free pour).
+    """A checked target: ``"source"``, a number in (0, :data:`MAX_TARGET`], or None (a free pour).
 
     Raises
     ------
@@ -106,6 +110,11 @@ def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str
         raise SynthpackInputError(
             f"{name} must be 'source', a solid fraction in (0, 1) such as 0.55, or none for a free pour; "
             f"got {value!r}."
+        )
+    if number > MAX_TARGET:
+        raise SynthpackInputError(
+            f"{name} {number:g} cannot be reached: no pour of rigid grains packs denser than about "
+            f"{MAX_TARGET:g} (spheres 0.64); give at most {MAX_TARGET:g}, or 'source'."
         )
     return number
 
@@ -191,6 +200,8 @@ class PackingController:
     knobs: list[float] = field(default_factory=list)
     #: Measured bulk layers: (z0, z1, packing fraction, knob of the batch that completed it).
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
+    #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
+    degenerate: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -198,12 +209,23 @@ class PackingController:
         self._rng = np.random.default_rng(self.seed)
 
     def next_batch(self) -> BatchCompaction:
-        """The knob of the next batch, from the target, the layers measured so far and the prior."""
-        heights = np.array([z1 - z0 for z0, z1, _, _ in self.layers])
+        """The knob of the next batch, from the target, the layers measured so far and the prior.
+
+        Layers whose measured fraction is not a positive number (no grain reached the
+        measured region) say nothing of how the knob works: they are left out. When
+        every layer so far is such, the control stops steering (:attr:`degenerate`,
+        logged as a warning once) and the batch gets the prior's knob for the target,
+        until a layer holds solid.
+        """
+        measured = [(z1 - z0, f, k) for z0, z1, f, k in self.layers if math.isfinite(f) and f > 0]
         wanted, ratio = self.target, 1.0
-        if heights.size:
-            fractions = np.array([f for _, _, f, _ in self.layers])
-            priors = np.array([prior_fraction(k) for _, _, _, k in self.layers])
+        if self.layers and not measured and not self.degenerate:
+            self.degenerate = True
+            logger.warning("Target packing fraction %.3f: the bulk layers measured so far hold no solid, so the "
+                           "pour cannot be steered: batches get the prior model's knob until one does.", self.target)
+        if measured:
+            heights, fractions, knobs = (np.array(column) for column in zip(*measured))
+            priors = np.array([prior_fraction(k) for k in knobs])
             reached = float(heights @ fractions / heights.sum())
             ratio = float(heights @ fractions / (heights @ priors))
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
@@ -297,9 +319,9 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
 
     A target missed by more than :data:`TARGET_TOLERANCE` is logged as a warning that
     says which way and why (too dense for the shapes, or too loose for the largest
-    spacing), and ``checks.target_reached`` is False. A pack too shallow for a bulk
-    region cannot be measured: ``target_reached`` stays None and the log says so at
-    INFO level (not a failure: small test pours and previews are shallow).
+    spacing), and ``checks.target_reached`` is False. A pack too shallow or narrow for
+    a bulk region cannot be measured: ``target_reached`` stays None (unknown) and a
+    warning says so, with about how many grains in this tube would give a bulk.
     """
     if target is None:
         return checks
@@ -307,14 +329,16 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     checks.compaction = None if controller is None else controller.record()
     reached = checks.packing_fraction
     if math.isnan(reached):
-        logger.info("Target packing fraction %.3f: the pack is too shallow for a bulk region, so "
-                       "whether it was reached is unknown; pour more grains.", target)
+        logger.warning("Target packing fraction %.3f: unknown whether it was reached (target_reached: null): "
+                       "%s.", target, _why_no_bulk(checks, None if controller is None else len(controller.meshes)))
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:
         limit = 1.0 if reached < target else -MAX_INFLATION
         knobs = [] if controller is None else controller.knobs
-        if knobs and np.mean(np.isclose(knobs, limit)) >= 0.5:
+        if controller is not None and controller.degenerate and not any(f > 0 for _, _, f, _ in controller.layers):
+            why = "the bulk layers measured while pouring held no solid, so the pour was not steered"
+        elif knobs and np.mean(np.isclose(knobs, limit)) >= 0.5:
             why = ("denser than these grains pack under full compaction" if reached < target
                    else "looser than the largest spacing gives")
         else:
@@ -324,6 +348,19 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     else:
         logger.info("Target packing fraction %.3f reached: the bulk packs at %.3f.", target, reached)
     return checks
+
+
+def _why_no_bulk(checks: PourChecks, n_grains: int | None) -> str:
+    """Why `checks` has no bulk region, and what gives one (for the warning of :func:`report_target`)."""
+    region = checks.packing_region
+    if region["radius"] <= 0:
+        return ("the tube is too narrow for a bulk region (its inner radius is under one grain diameter): "
+                "use a wider tube (pour.tube_radius)")
+    margin = float(region["z_min"])  # one grain diameter: the bulk starts 1 above the floor and ends 2 below the top
+    needed = "more grains" if not n_grains or checks.fill_height <= 0 else \
+        f"about {math.ceil(n_grains * 4 * margin / checks.fill_height)} grains in this tube"
+    return (f"the pack is too shallow for a bulk region ({checks.fill_height / margin:.1f} grain diameters deep; "
+            f"a bulk needs more than 3): pour {needed} (pour.n_particles)")
 
 
 def expected_fraction(target: Any, library: Any, default: float) -> float:

@@ -8,7 +8,7 @@ from typing import Any
 from .._schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .engine import COLLISION_SHAPES, Material, SettleCriteria
-from .compaction import TARGET_SOURCE, parse_target
+from .compaction import MAX_TARGET, TARGET_SOURCE, parse_target
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 
@@ -25,12 +25,15 @@ def _scale(value: float | list) -> bool:
 
 
 def _target(value: Any) -> bool:
-    """'source', a number in (0, 1), or none"""
     try:
         parse_target(value)
     except SynthpackInputError:
         return False
     return True
+
+
+_target.__doc__ = (f"'source', a number in (0, {MAX_TARGET:g}] (no pour of rigid grains packs denser), "
+                   "or none")
 
 
 @dataclass(frozen=True)

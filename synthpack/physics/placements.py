@@ -12,6 +12,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._json import dumps as strict_json
 from .._atomic import Output, atomic_file
 from ..errors import SynthpackInputError
 from .checks import PourChecks
@@ -205,7 +206,7 @@ class Placements:
         """
         final = Path(path)
         with atomic_file(final, PLACEMENTS_OUTPUT, overwrite=overwrite) as staging:
-            staging.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
+            staging.write_text(strict_json(self.to_dict(), indent=1), encoding="utf-8")
         logger.info("Saved %d placements to %s", len(self), final)
         return final
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from .._json import dumps as strict_json
 from .._atomic import Output, atomic_directory
 from ..intensity import intensity_window
 from ..pack import find_packs
@@ -231,7 +231,7 @@ class RealismReport:
         out = Path(out)
         names = ["realism.md", "realism.json", "structure.png", "appearance.png", "slices.png"]
         with atomic_directory(out, REPORT_OUTPUT, overwrite=overwrite) as staging:
-            (staging / "realism.json").write_text(json.dumps(_plain(self.to_dict()), indent=1))
+            (staging / "realism.json").write_text(strict_json(self.to_dict(), indent=1))
             (staging / "realism.md").write_text(self.markdown())
             save_structure_plot(self.source, self.packs, staging / "structure.png")
             save_appearance_plot(self.source, self.packs, staging / "appearance.png")
@@ -245,17 +245,6 @@ class RealismReport:
     def has_cnn_patches(self) -> bool:
         """Whether the report has a picture of the patches the CNN finds most synthetic."""
         return bool(self.tests) and all(t.cnn_scores is not None for t in self.tests)
-
-
-def _plain(value):
-    """NaN -> None, recursively, so the JSON is standard."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def compare(
