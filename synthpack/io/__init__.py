@@ -62,38 +62,60 @@ extra (SimpleITK, large); without them these files give a one-line error
 saying what to install.
 
 The package holds one module per format family (`.tiff`, `.zarr_store`, `.netcdf`,
-`.hdf5`, `.itk`, `.raw`, `.npy`), beside `.read` (the public readers), `.units`,
-`.lazy` and `.label_images`; this module only re-exports their public names.
+`.hdf5`, `.itk`, `.raw`, `.npy`), beside `.read` (the public readers), `._registry`
+(the formats, one `~synthpack.io._registry.Format` record each: detection, the path
+grammar, `SUPPORTED_FORMATS` and the command line's help come from it), `.units`,
+`.lazy` and `.label_images`. This module only re-exports their public names, each
+imported on first use, so that the command line reads the registry without importing
+the storage libraries.
 """
 
 from __future__ import annotations
 
-from .._atomic import atomic_directory, atomic_file
-from .label_images import LABEL_IMAGE_SUFFIXES, read_label_image, write_label_image
-from .lazy import memmap_volume, read_box, read_slice
-from .itk import check_nifti_writer, write_nifti
-from .read import SUPPORTED_FORMATS, read_scan, read_tomogram, read_volume
-from .tiff import write_tiff
-from .units import convert_voxel_size
-from .zarr_store import create_zarr_volume, write_zarr
+import importlib
+from typing import TYPE_CHECKING, Any
 
-__all__ = [
-    "LABEL_IMAGE_SUFFIXES",
-    "SUPPORTED_FORMATS",
-    "atomic_directory",
-    "atomic_file",
-    "check_nifti_writer",
-    "convert_voxel_size",
-    "create_zarr_volume",
-    "memmap_volume",
-    "read_box",
-    "read_label_image",
-    "read_scan",
-    "read_tomogram",
-    "read_slice",
-    "read_volume",
-    "write_label_image",
-    "write_nifti",
-    "write_tiff",
-    "write_zarr",
-]
+if TYPE_CHECKING:
+    from .._atomic import atomic_directory, atomic_file
+    from ._registry import SUPPORTED_FORMATS
+    from .itk import check_nifti_writer, write_nifti
+    from .label_images import LABEL_IMAGE_SUFFIXES, read_label_image, write_label_image
+    from .lazy import memmap_volume, read_box, read_slice
+    from .read import read_scan, read_tomogram, read_volume
+    from .tiff import write_tiff
+    from .units import convert_voxel_size
+    from .zarr_store import create_zarr_volume, write_zarr
+
+#: Public name -> the module that defines it.
+_PUBLIC = {
+    "LABEL_IMAGE_SUFFIXES": ".label_images",
+    "SUPPORTED_FORMATS": "._registry",
+    "atomic_directory": ".._atomic",
+    "atomic_file": ".._atomic",
+    "check_nifti_writer": ".itk",
+    "convert_voxel_size": ".units",
+    "create_zarr_volume": ".zarr_store",
+    "memmap_volume": ".lazy",
+    "read_box": ".lazy",
+    "read_label_image": ".label_images",
+    "read_scan": ".read",
+    "read_tomogram": ".read",
+    "read_slice": ".lazy",
+    "read_volume": ".read",
+    "write_label_image": ".label_images",
+    "write_nifti": ".itk",
+    "write_tiff": ".tiff",
+    "write_zarr": ".zarr_store",
+}
+
+__all__ = sorted(_PUBLIC)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(importlib.import_module(_PUBLIC[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

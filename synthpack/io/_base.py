@@ -1,10 +1,9 @@
 """What the readers and writers of `synthpack.io` share: the types, the choice of a store's array, the
-turning of a reader library's exception into a one-line error, optional packages and folder listings.
+turning of a reader library's exception into a one-line error, and folder listings.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 import re
 from collections.abc import Iterable, Iterator
@@ -29,17 +28,11 @@ Metadata = tuple[VoxelSize | None, str | None]
 # A volume read lazily: ndarray, numpy.memmap or zarr.Array, indexed (z, y, x).
 ArrayLike = Any
 
+_ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
+
 _NAMES = {
     "tomogram": ("tomogram", "tomo", "tomo_float"),
     "labels": ("labels",),
-}
-
-# Optional reader packages: module -> (package to install, extra of synthpack holding it).
-_OPTIONAL = {
-    "h5py": ("h5py", "formats"),
-    "nrrd": ("pynrrd", "formats"),
-    "nibabel": ("nibabel", "formats"),
-    "SimpleITK": ("SimpleITK", "metaimage"),
 }
 
 
@@ -87,18 +80,6 @@ def _choose(
     )
 
 
-def _optional(module: str, what: str, doing: str = "reading") -> Any:
-    """Import the optional package `module` that reads (or, `doing`, writes) `what`, or say how to install it."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        package, extra = _OPTIONAL[module]
-        raise SynthpackInputError(
-            f"{doing} {what} needs the Python package {package}, which is not installed: "
-            f'pip install "synthpack[{extra}]" (or pip install {package})'
-        ) from exc
-
-
 def _require_volume(volume: np.ndarray) -> np.ndarray:
     volume = np.asarray(volume)
     if volume.ndim != 3 or volume.size == 0:
@@ -125,3 +106,6 @@ def _natural_sorted(files: Iterable[Path]) -> list[Path]:
                 for part in re.split(r"(\d+)", file.name)]
     return sorted(files, key=key)
 
+
+def _is_zarr_store(path: Path) -> bool:
+    return path.is_dir() and any((path / marker).is_file() for marker in _ZARR_MARKERS)

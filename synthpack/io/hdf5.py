@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ._base import Metadata, Volume, _choose, _optional
+from ._base import Metadata, Volume, _choose
+from ._registry import _optional
 from .units import _attribute_voxel_size
 
 

@@ -17,7 +17,8 @@ import numpy as np
 from .._atomic import atomic_file
 from ..errors import SynthpackInputError
 from ..scan import validate_voxel_size
-from ._base import Metadata, PathLike, Volume, _optional, _require_volume
+from ._base import Metadata, PathLike, Volume, _require_volume
+from ._registry import _optional
 from .units import _attribute_voxel_size, _normalise_unit
 
 logger = logging.getLogger(__name__)

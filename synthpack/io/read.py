@@ -1,47 +1,20 @@
-"""Reading: `read_scan`, `read_tomogram` and `read_volume`, and the choice of a reader for a path.
-"""
+"""Reading: `read_scan`, `read_tomogram` and `read_volume`, with the reader that `._registry` picks for a path."""
 
 from __future__ import annotations
 
 import logging
 import os
-import re
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import SynthpackInputError
 from ..scan import Scan, validate_tomogram
-from ._base import Metadata, PathLike, Volume, VoxelSize, _reading, _visible_files
-from .hdf5 import _read_hdf5
-from .itk import _read_metaimage, _read_nifti, _read_nrrd
-from .netcdf import _read_netcdf, _read_netcdf_folder
-from .npy import _read_npy
-from .raw import _read_raw
-from .tiff import _TIFF_SUFFIXES, _read_tiff, _read_tiff_folder
+from ._base import Metadata, PathLike, Volume, VoxelSize, _reading
+from ._registry import _reader_for, _split_spec
 from .units import _resolve_voxel_size
-from .zarr_store import _is_zarr_store, _read_zarr
 
 logger = logging.getLogger(__name__)
-
-
-SUPPORTED_FORMATS = (
-    "multi-page TIFF (.tif, .tiff)",
-    "folder of 2D TIFF slices",
-    "NumPy array (.npy)",
-    "Zarr store (directory, e.g. .zarr)",
-    "Mango NetCDF (.nc, or a folder of block*.nc files split along z)",
-    "HDF5 (.h5, .hdf5, .hdf, .nxs; a dataset after a colon: scan.h5:/entry/data)",
-    "MetaImage (.mhd, .mha)",
-    "NRRD (.nrrd, .nhdr)",
-    "NIfTI (.nii, .nii.gz)",
-    "raw binary with its layout after a colon (scan.raw:ZxYxX:uint16:little)",
-)
-
-# A path, then after a colon the dataset of an HDF5 file (scan.h5:/entry/data)
-# or the layout of a raw file (scan.raw:64x128x256:uint16:little).
-_PATH_SPEC = re.compile(r"^(?P<file>.+?\.(?:h5|hdf5|hdf|nxs|raw|bin|vol)):(?P<spec>.*)$", re.IGNORECASE)
 
 
 def read_scan(
@@ -240,61 +213,4 @@ def _read(path: PathLike, role: str | None, name: str | None) -> Volume:
                 size, unit)
     return volume, size, unit
 
-
-def _reader_for(path: Path) -> tuple[Callable[..., Volume], str]:
-    """Return ``(reader, format description)`` for `path`, or raise."""
-    if path.is_dir():
-        if path.suffix.lower() == ".zarr" or _is_zarr_store(path):
-            return _read_zarr, "a Zarr store"
-        files = _visible_files(path)
-        tiffs = [f for f in files if f.suffix.lower() in _TIFF_SUFFIXES]
-        blocks = [f for f in files if f.suffix.lower() == ".nc"]
-        if tiffs and blocks:
-            raise SynthpackInputError(
-                f"the folder {path} holds both TIFF slices and NetCDF blocks: keep one "
-                "volume per folder"
-            )
-        if tiffs:
-            return _read_tiff_folder, "a folder of TIFF slices"
-        if blocks:
-            return _read_netcdf_folder, "a folder of NetCDF blocks"
-        what = "is empty" if not files else "holds no TIFF slices or NetCDF blocks"
-        raise SynthpackInputError(
-            f"the folder {path} {what}: a volume folder must hold 2D TIFF slices "
-            f"(.tif/.tiff) or NetCDF blocks (.nc), or be a Zarr store. "
-            f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}"
-        )
-    hdf5, raw, itk = (_read_hdf5, "HDF5"), (_read_raw, "raw binary"), (_read_metaimage, "MetaImage")
-    nrrd, nifti = (_read_nrrd, "NRRD"), (_read_nifti, "NIfTI")
-    readers = {
-        ".tif": (_read_tiff, "TIFF"),
-        ".tiff": (_read_tiff, "TIFF"),
-        ".npy": (_read_npy, "NumPy .npy"),
-        ".nc": (_read_netcdf, "NetCDF"),
-        ".h5": hdf5, ".hdf5": hdf5, ".hdf": hdf5, ".nxs": hdf5,
-        ".mhd": itk, ".mha": itk,
-        ".nrrd": nrrd, ".nhdr": nrrd,
-        ".nii": nifti, ".nii.gz": nifti,
-        ".raw": raw, ".bin": raw, ".vol": raw,
-    }
-    suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix.lower()
-    if suffix not in readers:
-        raise SynthpackInputError(
-            f"{path} is not a supported volume file (extension {path.suffix!r}). "
-            f"Supported formats: {'; '.join(SUPPORTED_FORMATS)}. Convert it to one "
-            "of these (e.g. save as TIFF stack from Fiji)"
-        )
-    return readers[suffix]
-
-
-def _split_spec(path: PathLike) -> tuple[Path, str | None]:
-    """`path` without what follows the colon after an HDF5 or raw file name, and that (None if nothing).
-
-    A file whose name really contains the colon is taken whole.
-    """
-    text = os.fspath(path)
-    match = _PATH_SPEC.match(text)
-    if match is None or Path(text).exists():
-        return Path(text), None
-    return Path(match["file"]), match["spec"] or None
 

@@ -14,13 +14,11 @@ from .._atomic import Output, atomic_directory
 from ..errors import SynthpackInputError
 from ..ngff import full_resolution, label_names
 from ..scan import validate_voxel_size
-from ._base import PathLike, Volume, VoxelSize, _choose, _is_empty_dir, _reading, _require_volume
+from ._base import PathLike, Volume, VoxelSize, _choose, _is_empty_dir, _is_zarr_store, _reading, _require_volume
 from .units import _attribute_voxel_size
 
 logger = logging.getLogger(__name__)
 
-
-_ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
 
 #: A Zarr store (or an array in a group): an earlier store is replaced, anything else is refused.
 _ZARR_OUTPUT = Output("Zarr store", is_ours=lambda path: _is_zarr_store(path))
@@ -202,10 +200,6 @@ def _read_ome_zarr(image: zarr.Group, role: str | None, name: str | None, path: 
     if size is None:
         size, unit = array.attrs.get("voxel_size"), array.attrs.get("unit")
     return array[...], *_attribute_voxel_size(size, unit or "px", path)
-
-
-def _is_zarr_store(path: Path) -> bool:
-    return path.is_dir() and any((path / marker).is_file() for marker in _ZARR_MARKERS)
 
 
 def _is_zarr_group(path: Path) -> bool:
