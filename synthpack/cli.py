@@ -30,6 +30,7 @@ from .deform import Deform
 from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
 from .errors import ContainmentError, PackBuildError, SynthpackInputError
+from .io._registry import tomogram_help
 
 logger = logging.getLogger("synthpack")
 
@@ -83,9 +84,7 @@ def _add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
                              "than synthpack's own earlier output; files of other names are kept")
 
 
-_TOMOGRAM_HELP = ("tomogram: TIFF stack, folder of TIFF slices, .npy, .zarr, NetCDF, HDF5 (scan.h5, or "
-                  "scan.h5:/entry/data for one dataset), MetaImage, NRRD, NIfTI, or raw binary with its "
-                  "layout: scan.raw:ZxYxX:DTYPE:BYTE_ORDER, e.g. scan.raw:512x1024x1024:uint16:little")
+_TOMOGRAM_HELP = tomogram_help()  # the input formats' help terms (synthpack.io._registry)
 
 
 def _add_voxel_size_arguments(group: argparse._ActionsContainer) -> None:

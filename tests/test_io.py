@@ -97,7 +97,7 @@ def test_write_tiff_refuses_labels_beyond_uint16(tmp_path, labels):
 
 
 def test_write_tiff_uses_bigtiff_above_the_size_limit(tmp_path, monkeypatch, tomogram):
-    monkeypatch.setattr(io, "_BIGTIFF_BYTES", 0)
+    monkeypatch.setattr(io.tiff, "_BIGTIFF_BYTES", 0)
     path = write_tiff(tmp_path / "big.tif", tomogram, (1.0, 2.0, 2.0), "mm")
     with tifffile.TiffFile(path) as tif:
         assert tif.is_bigtiff
