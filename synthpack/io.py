@@ -86,6 +86,7 @@ from PIL import Image
 
 from .ngff import full_resolution, label_names
 from ._atomic import Output, atomic_directory, atomic_file
+from ._text import voxel_size as voxel_size_text
 from .errors import SynthpackInputError
 from .scan import Scan, validate_tomogram, validate_voxel_size
 
@@ -260,6 +261,9 @@ def read_scan(
         ) from exc
     if origin == "default":
         _warn_no_voxel_size(tomo_source)
+    else:
+        _log_read(f"{tomo_source} and {label_source}", scan.tomogram, size, size_unit, origin,
+                  assumed=unit is None and tomo_meta[1] is None and label_meta[1] is None)
     return scan
 
 
@@ -303,7 +307,21 @@ def read_tomogram(
         raise SynthpackInputError(f"{exc} [tomogram: {source}]") from exc
     if origin == "default":
         _warn_no_voxel_size(source)
+    else:
+        _log_read(source, array, size, size_unit, origin, assumed=unit is None and meta[1] is None)
     return array, size, size_unit
+
+
+def _log_read(source: str, tomogram: np.ndarray, size: VoxelSize, unit: str, origin: str, assumed: bool) -> None:
+    """Log what was read, once: its shape, dtype and the voxel size it is taken in, and where that came from.
+
+    `assumed`: no unit was given or recorded, so a given voxel size is taken in `unit` (um).
+    """
+    where = "given" if origin == "argument" else f"from the {origin}"
+    if origin == "argument" and assumed:
+        where += f"; no unit given or recorded: {unit} assumed, give --unit"
+    logger.info("read %s: %s %s, voxel size %s (%s)", source, "x".join(map(str, tomogram.shape)), tomogram.dtype,
+                voxel_size_text(size, unit), where)
 
 
 def _warn_no_voxel_size(source: str) -> None:
@@ -415,7 +433,7 @@ def write_tiff(
             resolution=(1.0 / dx, 1.0 / dy),
             metadata={"spacing": dz, "unit": _imagej_unit(unit), "axes": "ZYX"},
         )
-    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    logger.debug("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
     return path
 
 
@@ -487,7 +505,7 @@ def write_nifti(
             os.replace(staged, tmp)
         finally:
             staged.unlink(missing_ok=True)
-    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    logger.debug("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
     return path
 
 
@@ -573,7 +591,7 @@ def write_zarr(
             f"cannot add array {name!r} to {path}: it is a single Zarr array, not a "
             "group; write without a name, or choose another path"
         )
-    logger.info("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
+    logger.debug("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
                 data.shape, data.dtype, size, unit)
     return path
 
@@ -838,8 +856,8 @@ def _read(path: PathLike, role: str | None, name: str | None) -> Volume:
     reader, description = _reader_for(path)
     with _reading(path, description):
         volume, size, unit = reader(path, role, name)
-    logger.info("read %s: %s %s, voxel size %s %s", path, volume.shape, volume.dtype,
-                size, unit)
+    logger.debug("read %s: %s %s, voxel size recorded %s", path, volume.shape, volume.dtype,
+                 "none" if size is None else voxel_size_text(size, unit or "(no unit)"))
     return volume, size, unit
 
 
