@@ -217,7 +217,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         raise KeyboardInterrupt(_packs_kept(args.out, args.n_packs)) from None
     if args.preview:
         _write_pack_preview(paths[0], library, paths[0] / "preview.png")
-    print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
+    if not args.quiet:
+        print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
 
 
 def _packs_kept(out: Path, n_packs: int) -> str:

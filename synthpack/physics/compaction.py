@@ -307,8 +307,8 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     checks.compaction = None if controller is None else controller.record()
     reached = checks.packing_fraction
     if math.isnan(reached):
-        logger.info("Target packing fraction %.3f: the pack is too shallow for a bulk region, so "
-                    "whether it was reached is unknown; pour more grains.", target)
+        logger.info("Target packing fraction %.3f unknown: the pack is too shallow for a bulk region; "
+                    "pour more grains.", target)
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:

@@ -1,0 +1,97 @@
+"""What `synthpack generate` prints, through the real command line: readable at the default level,
+nothing with --quiet, the details with --verbose; and a voxel size given in px stays in px."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from synthpack.samples import sample_scan
+
+MAX_LINE = 120
+#: A decimal number with more than 6 significant digits (e.g. 179.05899047851562).
+LONG_FLOAT = re.compile(r"(?<![\w.])0*(\d+)\.(\d+)")
+
+
+@pytest.fixture(scope="module")
+def scan_files(tmp_path_factory) -> Path:
+    """A crop of the 'small' sample as two TIFFs that record no voxel size, and a config, in one folder."""
+    folder = tmp_path_factory.mktemp("scan")
+    scan = sample_scan("small", seed=0)
+    crop = (slice(0, 64), slice(0, 80), slice(0, 80))
+    tifffile.imwrite(folder / "scan.tif", scan.tomogram[crop])
+    tifffile.imwrite(folder / "labels.tif", scan.labels[crop].astype(np.uint16))
+    (folder / "config.yaml").write_text("postprocess: match_source\n", encoding="utf-8")
+    return folder
+
+
+def _generate(folder: Path, out: str, *options: str) -> subprocess.CompletedProcess:
+    """``synthpack generate`` of a 20-grain pack of the scan in `folder`, run there (relative paths)."""
+    argv = [sys.executable, "-m", "synthpack", "generate", "--tomogram", "scan.tif", "--labels", "labels.tif",
+            "--voxel-size", "1", "--unit", "px", "--config", "config.yaml", "--n-particles", "20",
+            "--batch-size", "20", "--workers", "0", "--out", out, *options]
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    return subprocess.run(argv, cwd=folder, capture_output=True, text=True, env=env, timeout=600)
+
+
+def _messages(run: subprocess.CompletedProcess) -> list[str]:
+    """The log lines (stderr, without progress bars) and the printed lines of `run`."""
+    logs = [line for line in re.split(r"[\r\n]", run.stderr) if line.startswith("synthpack: ")]
+    return logs + [line for line in run.stdout.splitlines() if line.strip()]
+
+
+def _significant_digits(number: re.Match) -> int:
+    whole, decimals = number.groups()
+    digits = (whole.lstrip("0") + decimals) if whole.strip("0") else decimals.lstrip("0")
+    return len(digits)
+
+
+def test_default_output_is_one_short_rounded_line_per_step(scan_files):
+    run = _generate(scan_files, "default")
+    assert run.returncode == 0, run.stderr
+    lines = _messages(run)
+    assert any(line.startswith("synthpack: source: grains ") for line in lines), lines
+    for line in lines:
+        assert len(line) <= MAX_LINE, line
+        assert "SourceStatistics(" not in line and "ScannerArtefacts(" not in line, line
+        assert "None" not in line, line
+        assert all(_significant_digits(n) <= 6 for n in LONG_FLOAT.finditer(line)), line
+    assert len(lines) == len(set(lines)), lines
+    assert "Traceback" not in run.stderr
+
+
+def test_quiet_prints_nothing_on_success(scan_files):
+    run = _generate(scan_files, "quiet", "--quiet")
+    assert run.returncode == 0, run.stderr
+    assert run.stdout == "" and run.stderr == ""
+    assert (scan_files / "quiet" / "pack_0000" / "manifest.json").is_file()
+
+
+def test_verbose_shows_the_details_and_excludes_quiet(scan_files):
+    run = _generate(scan_files, "verbose", "-v")
+    assert run.returncode == 0, run.stderr
+    assert "SourceStatistics(" in run.stderr and "edge spread: " in run.stderr and "noise estimate: " in run.stderr
+    assert "synthpack: source: grains " in run.stderr  # the INFO lines too
+    both = _generate(scan_files, "both", "-v", "-q")
+    assert both.returncode == 2 and "not allowed with argument" in both.stderr.splitlines()[-1]
+    assert not (scan_files / "both").exists()
+
+
+def test_a_voxel_size_given_in_px_is_read_logged_and_written_in_px(scan_files):
+    run = _generate(scan_files, "unit")
+    assert run.returncode == 0, run.stderr
+    read = [line for line in _messages(run) if line.startswith("synthpack: read scan.tif")]
+    assert read == ["synthpack: read scan.tif and labels.tif: 64x80x80 float32, voxel size 1 px (given)"]
+    pack = scan_files / "unit" / "pack_0000"
+    manifest = json.loads((pack / "manifest.json").read_text())
+    assert manifest["unit"] == "px" and manifest["voxel_size"] == [1.0, 1.0, 1.0]
+    with tifffile.TiffFile(pack / "tomogram.tif") as tif:
+        assert tif.imagej_metadata["unit"] == "pixel"  # ImageJ's name of px, not "micron"
