@@ -31,14 +31,34 @@ def progress_bar(*args: Any, disable: bool = False, **kwargs: Any) -> tqdm:
     return tqdm(*args, disable=disable or _PACKAGE.level > logging.INFO, **kwargs)
 
 
+class _WarnOnce(logging.Filter):
+    """Drops a warning already shown by this handler: packs built side by side (each by its own
+    Dask worker, whose records are forwarded here) warn of the same thing once each."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._shown: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno != logging.WARNING:
+            return True
+        message = record.getMessage()
+        if message in self._shown:
+            return False
+        self._shown.add(message)
+        return True
+
+
 def log_to_stderr(level: int) -> logging.Handler:
     """Show synthpack's messages of `level` and above on stderr as `LOG_FORMAT`; returns the handler added.
 
     Only the ``synthpack`` logger is set: other libraries' messages keep their own
-    levels (Python's default shows their warnings).
+    levels (Python's default shows their warnings). A warning is shown once, however
+    many times it is logged (by as many packs).
     """
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    handler.addFilter(_WarnOnce())
     _PACKAGE.addHandler(handler)
     _PACKAGE.setLevel(level)
     return handler

@@ -22,8 +22,8 @@ A local cluster is quiet: dask.distributed logs only warnings while it runs (as
 `distributed.LocalCluster`'s ``silence_logs`` intends, also when the calling
 program has configured logging) and nothing while it shuts down, when comms
 closing in any order are expected (unless synthpack logs at DEBUG level). Its
-workers show synthpack's warnings and errors as the calling process does
-(`_worker_level`: all its messages when that logs at DEBUG). Its
+workers' synthpack messages are forwarded to the calling process, which shows them
+as its own: warnings and errors (`_worker_level`; all of them when it logs at DEBUG). Its
 worker processes ignore Ctrl-C (:func:`dask_setup`): the calling process gets
 the `KeyboardInterrupt`, and closing the cluster stops them (a pack still being
 built is stopped after a few seconds, leaving its staging folder to the caller,
@@ -46,7 +46,7 @@ from typing import Any
 from tqdm.auto import tqdm
 from tqdm.std import tqdm as std_tqdm
 
-from ._console import log_to_stderr, progress_bar
+from ._console import progress_bar
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
@@ -127,11 +127,8 @@ def _worker_level() -> int:
 
 
 def _worker_logging(level: int) -> None:
-    """In a worker process: synthpack's log lines of `level` and above on stderr, as in the calling process."""
-    package = logging.getLogger("synthpack")
-    if not package.handlers:
-        log_to_stderr(level)
-    package.setLevel(level)
+    """In a worker process: synthpack logs at `level` (its records are forwarded to the calling process)."""
+    logging.getLogger("synthpack").setLevel(level)
 
 
 @contextlib.contextmanager
@@ -181,7 +178,9 @@ def _local_client(workers: int) -> Iterator[Any]:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", preload=[__name__])
             client = Client(cluster)
-            client.run(_worker_logging, _worker_level())
+            level = _worker_level()
+            client.run(_worker_logging, level)
+            client.forward_logging("synthpack", level)
             yield client
         finally:
             with _dask_logging_at_least(logging.CRITICAL):

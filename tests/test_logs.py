@@ -33,11 +33,12 @@ def scan_files(tmp_path_factory) -> Path:
     return folder
 
 
-def _generate(folder: Path, out: str, *options: str) -> subprocess.CompletedProcess:
-    """``synthpack generate`` of a 20-grain pack of the scan in `folder`, run there (relative paths)."""
+def _generate(folder: Path, out: str, *options: str, config: str = "config.yaml",
+              workers: int = 0) -> subprocess.CompletedProcess:
+    """``synthpack generate`` of 20-grain packs of the scan in `folder`, run there (relative paths)."""
     argv = [sys.executable, "-m", "synthpack", "generate", "--tomogram", "scan.tif", "--labels", "labels.tif",
-            "--voxel-size", "1", "--unit", "px", "--config", "config.yaml", "--n-particles", "20",
-            "--batch-size", "20", "--workers", "0", "--out", out, *options]
+            "--voxel-size", "1", "--unit", "px", "--config", config, "--n-particles", "20",
+            "--batch-size", "20", "--workers", str(workers), "--out", out, *options]
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     return subprocess.run(argv, cwd=folder, capture_output=True, text=True, env=env, timeout=600)
 
@@ -95,3 +96,26 @@ def test_a_voxel_size_given_in_px_is_read_logged_and_written_in_px(scan_files):
     assert manifest["unit"] == "px" and manifest["voxel_size"] == [1.0, 1.0, 1.0]
     with tifffile.TiffFile(pack / "tomogram.tif") as tif:
         assert tif.imagej_metadata["unit"] == "pixel"  # ImageJ's name of px, not "micron"
+
+
+def test_quiet_hides_the_progress_bars_of_library_build(scan_files, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    argv = [sys.executable, "-m", "synthpack", "library", "build", "--tomogram", str(scan_files / "scan.tif"),
+            "--labels", str(scan_files / "labels.tif"), "--voxel-size", "1", "--unit", "px", "--workers", "1",
+            "--out", str(tmp_path / "lib")]
+    run = subprocess.run([*argv, "-q"], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr == ""  # no meshing bar, no log line
+    assert run.stdout.startswith("158 particles from ")  # the summary asked for
+    assert json.loads((tmp_path / "lib" / "library.json").read_text())["unit"] == "px"
+
+
+def test_a_warning_of_packs_built_by_dask_workers_is_shown_once(scan_files):
+    config = scan_files / "calibrated.yaml"
+    config.write_text("postprocess: calibrated\n", encoding="utf-8")  # 20 grains: no bulk to fit in
+    run = _generate(scan_files, "dask", "--n-packs", "2", "-q", config=config.name, workers=2)
+    assert run.returncode == 0, run.stderr
+    lines = run.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("synthpack: postprocess: calibrated cannot be fitted"), lines
+    assert all("no bulk" in json.loads((scan_files / "dask" / f"pack_000{k}" / "manifest.json").read_text())
+               ["postprocess_fallback"] for k in range(2))

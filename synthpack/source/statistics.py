@@ -228,8 +228,8 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     pore_interior = phase_interiors(distance, specimen)["pores"]
     pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
     if pore_spectrum is None:
-        logger.warning("the source's pore spectrum cannot be measured (too little pore interior): packs get the "
-                       "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
+        logger.warning("the source's pore spectrum cannot be measured (too little pore interior): "
+                       "packs get a Gaussian pore texture")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
