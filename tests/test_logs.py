@@ -4,6 +4,7 @@ nothing with --quiet, the details with --verbose; and a voxel size given in px s
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import subprocess
@@ -119,3 +120,22 @@ def test_a_warning_of_packs_built_by_dask_workers_is_shown_once(scan_files):
     assert len(lines) == 1 and lines[0].startswith("synthpack: postprocess: calibrated cannot be fitted"), lines
     assert all("no bulk" in json.loads((scan_files / "dask" / f"pack_000{k}" / "manifest.json").read_text())
                ["postprocess_fallback"] for k in range(2))
+
+
+def test_figures_are_rounded_by_their_meaning():
+    from synthpack._text import fraction, sig, voxel_size
+
+    assert [sig(v) for v in (179.05899047851562, 0.000522144374903, 3523.4, 4116138.488007309, -0.0011492)] == [
+        "179", "0.000522", "3523", "4.12e+06", "-0.00115"]
+    assert (sig(None), sig(float("nan")), fraction(0.58431), fraction(None)) == ("n/a", "nan", "0.58", "n/a")
+    assert (voxel_size((10.0, 10.0, 10.0), "um"), voxel_size((2.0, 1.0, 1.0), "mm")) == ("10 um", "2 x 1 x 1 mm")
+
+
+def test_a_voxel_size_without_unit_says_which_unit_it_assumed(scan_files, caplog):
+    from synthpack.io import read_scan
+
+    with caplog.at_level(logging.INFO, logger="synthpack.io"):
+        scan = read_scan(scan_files / "scan.tif", scan_files / "labels.tif", voxel_size=2.0)
+    assert scan.unit == "um"  # the documented default
+    (read,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("read ")]
+    assert read.endswith("voxel size 2 um (given; no unit given or recorded: um assumed, give --unit)"), read
