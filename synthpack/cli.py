@@ -23,6 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from ._atomic import Output, check_output, remove_stale_staging
+from ._console import show_logs
 from ._formats import PACK_FORMATS
 from ._schema import build, default_of, help_of, option_name
 from .config import LibraryConfig, PourConfig
@@ -150,7 +151,7 @@ def _library_options(args: argparse.Namespace, scan) -> dict:
 
 def _cmd_library_build(args: argparse.Namespace) -> None:
     scan = _read_source_scan(args)
-    logger.info("read %r", scan)
+    logger.debug("read %r", scan)
     from .library import ParticleLibrary
 
     library = ParticleLibrary.from_scan(scan, **_library_options(args, scan))
@@ -215,7 +216,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         raise KeyboardInterrupt(_packs_kept(args.out, args.n_packs)) from None
     if args.preview:
         _write_pack_preview(paths[0], library, paths[0] / "preview.png")
-    print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
+    if not args.quiet:
+        print(f"{len(paths)} pack(s) in {args.out}: " + ", ".join(p.name for p in paths))
 
 
 def _packs_kept(out: Path, n_packs: int) -> str:
@@ -419,14 +421,37 @@ def _cmd_label(args: argparse.Namespace) -> None:
     print(f"WARNING: {STARTING_POINT}")
 
 
+class _CommandParser(argparse.ArgumentParser):
+    """A parser that takes ``-v/--verbose`` and ``-q/--quiet`` (one of them), as do its subcommands' parsers.
+
+    The options are valid before the command and after it (``synthpack -q generate ...`` or
+    ``synthpack generate ... -q``); absent, they are left out of the namespace, so that a
+    subcommand does not reset what was given before it (`_log_level` reads them).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        output = self.add_argument_group("output").add_mutually_exclusive_group()
+        output.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                            help="also show the details: every measured figure, file written and fitting step")
+        output.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                            help="show warnings and errors only, no progress bars (for scripts)")
+
+
+def _log_level(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """The level of synthpack's log lines that `args` asks for; sets ``args.verbose`` and ``args.quiet``."""
+    args.verbose, args.quiet = getattr(args, "verbose", False), getattr(args, "quiet", False)
+    if args.verbose and args.quiet:
+        parser.error("argument -q/--quiet: not allowed with argument -v/--verbose")
+    return logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _CommandParser(
         prog="synthpack",
         description="Synthetic CT tomograms of particle packs with exact instance labels.",
     )
     parser.add_argument("--version", action="version", version=f"synthpack {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_demo_command(commands)
     _add_generate_command(commands)
@@ -648,9 +673,14 @@ def _add_library_command(commands: Any) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
-    args = _parser().parse_args(argv)
-    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
-    logging.basicConfig(level=level, format="synthpack: %(message)s")
+    parser = _parser()
+    args = parser.parse_args(argv)
+    with show_logs(_log_level(parser, args)):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the command `args` names; returns the exit code."""
     command = " ".join(filter(None, (args.command, getattr(args, "library_command", None))))
     try:
         _check_outputs(command, args)

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from tqdm.auto import tqdm
 
 from ._json import dumps as strict_json
 from ._arrays import cupping_factor
 from ._atomic import Output, atomic_directory
+from ._console import progress_bar
 from ._schema import in_range, positive, setting
 from .errors import SynthpackInputError
-from .meshing import mesh_from_mask
+from .meshing import DECIMATION_FACTORS, mesh_from_mask
 from .particles import Particle, ParticleCrop, extract_particles
 from .scan import Scan
 from .source.statistics import SourceStatistics, measure_source
@@ -61,6 +61,17 @@ def _mesh_arrays(args: tuple[np.ndarray, tuple[float, float, float], int | None]
     mask, voxel_size, target_faces = args
     mesh = mesh_from_mask(mask, voxel_size, target_faces=target_faces)
     return mesh.vertices, mesh.faces
+
+
+def _log_undecimated(faces: Sequence[int], target_faces: int | None) -> None:
+    """Log once how many meshes (of `faces` faces each) decimation could not bring to `target_faces`."""
+    if target_faces is None:
+        return
+    kept = [n for n in faces if n > max(DECIMATION_FACTORS) * target_faces]
+    if kept:
+        counts = f"{min(kept)}-{max(kept)}" if len(kept) > 1 else str(kept[0])
+        logger.info("%d of %d meshes left at %s faces: decimation to ~%d kept breaking their surface",
+                    len(kept), len(faces), counts, target_faces)
 
 
 def _check_exclude(shape: tuple[int, ...], exclude: tuple[int, int], axis: int) -> tuple[int, int]:
@@ -199,11 +210,12 @@ class ParticleLibrary(Sequence[Particle]):
         jobs = [(c.mask, c.voxel_size, target_faces) for c in crops]
         bar = dict(total=len(jobs), desc="meshing", unit="particle", disable=not progress)
         if workers == 1:
-            arrays = [_mesh_arrays(job) for job in tqdm(jobs, **bar)]
+            arrays = [_mesh_arrays(job) for job in progress_bar(jobs, **bar)]
         else:
             chunk = max(1, len(jobs) // (8 * workers))
             with ProcessPoolExecutor(max_workers=workers) as pool:
-                arrays = list(tqdm(pool.map(_mesh_arrays, jobs, chunksize=chunk), **bar))
+                arrays = list(progress_bar(pool.map(_mesh_arrays, jobs, chunksize=chunk), **bar))
+        _log_undecimated([len(f) for _, f in arrays], target_faces)
         particles = [
             _meshed(crop, trimesh.Trimesh(v, f, process=False), density)
             for crop, (v, f) in zip(crops, arrays)

@@ -92,13 +92,16 @@ def _volume_preserving_level(smooth: np.ndarray, n_voxels: int) -> float:
     return 0.5 * float(ranked[smooth.size - n_voxels - 1] + ranked[smooth.size - n_voxels])
 
 
+#: Face counts tried, as fractions of the target: quadric decimation occasionally leaves a
+#: non-manifold edge at one exact face count; a slightly different count almost always avoids it.
+DECIMATION_FACTORS = (1.0, 0.96, 1.04, 0.9, 1.1, 0.8, 1.25)
+
+
 def _decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
-    # Quadric decimation occasionally leaves a non-manifold edge at one exact face
-    # count; a slightly different count almost always avoids it.
-    for factor in (1.0, 0.96, 1.04, 0.9, 1.1, 0.8, 1.25):
+    for factor in DECIMATION_FACTORS:
         simplified = mesh.simplify_quadric_decimation(face_count=int(target_faces * factor))
         if simplified.is_watertight and simplified.volume > 0:
             return simplified
-    logger.info("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
-                   target_faces, len(mesh.faces))
+    logger.debug("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
+                 target_faces, len(mesh.faces))
     return mesh

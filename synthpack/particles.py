@@ -181,11 +181,8 @@ def extract_particles(
         clean = np.where(mask, tomogram[box], background).astype(np.float32)
         bbox = tuple(s.start for s in box) + tuple(s.stop for s in box)
         crops.append(ParticleCrop(scan.original_label(label), bbox, clean, mask, scan.voxel_size, touches))
-    logger.info(
-        "extracted %d particles (%d below %d voxels, %d on the border dropped, "
-        "%d split labels reduced to their largest piece)",
-        len(crops), n_small, min_voxels, n_border, n_split,
-    )
+    logger.info("extracted %d particles (dropped %d < %d voxels, %d on the border%s)", len(crops), n_small,
+                min_voxels, n_border, f"; {n_split} split label(s) cut to one piece" if n_split else "")
     if not crops:
         raise SynthpackInputError(
             f"no particle left after filtering: {n_small} below min_voxels={min_voxels}, "

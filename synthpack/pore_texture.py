@@ -58,6 +58,7 @@ from scipy import fft
 
 from ._arrays import periodic_window
 from ._schema import non_negative, one_of, positive, setting
+from ._text import sig
 from .source.pore_histogram import map_to_quantiles
 from .source.pore_spectrum import frequency_radius, spectrum_on_grid
 
@@ -194,8 +195,8 @@ def _periodic_field(
     Read-only float32, shape ``(tile,) * 3``; its standard deviation is exactly the expected one.
     """
     if texture.model == "measured" and pore_spectrum is None:
-        logger.warning("the source has no measured pore spectrum: the pore texture is Gaussian noise of sigma %g "
-                       "voxels with the source's pore spread", texture.sigma)
+        logger.warning("the source has no measured pore spectrum: Gaussian pore texture of sigma %s voxels",
+                       sig(texture.sigma))
     shape = (texture.tile,) * 3
     density = texture.density(pore_std, pore_spectrum)
     white = np.random.default_rng([seed, _STREAM]).standard_normal(shape)

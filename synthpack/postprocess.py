@@ -147,7 +147,7 @@ def _warn_once(message: str) -> None:
 
 def _fallback(reason: str, mode: str = "calibrated") -> None:
     """Warn, once, that `mode` cannot be fitted because of `reason` and what it does instead."""
-    instead = ("using match_source, Gaussian noise up to the source's noise level, without fitted blur"
+    instead = ("using match_source (the source's noise level, no fitted blur)"
                if mode == "calibrated" else "drawing about match_source's noise level, white, and a 0.5 voxel blur")
     _warn_once(f"postprocess: {mode} cannot be fitted ({reason}): {instead}")
 

@@ -22,6 +22,8 @@ A local cluster is quiet: dask.distributed logs only warnings while it runs (as
 `distributed.LocalCluster`'s ``silence_logs`` intends, also when the calling
 program has configured logging) and nothing while it shuts down, when comms
 closing in any order are expected (unless synthpack logs at DEBUG level). Its
+workers' synthpack messages are forwarded to the calling process, which shows them
+as its own: warnings and errors (`_worker_level`; all of them when it logs at DEBUG). Its
 worker processes ignore Ctrl-C (:func:`dask_setup`): the calling process gets
 the `KeyboardInterrupt`, and closing the cluster stops them (a pack still being
 built is stopped after a few seconds, leaving its staging folder to the caller,
@@ -44,6 +46,7 @@ from typing import Any
 from tqdm.auto import tqdm
 from tqdm.std import tqdm as std_tqdm
 
+from ._console import progress_bar
 from .errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
@@ -113,6 +116,21 @@ def dask_setup(worker: Any) -> None:
         handler.addFilter(running)
 
 
+def _worker_level() -> int:
+    """The level of synthpack's log lines in the local cluster's workers: this process's, but at most warnings at INFO.
+
+    Workers build packs side by side: at INFO their lines would interleave, pack after
+    pack; each pack's figures are in its manifest. ``--verbose`` shows them all.
+    """
+    level = logging.getLogger("synthpack").getEffectiveLevel()
+    return logging.WARNING if level == logging.INFO else level
+
+
+def _worker_logging(level: int) -> None:
+    """In a worker process: synthpack logs at `level` (its records are forwarded to the calling process)."""
+    logging.getLogger("synthpack").setLevel(level)
+
+
 @contextlib.contextmanager
 def _dask_logging_at_least(level: int) -> Iterator[None]:
     """Raise the level of dask.distributed's loggers to `level` inside the block, unless synthpack logs at DEBUG."""
@@ -160,6 +178,9 @@ def _local_client(workers: int) -> Iterator[Any]:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", preload=[__name__])
             client = Client(cluster)
+            level = _worker_level()
+            client.run(_worker_logging, level)
+            client.forward_logging("synthpack", level)
             yield client
         finally:
             with _dask_logging_at_least(logging.CRITICAL):
@@ -269,7 +290,7 @@ def run_packs(
     """
     _check(workers, scheduler)
     n_packs = len(indices) if n_packs is None else n_packs
-    with tqdm(total=n_packs, initial=n_packs - len(indices), desc="packs", unit="pack",
+    with progress_bar(total=n_packs, initial=n_packs - len(indices), desc="packs", unit="pack",
               disable=not progress or n_packs == 1) as bar:
         if not indices:
             return {}

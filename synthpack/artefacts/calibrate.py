@@ -58,6 +58,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .._text import sig
 from ..errors import SynthpackInputError
 from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
 from ..source.noise import estimate_noise
@@ -106,7 +107,7 @@ def noise_to_add(source: float, clean: float) -> GaussianNoise:
             "the clean volume (noise %.4g) is already at least as noisy as the source (%.4g): "
             "no noise added", clean, source,
         )
-    logger.info("matched noise: source %.4g, clean %.4g -> add std %.4g", source, clean, std)
+    logger.info("matched noise: std %s added (source %s, clean pack %s)", sig(std), sig(source), sig(clean))
     return GaussianNoise(std=std)
 
 
@@ -434,7 +435,10 @@ def calibrate(
         ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
         ring_width=None if rings is None else float(rings[2]),
     )
-    logger.info("calibrated post-processing: PSF sigma %.3f (edge sigma %.3f, shift %.3f; source %.3f, %.3f), "
-                "noise added %s, cupping %s, rings %s", sigma, spread.sigma, spread.shift, target_sigma, target_shift,
-                {k: float(np.sum(v)) for k, v in added.items()}, cupping_strength, rings)
+    noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in added_noise.items() if std is not None)
+    logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s",
+                sig(sigma, 2), sig(spread.sigma, 2), sig(target_sigma, 2), noise_text or "none",
+                "" if cupping_strength is None else f", cupping {sig(cupping_strength, 2)}",
+                "" if rings is None else f", {len(rings[0])} ring(s)")
+    logger.debug("%r", calibration)
     return calibration

@@ -91,11 +91,11 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
-from tqdm.auto import tqdm
 
 from .. import __version__
 from .._json import dumps as strict_json
 from .._atomic import Output, atomic_directory, check_output
+from .._console import progress_bar
 from ..errors import SynthpackInputError
 from ..io import check_nifti_writer, convert_voxel_size, read_box, write_nifti
 from ..scan import Scan
@@ -359,7 +359,7 @@ def export_nnunet(
     planned.sort(key=lambda item: item[1][0] == "test")  # training cases first, in source order
     width = max(3, len(str(len(planned) - 1)))
     with atomic_directory(out, NNUNET_OUTPUT, overwrite=overwrite) as staging:
-        for number, (source, (part, start, stop)) in enumerate(tqdm(planned, desc="export", unit="case",
+        for number, (source, (part, start, stop)) in enumerate(progress_bar(planned, desc="export", unit="case",
                                                                       disable=not progress)):
             summary.cases.append(_write_case(staging, f"{name}_{number:0{width}d}", source, axis, part, start, stop))
         summary.sources = [{

@@ -39,9 +39,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 from PIL import Image
-from tqdm.auto import tqdm
 
 from .. import __version__
+from .._console import progress_bar
 from ..errors import SynthpackInputError
 from ..intensity import intensity_window
 from ..io import read_scan, read_slice
@@ -285,7 +285,7 @@ class SlicedVolumes:
         """
         for split in SPLITS:
             (root / "images" / split).mkdir(parents=True)
-        with tqdm(total=sum(s.shape[self.axis] for s in self.sources), desc="export", unit="slice",
+        with progress_bar(total=sum(s.shape[self.axis] for s in self.sources), desc="export", unit="slice",
                   disable=not progress) as bar:
             for source, plan in zip(self.sources, self.plans):
                 split_of = {int(i): s for s, indices in plan.items() for i in indices}

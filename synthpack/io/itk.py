@@ -100,7 +100,7 @@ def write_nifti(
             os.replace(staged, tmp)
         finally:
             staged.unlink(missing_ok=True)
-    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    logger.debug("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
     return path
 
 

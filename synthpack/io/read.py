@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SynthpackInputError
+from .._text import voxel_size as voxel_size_text
 from ..scan import Scan, validate_tomogram
 from ._base import Metadata, PathLike, Volume, VoxelSize, _reading
 from ._registry import _reader_for, _split_spec
@@ -87,6 +88,9 @@ def read_scan(
         ) from exc
     if origin == "default":
         _warn_no_voxel_size(tomo_source)
+    else:
+        _log_read(f"{tomo_source} and {label_source}", scan.tomogram, size, size_unit, origin,
+                  assumed=unit is None and tomo_meta[1] is None and label_meta[1] is None)
     return scan
 
 
@@ -130,7 +134,21 @@ def read_tomogram(
         raise SynthpackInputError(f"{exc} [tomogram: {source}]") from exc
     if origin == "default":
         _warn_no_voxel_size(source)
+    else:
+        _log_read(source, array, size, size_unit, origin, assumed=unit is None and meta[1] is None)
     return array, size, size_unit
+
+
+def _log_read(source: str, tomogram: np.ndarray, size: VoxelSize, unit: str, origin: str, assumed: bool) -> None:
+    """Log what was read, once: its shape, dtype and the voxel size it is taken in, and where that came from.
+
+    `assumed`: no unit was given or recorded, so a given voxel size is taken in `unit` (um).
+    """
+    where = "given" if origin == "argument" else f"from the {origin}"
+    if origin == "argument" and assumed:
+        where += f"; no unit given or recorded: {unit} assumed, give --unit"
+    logger.info("read %s: %s %s, voxel size %s (%s)", source, "x".join(map(str, tomogram.shape)), tomogram.dtype,
+                voxel_size_text(size, unit), where)
 
 
 def _warn_no_voxel_size(source: str) -> None:
@@ -209,8 +227,8 @@ def _read(path: PathLike, role: str | None, name: str | None) -> Volume:
     reader, description = _reader_for(path)
     with _reading(path, description):
         volume, size, unit = reader(path, role, name)
-    logger.info("read %s: %s %s, voxel size %s %s", path, volume.shape, volume.dtype,
-                size, unit)
+    logger.debug("read %s: %s %s, voxel size recorded %s", path, volume.shape, volume.dtype,
+                 "none" if size is None else voxel_size_text(size, unit or "(no unit)"))
     return volume, size, unit
 
 

@@ -98,7 +98,7 @@ def write_tiff(
             resolution=(1.0 / dx, 1.0 / dy),
             metadata={"spacing": dz, "unit": _imagej_unit(unit), "axes": "ZYX"},
         )
-    logger.info("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
+    logger.debug("wrote %s: %s %s, voxel %s %s", path, data.shape, data.dtype, size, unit)
     return path
 
 

@@ -102,8 +102,8 @@ def write_zarr(
             f"cannot add array {name!r} to {path}: it is a single Zarr array, not a "
             "group; write without a name, or choose another path"
         )
-    logger.info("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
-                data.shape, data.dtype, size, unit)
+    logger.debug("wrote %s%s: %s %s, voxel %s %s", path, f"/{name}" if name else "",
+                 data.shape, data.dtype, size, unit)
     return path
 
 

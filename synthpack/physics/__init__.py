@@ -28,8 +28,8 @@ from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from .._console import progress_bar
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
 from .compaction import PackingController, expected_fraction, report_target, resolve_target
@@ -230,7 +230,7 @@ def _run(
     options: EngineOptions, n_batches: int, progress: bool, compaction: PackingController | None,
 ) -> tuple[EngineResult, float]:
     """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
-    bar = tqdm(total=n_batches, desc="pouring", unit="batch", disable=not progress)
+    bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)
     start = time.perf_counter()
     try:
         result = engine.simulate(bodies, tube, material, settle, options,

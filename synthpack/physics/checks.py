@@ -210,7 +210,7 @@ def compute_checks(
         settled_per_batch=[bool(s) for s in settled_per_batch],
         seconds=float(seconds),
     )
-    logger.info("Pour checks: %s", checks.summary())
+    logger.debug("Pour checks: %s", checks.summary())
     if checks.n_outside:
         logger.warning("%d grains ended outside the tube.", checks.n_outside)
     if checks.n_above_rim:
@@ -282,7 +282,7 @@ def _packing(
     radius, z_min, z_max = tube.inner_radius - margin, margin, fill - 2 * margin
     region = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
     if radius <= 0 or z_max <= z_min:
-        logger.info("The pack is too shallow or narrow for a bulk region: no packing fraction.")
+        logger.debug("The pack is too shallow or narrow for a bulk region: no packing fraction.")
         return float("nan"), 0.0, region
     hulls = {i: ConvexHull(meshes[i][0]).equations for i in np.unique(indices)}
     grains = [(*meshes[i], hulls[i], positions[k], rotations[k], scales[k], world[k], 1.0)

@@ -329,8 +329,8 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     checks.compaction = None if controller is None else controller.record()
     reached = checks.packing_fraction
     if math.isnan(reached):
-        logger.warning("Target packing fraction %.3f: unknown whether it was reached (target_reached: null): "
-                       "%s.", target, _why_no_bulk(checks, None if controller is None else len(controller.meshes)))
+        n_grains = None if controller is None else len(controller.meshes)
+        logger.warning("target %.3f not judged (no bulk: %s", target, _why_no_bulk(checks, n_grains))
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:
@@ -354,13 +354,11 @@ def _why_no_bulk(checks: PourChecks, n_grains: int | None) -> str:
     """Why `checks` has no bulk region, and what gives one (for the warning of :func:`report_target`)."""
     region = checks.packing_region
     if region["radius"] <= 0:
-        return ("the tube is too narrow for a bulk region (its inner radius is under one grain diameter): "
-                "use a wider tube (pour.tube_radius)")
+        return "tube under one grain wide): widen pour.tube_radius"
     margin = float(region["z_min"])  # one grain diameter: the bulk starts 1 above the floor and ends 2 below the top
     needed = "more grains" if not n_grains or checks.fill_height <= 0 else \
-        f"about {math.ceil(n_grains * 4 * margin / checks.fill_height)} grains in this tube"
-    return (f"the pack is too shallow for a bulk region ({checks.fill_height / margin:.1f} grain diameters deep; "
-            f"a bulk needs more than 3): pour {needed} (pour.n_particles)")
+        f"about {math.ceil(n_grains * 4 * margin / checks.fill_height)} grains"
+    return f"{checks.fill_height / margin:.1f} grains deep, needs > 3): pour {needed} (pour.n_particles)"
 
 
 def expected_fraction(target: Any, library: Any, default: float) -> float:

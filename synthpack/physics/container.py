@@ -10,6 +10,7 @@ from typing import Any, Protocol
 import numpy as np
 import trimesh
 
+from .._text import sig
 from ..errors import SynthpackInputError
 from .engine import TubeSpec
 
@@ -164,8 +165,8 @@ class Tube:
             height = fill * headroom + 4.0 * float(diameters.max()) * scale
         tube = cls(inner_radius=radius, height=height, wall_thickness=wall, base_thickness=wall)
         logger.info(
-            "Tube for %d grains: inner radius %.4g, height %.4g (expected fill %.4g)",
-            n_particles, radius, height, fill,
+            "Tube for %d grains: inner radius %s, height %s (expected fill %s)",
+            n_particles, sig(radius), sig(height), sig(fill),
         )
         return tube
 

@@ -207,7 +207,7 @@ class Placements:
         final = Path(path)
         with atomic_file(final, PLACEMENTS_OUTPUT, overwrite=overwrite) as staging:
             staging.write_text(strict_json(self.to_dict(), indent=1), encoding="utf-8")
-        logger.info("Saved %d placements to %s", len(self), final)
+        logger.debug("Saved %d placements to %s", len(self), final)
         return final
 
     @classmethod

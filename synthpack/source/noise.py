@@ -34,6 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._arrays import SLAB_VOXELS, as_image, slabs
+from .._text import sig
 from ..errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
@@ -195,8 +196,6 @@ def estimate_noise(
             "the noise: lower margin or pass a bigger volume"
         )
     pooled = math.sqrt(sum(s * s * n for s, n in used) / sum(n for _, n in used))
-    logger.info(
-        "noise estimate: %.4g (grain %s, pore %s; %d + %d voxels)",
-        pooled, stds["grain"], stds["pore"], counts["grain"], counts["pore"],
-    )
+    logger.debug("noise estimate: %s (grains %s, pores %s; %d + %d voxels)", sig(pooled), sig(stds["grain"]),
+                 sig(stds["pore"]), counts["grain"], counts["pore"])
     return NoiseEstimate(pooled, stds["grain"], stds["pore"], counts["grain"], counts["pore"])

@@ -58,8 +58,8 @@ def measure_pore_quantiles(tomogram: np.ndarray, mask: np.ndarray) -> np.ndarray
     """
     values = np.asarray(tomogram)[np.asarray(mask, dtype=bool)].astype(np.float64)
     if values.size < MIN_QUANTILE_VOXELS:
-        logger.info("pore histogram: %d interior voxels (%d needed): not measured", values.size,
-                    MIN_QUANTILE_VOXELS)
+        logger.debug("pore histogram: %d interior voxels (%d needed): not measured", values.size,
+                     MIN_QUANTILE_VOXELS)
         return None
     spread = values.std()
     if not spread > 0:

@@ -135,7 +135,7 @@ def measure_pore_spectrum(
     """
     mask = np.asarray(mask, dtype=bool)
     if np.count_nonzero(mask) < MIN_VOXELS:
-        logger.info("pore spectrum: %d interior voxels (%d needed): not measured", np.count_nonzero(mask), MIN_VOXELS)
+        logger.debug("pore spectrum: %d interior voxels (%d needed): not measured", np.count_nonzero(mask), MIN_VOXELS)
         return None
     boxes = _blocks(mask, block, max_blocks)
     total = sum(np.asarray(tomogram[box], dtype=np.float64)[mask[box]].sum() for box in boxes)
@@ -150,7 +150,7 @@ def measure_pore_spectrum(
     lag = _lag_radius(size)
     used = (pairs >= MIN_PAIRS) & (lag < half)
     if not used[lag > 0].any():
-        logger.info("pore spectrum: no lag beyond 0 has %d voxel pairs: not measured", MIN_PAIRS)
+        logger.debug("pore spectrum: no lag beyond 0 has %d voxel pairs: not measured", MIN_PAIRS)
         return None
     taper = 0.5 * (1.0 + np.cos(np.pi * lag / half))
     covariance = np.where(used, products / np.maximum(pairs, 1.0) * taper, 0.0)
@@ -158,9 +158,9 @@ def measure_pore_spectrum(
     frequency = frequency_radius((size,) * 3)
     shells = np.rint(frequency * size).astype(np.int64).ravel()
     radial = np.bincount(shells, weights=density.ravel()) / np.bincount(shells)
-    logger.info("pore spectrum: variance %.4g over %d blocks, %.0f%% of it below 0.1 cycles/voxel",
-                covariance[0, 0, 0], len(boxes),
-                100.0 * density[frequency < 0.1].sum() / max(density.sum(), np.finfo(float).tiny))
+    logger.debug("pore spectrum: variance %.4g over %d blocks, %.0f%% of it below 0.1 cycles/voxel",
+                 covariance[0, 0, 0], len(boxes),
+                 100.0 * density[frequency < 0.1].sum() / max(density.sum(), np.finfo(float).tiny))
     return np.maximum(radial, 0.0)
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, special
 
+from .._text import sig
 from ..errors import SynthpackInputError
 from .edges import EdgeProfile
 
@@ -107,5 +108,6 @@ def fit_edge_spread(profile: EdgeProfile) -> EdgeSpread:
     upper = [x.max(), _SIGMA_BOUNDS[1], np.inf, np.inf]
     solution = optimize.least_squares(residual, start, bounds=(lower, upper), x_scale=[1.0, 1.0, scale, scale])
     shift, sigma, pore, grain = (float(v) for v in solution.x)
-    logger.info("edge spread: shift %.3f voxels, sigma %.3f voxels (pore %.4g, grain %.4g)", shift, sigma, pore, grain)
+    logger.debug("edge spread: shift %s voxels, sigma %s voxels (pores %s, grains %s)", sig(shift), sig(sigma),
+                 sig(pore), sig(grain))
     return EdgeSpread(shift, sigma, pore, grain)

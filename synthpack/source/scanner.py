@@ -67,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize
 
+from .._text import sig
 from .spectrum import phase_interiors
 
 logger = logging.getLogger(__name__)
@@ -217,6 +218,30 @@ class ScannerArtefacts:
     cupping: Cupping | None
     rings: Rings | None
     wall: Wall | None
+
+    def summary(self) -> str:
+        """One short line: the axis, the cupping (with its standard error), the rings and the wall found.
+
+        Lengths in voxels (``vx``), intensities to 3 significant figures; every figure is in the ``repr``.
+        """
+        parts = [f"axis ({sig(self.axis[0])}, {sig(self.axis[1])}) vx"]
+        cupping, rings, wall = self.cupping, self.rings, self.wall
+        if cupping is None:
+            parts.append("cupping not measured")
+        else:
+            verdict = "" if cupping.significant else " (not significant)"
+            parts.append(f"cupping {sig(cupping.strength, 2)} ± {sig(cupping.error, 2)}{verdict}")
+        if rings is None:
+            parts.append("rings not measured")
+        elif not rings.radii:
+            parts.append("no ring")
+        else:
+            peak = max(abs(a) for a in rings.amplitudes)
+            parts.append(f"{len(rings.radii)} ring(s) at {sig(min(rings.radii))}-{sig(max(rings.radii))} vx "
+                         f"(peak {sig(peak)})")
+        parts.append("no wall" if wall is None else
+                     f"wall {sig(wall.thickness, 2)} vx thick, intensity {sig(wall.intensity)}")
+        return ", ".join(parts)
 
     def statistics_fields(self) -> dict[str, float | tuple[float, ...] | None]:
         """The `~synthpack.source.SourceStatistics` fields: each None where absent or not significant."""
@@ -636,5 +661,6 @@ def measure_scanner(
         logger.warning("only %d slices hold specimen: cupping and rings not measured", len(slices))
     artefacts = ScannerArtefacts(axis=axis, specimen_radius=specimen_radius, cupping=cupping, rings=rings,
                                  wall=wall)
-    logger.info("scanner artefacts: %s", artefacts)
+    logger.info("scanner: %s", artefacts.summary())
+    logger.debug("scanner artefacts: %r", artefacts)
     return artefacts

@@ -6,6 +6,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
+from .._text import fraction, sig
 from ..errors import SynthpackInputError
 from ..scan import Scan
 from .edges import edge_profile, edge_width, signed_distance
@@ -154,6 +155,20 @@ class SourceStatistics:
         """Centre frequency (cycles/voxel) of each shell of `pore_spectrum`."""
         return tuple(k / PORE_SPECTRUM_SIZE for k in range(len(self.pore_spectrum or ())))
 
+    def summary(self) -> str:
+        """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction.
+
+        Intensities to 3 significant figures, lengths in voxels (``vx``); the scanner's
+        figures (cupping, rings, wall) are `ScannerArtefacts.summary`'s; all of them are
+        in the ``repr``.
+        """
+        edge = "edge not measured" if self.edge_sigma is None else f"edge sigma {sig(self.edge_sigma, 2)} vx"
+        parts = [f"grains {sig(self.grain_mean)}", f"pores {sig(self.pore_mean)} ± {sig(self.pore_std)}",
+                 f"noise {sig(self.noise_std)}", edge]
+        if self.solid_fraction is not None:
+            parts.append(f"solid fraction {fraction(self.solid_fraction)}")
+        return ", ".join(parts)
+
     def to_dict(self) -> dict[str, float | list[float]]:
         """The measured fields as a JSON-able dict, in field order, without those that are None."""
         return {name: list(value) if isinstance(value, tuple) else value
@@ -213,8 +228,8 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     pore_interior = phase_interiors(distance, specimen)["pores"]
     pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
     if pore_spectrum is None:
-        logger.warning("the source's pore spectrum cannot be measured (too little pore interior): packs get the "
-                       "Gaussian pore texture (reconstruct.pore_texture.sigma) with the source's pore spread")
+        logger.warning("the source's pore spectrum cannot be measured (too little pore interior): "
+                       "packs get a Gaussian pore texture")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
@@ -227,5 +242,6 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
-    logger.info("source statistics of %s: %s", scan.source or "the scan", statistics)
+    logger.info("source: %s", statistics.summary())
+    logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
     return statistics
