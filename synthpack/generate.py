@@ -316,7 +316,8 @@ def generate_pack(
     """Build pack `index` of a run into ``out/pack_NNNN``, atomically: the unit of work of a Dask task.
 
     Its seed is :func:`pack_seed` ``(config.seed, index)``, so the pack is the same
-    whichever process, machine or thread count builds it. A Zarr pack is written
+    whichever process or thread count builds it, byte for byte on one machine (another
+    CPU may differ in the last bits of its floats, and a pour then diverges). A Zarr pack is written
     chunk by chunk (memory does not grow with the volume); a TIFF pack is built
     in memory, then written.
 
