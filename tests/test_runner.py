@@ -90,7 +90,8 @@ def test_cli_reports_packs_failed_on_their_input_in_one_line_with_exit_code_2(
                          for i, p in enumerate(large_library)]
     corrupt.save(tmp_path / "library")
     code = main(["-q", "generate", "--library", str(tmp_path / "library"), "--out", str(tmp_path / "out"),
-                 "--seed", "3", "--n-particles", "6", "--batch-size", "6", "--workers", "0"])
+                 "--seed", "3", "--n-particles", "6", "--batch-size", "6", "--workers", "0",
+                 "--target-solid-fraction", "none"])  # 6 grains have no bulk: a target would warn
     error = capsys.readouterr().err
     assert code == 2
     assert "1 of 1 packs failed (pack_0000: SynthpackInputError: library particle" in error
@@ -132,7 +133,8 @@ def _stderr_lines(stderr: str) -> list[str]:
 def test_a_local_cluster_run_leaves_stderr_quiet(tmp_path):
     """Issue 13 case 13: a run succeeded, then printed a CommClosedError traceback while the cluster shut down."""
     config = tmp_path / "config.yaml"
-    config.write_text("postprocess: none\n")  # packs of 8 grains have no bulk to calibrate in: no warning either
+    # packs of 8 grains have no bulk to calibrate in or to judge a target by: neither asked, so no warning
+    config.write_text("postprocess: none\npour:\n  target_solid_fraction: null\n")
     for run in range(3):
         out = tmp_path / f"run{run}"
         result = subprocess.run(_cli("generate", "--sample", "large", "--n-packs", "3", "--workers", "2",
