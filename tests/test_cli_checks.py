@@ -107,3 +107,13 @@ def test_generate_refuses_a_cuda_device_torch_does_not_see_before_the_library(sc
     (scans / "device.yaml").write_text("reconstruct:\n  device: cuda:99\n")
     line = _refused(scans, "generate", "--sample", "small", "--config", "device.yaml", "--out", "o")
     assert "reconstruct.device cuda:99: torch sees" in line
+
+
+def test_a_file_recording_an_invalid_voxel_size_shows_plain_numbers(tmp_path):
+    nib = pytest.importorskip("nibabel")
+    image = nib.Nifti1Image(np.linspace(0, 1, 512, dtype=np.float32).reshape(8, 8, 8), np.eye(4))
+    image.header.set_xyzt_units("mm")
+    image.header["pixdim"][1] = np.inf  # nibabel reads the zooms back as np.float32
+    nib.save(image, tmp_path / "scan.nii")
+    line = _refused(tmp_path, "label", "--tomogram", "scan.nii", "--out", "labels.tif")
+    assert "scan.nii records an invalid voxel size [1.0, 1.0, inf]" in line and "np.float" not in line
