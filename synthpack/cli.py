@@ -200,7 +200,10 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     from .library import ParticleLibrary
 
     if args.scheduler is None:  # before the library is built; a remote cluster's workers are checked there
+        from .render_torch import resolve_device
+
         get_engine(config.pour.engine).check_available()
+        resolve_device(config.reconstruct.device, config.reconstruct.order)
     if args.library:
         library = ParticleLibrary.load(args.library)
         source = library.source

@@ -136,6 +136,8 @@ def load_config(path: str | os.PathLike | None) -> PackConfig:
     if path is None:
         return PackConfig()
     path = Path(path)
+    if path.is_dir():
+        raise SynthpackInputError(f"config file {path} is a folder, not a file: give the path of a YAML config file")
     if not path.is_file():
         raise SynthpackInputError(f"config file {path} does not exist")
     try:

@@ -416,8 +416,8 @@ def generate_packs(
         failed pack with its error. Calling again builds only the missing packs.
     SynthpackInputError
         Before any work: for an output path that cannot be used, an unknown
-        post-processing, or an engine that cannot run here (checked when the packs
-        are built on this machine). After the other packs were built: when every
+        post-processing, or an engine or ``reconstruct.device`` that cannot run here
+        (checked when the packs are built on this machine). After the other packs were built: when every
         failed pack failed on its input (a `~synthpack.errors.PackInputError`,
         which is both a `PackBuildError` and a `SynthpackInputError`).
     """
@@ -429,6 +429,7 @@ def generate_packs(
     check_postprocess(config.postprocess, library.statistics)
     if scheduler is None:  # a remote cluster's workers may have what this machine lacks
         get_engine(config.pour.engine).check_available()
+        resolve_device(config.reconstruct.device, config.reconstruct.order)
     paths = [out / pack_name(index) for index in range(n_packs)]
     missing = [index for index, path in enumerate(paths) if not is_complete_pack(path)]
     if len(missing) < n_packs:

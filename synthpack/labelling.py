@@ -146,8 +146,8 @@ def label_scan(tomogram: np.ndarray, settings: LabelSettings | None = None) -> L
     Raises
     ------
     SynthpackInputError
-        If the tomogram is not a finite real 3D volume, the threshold leaves no voxel
-        on one of its sides, or no grain is left.
+        If the tomogram is not a finite real 3D volume, has no contrast (one grey value
+        throughout), the threshold leaves no voxel on one of its sides, or no grain is left.
 
     Notes
     -----
@@ -158,6 +158,12 @@ def label_scan(tomogram: np.ndarray, settings: LabelSettings | None = None) -> L
 
     settings = settings or LabelSettings()
     volume = validate_tomogram(tomogram).astype(np.float32, copy=False)
+    low, high = float(volume.min()), float(volume.max())
+    if low == high:
+        raise SynthpackInputError(
+            f"the scan has no contrast: every voxel is {low:.6g}, so no threshold separates grains from pores; "
+            "check that the tomogram file is the reconstructed scan, not a blank or a mask"
+        )
     denoised = ndimage.gaussian_filter(volume, settings.sigma) if settings.sigma else volume
     threshold = float(threshold_otsu(denoised)) if settings.threshold is None else float(settings.threshold)
     bright = denoised > threshold

@@ -52,7 +52,8 @@ def resolve_device(device: str, order: int = 1) -> str | None:
     Raises
     ------
     SynthpackInputError
-        For a CUDA device torch does not see, or another order than 1 asked of one.
+        For a CUDA device torch does not see (no GPU, or a GPU number beyond the last), or
+        another order than 1 asked of one.
     """
     if device == "cpu" or (device == "auto" and not _may_have_cuda()):
         return None
@@ -63,6 +64,10 @@ def resolve_device(device: str, order: int = 1) -> str | None:
         return "cuda" if available and order == 1 else None
     if not available:
         raise SynthpackInputError(f"reconstruct.device {device}: torch sees no CUDA GPU here; use auto or cpu")
+    count = torch.cuda.device_count()
+    if device.startswith("cuda:") and int(device[5:]) >= count:
+        raise SynthpackInputError(f"reconstruct.device {device}: torch sees {count} CUDA GPU(s) here, cuda:0 to "
+                                  f"cuda:{count - 1}; use one of them, cuda, auto or cpu")
     if order != 1:
         raise SynthpackInputError(f"reconstruct.device {device} renders with order 1 only; use order: 1 "
                                   "or device: cpu")

@@ -115,15 +115,16 @@ def validate_voxel_size(voxel_size: float | tuple[float, ...]) -> tuple[float, f
         )
     if values.size == 1:
         values = np.repeat(values, 3)
+    shown = "(" + ", ".join(f"{float(v):g}" for v in values) + ")"  # plain numbers, not np.float64(...)
     if not np.all(np.isfinite(values)) or np.any(values <= 0):
         raise SynthpackInputError(
-            f"voxel size {tuple(values)} must be positive and finite: give the edge "
+            f"voxel size {shown} must be positive and finite: give the edge "
             "length of one voxel, e.g. --voxel-size 10 for 10 um voxels"
         )
     low, high = VOXEL_SIZE_RANGE
     if np.any(values < low) or np.any(values > high):
         raise SynthpackInputError(
-            f"voxel size {tuple(values)} is outside {low:g}-{high:g}: volumes and masses would under- or "
+            f"voxel size {shown} is outside {low:g}-{high:g}: volumes and masses would under- or "
             "overflow; give it in a unit that makes it a plain number, e.g. --voxel-size 10 --unit um"
         )
     return tuple(float(v) for v in values)  # type: ignore[return-value]

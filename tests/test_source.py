@@ -96,12 +96,21 @@ def test_darker_grains_have_a_negative_contrast_and_the_same_edge_width(phantom)
     assert darker.pore_std == pytest.approx(brighter.pore_std, rel=1e-4)
 
 
-def test_edge_width_is_none_when_it_cannot_be_measured(phantom, caplog):
-    _, labels = phantom
-    flat = np.full(labels.shape, 0.5, dtype=np.float32)  # grains and pores of one level: no edge
-    statistics = measure_source(Scan(flat, labels))
-    assert statistics.edge_width is None
+def test_edge_width_is_none_when_it_cannot_be_measured(caplog):
+    labels = np.zeros((32, 64, 64), np.int32)
+    for k, x in enumerate(range(4, 60, 8)):
+        labels[4:28, 4:60, x:x + 2] = k + 1  # plates 2 voxels thin: no grain voxel 2.5 voxels from an edge
+    noise = np.random.default_rng(0).normal(0.0, 0.01, labels.shape)
+    statistics = measure_source(Scan((0.2 + 0.6 * (labels > 0) + noise).astype(np.float32), labels))
+    assert statistics.edge_width is None and statistics.grain_mean == pytest.approx(0.8, abs=0.01)
     assert "edge width cannot be measured" in caplog.text
+
+
+def test_a_scan_without_contrast_is_refused(phantom):
+    _, labels = phantom
+    flat = np.full(labels.shape, 0.5, dtype=np.float32)  # grains and pores of one level
+    with pytest.raises(SynthpackInputError, match="the scan has no contrast"):
+        measure_source(Scan(flat, labels))
 
 
 def test_to_dict_is_the_field_order_without_missing_values():

@@ -211,7 +211,7 @@ def export_coco(
     CocoExportSummary
     """
     out = Path(out)
-    check_slicing(axis, split, bool(packs or real))
+    check_slicing(axis, split, bool(packs or real), window)
     if min_area < 1:
         raise SynthpackInputError(f"min_area must be >= 1, got {min_area}")
     _mask_module()

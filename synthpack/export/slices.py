@@ -68,14 +68,24 @@ def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
     return np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
 
 
-def check_slicing(axis: int, split: str, anything: bool) -> None:
-    """Check the slicing settings before anything is read; `anything`: packs or real scans were given."""
+def check_slicing(axis: int, split: str, anything: bool, window: tuple[float, float] | None = None) -> None:
+    """Check the slicing settings before anything is read; `anything`: packs or real scans were given.
+
+    `window`, when given, must be two finite grey values ``lo < hi``.
+    """
     if axis not in (0, 1, 2):
         raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis}")
     if split not in SPLIT_MODES:
         raise SynthpackInputError(f"split must be one of {', '.join(SPLIT_MODES)}, got {split!r}")
     if not anything:
         raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
+    if window is not None:
+        lo, hi = (float(v) for v in window)
+        if not np.isfinite([lo, hi, hi - lo]).all():
+            raise SynthpackInputError(f"the window must be finite, got ({lo:g}, {hi:g}): give two grey values "
+                                      "of the tomograms, lo < hi")
+        if not hi > lo:
+            raise SynthpackInputError(f"the window needs lo < hi, got ({lo:g}, {hi:g})")
 
 
 # --------------------------------------------------------------------------- #
@@ -173,6 +183,10 @@ def open_sources(
     SynthpackInputError
         When a pack or scan cannot be read.
     """
+    for path in packs:
+        if Path(path).is_file():
+            raise SynthpackInputError(f"{path} is a file, not a pack folder: give pack folders made by "
+                                      "`synthpack generate`, or folders holding them")
     opened = [open_pack(directory, verify=True) for path in packs for directory in find_packs(path)]
     sources = [_pack_source(pack, postprocess) for pack in opened]
     sources += [_real_source(item, k, voxel_size) for k, item in enumerate(real)]
@@ -184,9 +198,7 @@ def _choose_window(window: tuple[float, float] | None, reals: list[Source],
                    packs: list[Pack]) -> tuple[tuple[float, float], str]:
     """The intensity window ``(lo, hi)`` and where it came from (see "Intensity window" in the module docstring)."""
     if window is not None:
-        lo, hi = (float(v) for v in window)
-        if not hi > lo:
-            raise SynthpackInputError(f"the window needs lo < hi, got ({lo}, {hi})")
+        lo, hi = (float(v) for v in window)  # checked by `check_slicing`
         return (lo, hi), "given"
     if reals:
         return intensity_window([s.tomogram for s in reals]), "0.5/99.5 percentiles of the real tomograms"
@@ -202,14 +214,31 @@ def _slice_plan(source: Source, axis: int, split: str, val_fraction: float) -> d
     return slice_splits(n, val_fraction)
 
 
-def _check_plans(plans: list[dict[str, np.ndarray]]) -> None:
-    """Raise unless every split gets slices from some source."""
+def _min_slices(split_name: str, val_fraction: float) -> int | None:
+    """The fewest slices of a volume that give `split_name` a slice under `slice_splits`, or None (up to 10 000)."""
+    return next((n for n in range(2, 10_001) if len(slice_splits(n, val_fraction)[split_name])), None)
+
+
+def _check_plans(plans: list[dict[str, np.ndarray]], sources: list[Source], axis: int, split: str,
+                 val_fraction: float) -> None:
+    """Raise unless every split gets slices from some source; the message names why one gets none."""
     empty = [s for s in SPLITS if not any(len(plan[s]) for plan in plans)]
-    if empty:
-        raise SynthpackInputError(
-            f"no slices for the {' and '.join(empty)} split(s): with split='real-test' give real scans, "
-            "and use a val_fraction > 0"
-        )
+    if not empty:
+        return
+    what = f"no slices for the {' and '.join(empty)} split(s)"
+    split_sources = [s for s in sources if split != "real-test" or s.kind == "real"]
+    if not split_sources:
+        raise SynthpackInputError(f"{what}: with split='real-test' the val and test slices come from real scans; "
+                                  "give real scans (--real T L)")
+    if "val" in empty and not val_fraction:
+        raise SynthpackInputError(f"{what}: val_fraction is 0; use a val_fraction > 0")
+    sizes = ", ".join(f"{s.name} has {s.shape[axis]}" for s in split_sources)
+    needed = [f"{n} slices for a {name} slice" for name in empty if (n := _min_slices(name, val_fraction))]
+    raise SynthpackInputError(
+        f"{what}: too few slices along axis {axis} ({sizes})"
+        + (f"; with val_fraction {val_fraction:g} a volume needs {' and '.join(needed)}" if needed else "")
+        + ": give larger scans, another --axis, or another val_fraction"
+    )
 
 
 # --------------------------------------------------------------------------- #
@@ -317,7 +346,7 @@ def plan_slices(
     reals = [source for source in sources if source.kind == "real"]
     chosen, window_from = _choose_window(window, reals, opened)
     plans = [_slice_plan(source, axis, split, val_fraction) for source in sources]
-    _check_plans(plans)
+    _check_plans(plans, sources, axis, split, val_fraction)
     return SlicedVolumes(sources, plans, axis, chosen, window_from)
 
 

@@ -384,7 +384,7 @@ def export_yolo(
     ExportSummary
     """
     out = Path(out)
-    check_slicing(axis, split, bool(packs or real))
+    check_slicing(axis, split, bool(packs or real), window)
     _check_arguments(truth_splits, min_area, tolerance)
     check_output(out, YOLO_OUTPUT, overwrite=overwrite)
     volumes = plan_slices(packs, real, axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,

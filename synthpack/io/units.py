@@ -35,6 +35,10 @@ def _attribute_voxel_size(voxel_size: object, unit: object, path: Path) -> Metad
     try:
         size = validate_voxel_size(voxel_size)
     except SynthpackInputError as exc:
+        try:  # plain numbers, not np.float32(...)
+            voxel_size = np.asarray(voxel_size, dtype=float).tolist()
+        except (TypeError, ValueError):
+            pass
         raise SynthpackInputError(
             f"{path} records an invalid voxel size {voxel_size!r}: fix its metadata "
             "or pass the voxel size explicitly"

@@ -38,14 +38,41 @@ from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ClassifierTest", "CnnConfig", "DEFAULT_PATCH", "MAX_PATCHES", "classifier_test", "patch_features",
-           "specimen_patches"]
+__all__ = ["ClassifierTest", "CnnConfig", "DEFAULT_PATCH", "MAX_PATCHES", "check_patch", "classifier_test",
+           "patch_features", "specimen_patches"]
 
 #: Default patch side, voxels.
 DEFAULT_PATCH = 16
 #: Default number of patches cut from a pack (an even subset of its bulk region's lattice).
 MAX_PATCHES = 600
 _BINS = 16
+
+
+def check_patch(patch: int, shape: tuple[int, ...] | None = None, what: str = "the volume") -> None:
+    """Refuse a patch side that is not a whole number >= 2, or (given `shape`) wider than `what`'s slices.
+
+    Parameters
+    ----------
+    patch : int
+        Patch side, voxels.
+    shape : tuple of 3 int, optional
+        ``(Z, Y, X)`` of a volume the patches are cut from (in its slices, axis 0).
+    what : str
+        The volume, for the message.
+
+    Raises
+    ------
+    SynthpackInputError
+        If `patch` is not an integer of at least 2, or does not fit a slice of `shape`.
+    """
+    if isinstance(patch, bool) or not isinstance(patch, (int, np.integer)) or patch < 2:
+        raise SynthpackInputError(f"the classifier patch side (--patch) must be a whole number of voxels >= 2 "
+                                  f"(one voxel has no texture to judge), not {patch!r}")
+    if shape is not None and patch > min(shape[1:]):
+        raise SynthpackInputError(
+            f"a classifier patch of {patch} voxels (--patch) does not fit {what}'s {shape[1]}x{shape[2]} slices: "
+            f"give a patch of at most {min(shape[1:])} voxels (default {DEFAULT_PATCH})"
+        )
 
 
 def specimen_patches(
@@ -69,8 +96,19 @@ def specimen_patches(
     patches : ndarray of float32, shape (N, size, size)
     corners : ndarray of int64, shape (N, 3)
         ``(z, y0, x0)`` of each patch's first voxel, in slice order.
+
+    Raises
+    ------
+    SynthpackInputError
+        If `size` is not a whole number >= 2, or no patch of it lies wholly in the bulk region.
     """
+    check_patch(size, specimen.tomogram.shape, specimen.name)
     corners = patch_corners(specimen.region, size, max(1, size // 2), max_patches)
+    if not len(corners):
+        raise SynthpackInputError(
+            f"no {size}x{size} classifier patch lies wholly inside the bulk region of {specimen.name}: "
+            "give a smaller patch (--patch)"
+        )
     lo, hi = window
     patches = (take_patches(specimen.tomogram, corners, size) - np.float32(lo)) / np.float32(hi - lo)
     return np.clip(patches, 0.0, 1.0), corners

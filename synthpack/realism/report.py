@@ -41,7 +41,7 @@ from ..intensity import intensity_window
 from ..pack import find_packs
 from ..scan import Scan
 from .appearance import Appearance, measure_appearance, nps_ratio
-from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfig, classifier_test,
+from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfig, check_patch, classifier_test,
                             specimen_patches)
 from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
@@ -283,10 +283,15 @@ def compare(
     Raises
     ------
     SynthpackInputError
-        If a pack folder holds no pack, or the source is too small for the floor's slabs.
+        If a pack folder holds no pack, the source is too small for the floor's slabs, or
+        the patch side is below 2 or wider than the source's or a pack's slices.
     """
     check_slab(slab)
+    check_patch(patch, source.shape, "the source")
     directories = [p for path in packs for p in find_packs(path)]
+    pack_manifests = {d: json.loads((Path(d) / "manifest.json").read_text()) for d in directories}
+    for directory, manifest in pack_manifests.items():  # before any measuring
+        check_patch(patch, tuple(manifest["shape"]), f"pack {directory}")
     window = intensity_window([source.tomogram])
     # twice the patches of a pack, so that each half of the floor has as many as a pack
     reference = measure(Specimen.from_scan(source), window, patch=patch, max_patches=2 * MAX_PATCHES)
@@ -297,7 +302,7 @@ def compare(
         specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
         measured.append(measure(specimen, window, patch=patch))
         tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn))
-        manifest = json.loads((Path(directory) / "manifest.json").read_text())
+        manifest = pack_manifests[directory]
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
                           "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
                           "calibration": manifest.get("calibration")})

@@ -8,14 +8,22 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..errors import SynthpackInputError
 from ..scan import Scan
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["PORE_INTERIOR_DEPTH", "PhaseLevels", "estimate_phases"]
+__all__ = ["MIN_CONTRAST", "PORE_INTERIOR_DEPTH", "PhaseLevels", "estimate_phases"]
 
 #: Pore voxels this close to a grain (in voxels) are left out of the pore statistics.
 PORE_INTERIOR_DEPTH = 2
+
+#: Below this grain-pore level difference, in pore spreads (`PhaseLevels.pore_std`), a labelled
+#: scan has no contrast: its labels do not mark grains of this tomogram. Measured in the specimen:
+#: the neutron concrete gives 2.7, sand 8.1, the built-in small sample 17.6; with their labels
+#: shifted by 37 voxels along x the concrete gives 0.05 and sand 0.0, and the concrete's
+#: unregistered X-ray scan with the neutron labels 0.04.
+MIN_CONTRAST = 0.1
 
 
 @dataclass(frozen=True)
@@ -35,6 +43,22 @@ class PhaseLevels:
     pore_mean: float
     pore_std: float
     grain_mean: float
+
+    def check_contrast(self) -> None:
+        """Refuse levels whose grains and pores cannot be told apart (see `MIN_CONTRAST`).
+
+        Raises
+        ------
+        SynthpackInputError
+            If the grain and pore levels differ by `MIN_CONTRAST` pore spreads or less:
+            a constant (blank) tomogram, or labels that are not the grains of this tomogram.
+        """
+        if abs(self.grain_mean - self.pore_mean) <= MIN_CONTRAST * self.pore_std:
+            raise SynthpackInputError(
+                f"the scan has no contrast: its labelled grains (median grey value {self.grain_mean:.6g}) and "
+                f"pores ({self.pore_mean:.6g}, spread {self.pore_std:.3g}) cannot be told apart; check that the "
+                "tomogram is not blank and that the labels are the grains of this very tomogram"
+            )
 
 
 def estimate_phases(scan: Scan, max_samples: int = 2_000_000, region: np.ndarray | None = None) -> PhaseLevels:

@@ -203,7 +203,8 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     Raises
     ------
     SynthpackInputError
-        If the noise cannot be estimated (no grain or pore interior to measure it in).
+        If the scan has no contrast (`~synthpack.source.phases.PhaseLevels.check_contrast`), or
+        the noise cannot be estimated (no grain or pore interior to measure it in).
     """
     whole = specimen_mask(scan.labels)
     specimen = whole
@@ -213,6 +214,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
         specimen = whole.copy()
         specimen[tuple(block)] = False
     levels = estimate_phases(scan, region=specimen)
+    levels.check_contrast()
     noise = estimate_noise(scan.tomogram, scan.labels, region=specimen)
     distance = signed_distance(scan.labels)
     edges: dict[str, float] = {}
