@@ -197,7 +197,7 @@ def _is_unit(path: Path) -> bool:
 
 
 def _contents(root: Path) -> dict[str, list[str]]:
-    """What the folder `root` holds (but its record): ``files`` (with Zarr stores) and ``folders``, relative POSIX paths."""
+    """What `root` holds, but its record: ``files`` (Zarr stores too) and ``folders``, relative POSIX paths."""
     record: dict[str, list[str]] = {"files": [], "folders": []}
 
     def walk(folder: Path, prefix: str) -> None:
