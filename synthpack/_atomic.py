@@ -25,7 +25,8 @@ replaced whole, like a file, and an output that is a Zarr store gets no record (
 warns about foreign files in a group) and is replaced whole.
 
 Temporary siblings left by a killed process (its PID no longer runs) are removed the
-next time the same output is written. :func:`check_output` runs the same checks up
+next time the same output is written; an earlier output it had moved aside to replace
+(``.NAME.tmp-old-PID-XXXXXXXX``) is put back first when nothing took its place. :func:`check_output` runs the same checks up
 front, so a command can refuse a bad output path before any work starts.
 """
 
@@ -52,7 +53,7 @@ logger = logging.getLogger(__name__)
 #: The file in each folder output that lists what synthpack wrote there (relative POSIX paths).
 RECORD = ".synthpack-files"
 
-_STAGING = re.compile(r"^\.(?P<name>.+)\.tmp-(?:(?P<pid>\d+)-)?[0-9a-f]{8}$")
+_STAGING = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<retired>old-)?(?:(?P<pid>\d+)-)?[0-9a-f]{8}$")
 
 
 def _never(path: Path) -> bool:
@@ -92,8 +93,9 @@ FILE = Output("file", folder=False)
 FOLDER = Output("folder")
 
 
-def _staging_name(final: Path) -> Path:
-    return final.with_name(f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+def _staging_name(final: Path, retired: bool = False) -> Path:
+    """A temporary sibling of `final`; a `retired` one holds the earlier output while the new one is renamed in."""
+    return final.with_name(f".{final.name}.tmp-{'old-' if retired else ''}{os.getpid()}-{uuid.uuid4().hex[:8]}")
 
 
 def _running(pid: int) -> bool:
@@ -107,7 +109,11 @@ def _running(pid: int) -> bool:
 
 
 def remove_stale_staging(final: Path) -> None:
-    """Remove temporary siblings of `final` left by processes that no longer run."""
+    """Remove temporary siblings of `final` left by processes that no longer run.
+
+    A retired earlier output whose process was killed before the new one took its
+    place is renamed back to `final` instead (when nothing is there).
+    """
     parent = final.parent
     if not parent.is_dir():
         return
@@ -117,6 +123,10 @@ def remove_stale_staging(final: Path) -> None:
             continue
         pid = match["pid"]
         if pid is not None and _running(int(pid)):
+            continue
+        if match["retired"] and not os.path.lexists(final):
+            os.replace(entry, final)
+            logger.warning("put back %s: a killed run had moved it aside to replace it", final)
             continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
@@ -308,7 +318,7 @@ def _merge(staging: Path, final: Path) -> None:
 
 def _swap(staging: Path, final: Path) -> None:
     """Rename `staging` to `final`, replacing the folder there; on any failure `final` is put back."""
-    retired = _staging_name(final)
+    retired = _staging_name(final, retired=True)
     os.replace(final, retired)
     try:
         os.replace(staging, final)
@@ -341,7 +351,7 @@ def _commit(staging: Path, final: Path, output: Output, overwrite: bool) -> None
     """Put the complete folder `staging` at `final` by the rules of the module docstring."""
     whole = _is_unit(staging)  # a Zarr store: one volume
     if not whole:
-        (staging / RECORD).write_text(json.dumps(_contents(staging), indent=0))
+        (staging / RECORD).write_text(json.dumps(_contents(staging), indent=1))
     if not final.exists():
         os.replace(staging, final)
         return
