@@ -1,113 +1,96 @@
-"""Replacing an earlier output deletes only what synthpack wrote there (issue 24), through the real command line.
-
-A folder output records its files (``.synthpack-files``); a rerun into it replaces those
-and keeps every other entry, removes stale files the earlier output recorded, and refuses
-(exit 2, one line, nothing changed) when a new file would land on a file of the user's.
-"""
+"""Replacing synthpack's own earlier output deletes only the files it recorded (issue 24), through the CLI."""
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
-import tifffile
 
 from synthpack._atomic import RECORD
-from synthpack.samples import sample_scan
+from synthpack.io import write_tiff
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(cwd), MPLCONFIGDIR=str(cwd / ".mpl"))
-    return subprocess.run([sys.executable, "-m", "synthpack", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=300)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "synthpack", "-q", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
 
 
-def snapshot(folder: Path) -> dict[str, bytes]:
-    """Every file under `folder` (relative POSIX path) and its bytes."""
+@pytest.fixture
+def scan_files(tmp_path, blob_scan) -> Path:
+    """The blob scan as t.tif / l.tif in `tmp_path` (four grains, 30x40x50)."""
+    write_tiff(tmp_path / "t.tif", blob_scan.tomogram, blob_scan.voxel_size, blob_scan.unit)
+    write_tiff(tmp_path / "l.tif", blob_scan.labels, blob_scan.voxel_size, blob_scan.unit, labels=True)
+    return tmp_path
+
+
+def files(folder: Path) -> dict[str, bytes]:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def recorded(folder: Path) -> set[str]:
-    return set(json.loads((folder / RECORD).read_text())["files"])
-
-
-@pytest.fixture(scope="module")
-def scans(tmp_path_factory) -> Path:
-    """``long/`` and ``short/``: a 16- and a 10-slice crop of the small sample, both as ``t.tif`` + ``l.tif``."""
-    folder = tmp_path_factory.mktemp("scans")
-    scan = sample_scan("small", seed=0)
-    for name, depth in (("long", 16), ("short", 10)):
-        (folder / name).mkdir()
-        tifffile.imwrite(folder / name / "t.tif", scan.tomogram[:depth, :64, :64])
-        tifffile.imwrite(folder / name / "l.tif", scan.labels[:depth, :64, :64])
-    return folder
-
-
-def export(scans: Path, which: str, out: Path, *flags: str) -> subprocess.CompletedProcess:
-    return run(*flags, "export-yolo", "--real", str(scans / which / "t.tif"), str(scans / which / "l.tif"),
-               "--out", str(out), cwd=out.parent)
-
-
-@pytest.fixture(scope="module")
-def long_files(scans, tmp_path_factory) -> set[str]:
-    """The files an export of the 16-slice scan writes."""
-    out = tmp_path_factory.mktemp("long") / "yolo"
-    result = export(scans, "long", out)
+def test_library_build_into_an_earlier_library_keeps_the_users_file(scan_files):
+    build = ("library", "build", "--tomogram", "t.tif", "--labels", "l.tif", "--out", "lib")
+    assert run(*build, cwd=scan_files).returncode == 0
+    notes = scan_files / "lib" / "my_notes.txt"
+    notes.write_bytes(b"my notes\x00\xff")
+    (scan_files / "lib" / "runs").mkdir()
+    (scan_files / "lib" / "runs" / "a.csv").write_text("1,2\n")
+    result = run(*build, cwd=scan_files)
     assert result.returncode == 0, result.stderr
-    return recorded(out)
+    assert notes.read_bytes() == b"my notes\x00\xff"
+    assert (scan_files / "lib" / "runs" / "a.csv").read_text() == "1,2\n"
+    assert run("library", "info", "lib", cwd=scan_files).returncode == 0
+    assert "my_notes.txt" not in (scan_files / "lib" / RECORD).read_text()
 
 
-def test_library_build_into_an_earlier_library_keeps_the_users_file(scans, tmp_path):
-    build = ("library", "build", "--tomogram", str(scans / "short" / "t.tif"), "--labels",
-             str(scans / "short" / "l.tif"), "--include-border", "--workers", "1", "--out", "lib")
-    assert run(*build, cwd=tmp_path).returncode == 0
-    (tmp_path / "lib" / "my_notes.txt").write_bytes(b"my notes\n")
-    before = (tmp_path / "lib" / "library.json").stat().st_mtime_ns
-    result = run(*build, cwd=tmp_path)
+def test_export_yolo_keeps_user_files_and_removes_its_stale_ones(scan_files):
+    assert run("export-yolo", "--real", "t.tif", "l.tif", "--out", "yolo", cwd=scan_files).returncode == 0
+    out = scan_files / "yolo"
+    (out / "README_mine.md").write_text("# mine\n")
+    (out / "mine" / "deeper").mkdir(parents=True)
+    (out / "mine" / "deeper" / "x.txt").write_text("x")
+    stale = sorted((out / "images" / "train").iterdir())[0]
+    assert "_a0_" in stale.name
+    result = run("export-yolo", "--real", "t.tif", "l.tif", "--out", "yolo", "--axis", "2", cwd=scan_files)
     assert result.returncode == 0, result.stderr
-    assert (tmp_path / "lib" / "my_notes.txt").read_bytes() == b"my notes\n"
-    assert (tmp_path / "lib" / "library.json").stat().st_mtime_ns != before  # the library itself was replaced
-    assert "kept 1 file not written by synthpack" in result.stderr and "my_notes.txt" in result.stderr
-    assert "my_notes.txt" not in recorded(tmp_path / "lib")
+    assert (out / "README_mine.md").read_text() == "# mine\n"
+    assert (out / "mine" / "deeper" / "x.txt").read_text() == "x"
+    assert not stale.exists() and not list(out.rglob("*_a0_*"))  # the earlier export's slices are gone
+    assert list((out / "images" / "train").glob("*_a2_*"))
 
 
-def test_export_keeps_the_users_files_and_removes_its_own_stale_files(scans, long_files, tmp_path):
-    out = tmp_path / "yolo"
-    assert export(scans, "long", out).returncode == 0
-    (out / "README_mine.md").write_text("# my dataset\n")
-    (out / "mine").mkdir()
-    (out / "mine" / "model.txt").write_text("weights here\n")
-    (out / "images" / "train" / "extra.png").write_bytes(b"not synthpack's")  # inside a folder of synthpack's
-    result = export(scans, "short", out)
+def test_a_user_file_where_the_new_export_writes_is_refused_and_nothing_changes(scan_files):
+    export = ("export-yolo", "--real", "t.tif", "l.tif", "--out", "yolo")
+    assert run(*export, cwd=scan_files).returncode == 0
+    out = scan_files / "yolo"
+    name = sorted((out / "images" / "val").iterdir())[0].name
+    (out / "truth" / "val").mkdir()
+    (out / "truth" / "val" / name).write_bytes(b"my own truth")
+    before = files(out)
+    result = run(*export, "--truth-splits", "test", "val", cwd=scan_files)
+    assert result.returncode == 2
+    assert result.stderr.startswith("synthpack: error: ") and "Traceback" not in result.stderr
+    assert [line for line in result.stderr.splitlines() if line.startswith("synthpack:")] == \
+        [result.stderr.strip().splitlines()[-1]]
+    assert f"truth/val/{name} was not written by synthpack" in result.stderr
+    assert files(out) == before
+    assert not [p for p in scan_files.iterdir() if p.name.startswith(".yolo")]  # no temporary folder left
+
+
+def test_an_earlier_output_without_a_record_loses_nothing(scan_files):
+    build = ("library", "build", "--tomogram", "t.tif", "--labels", "l.tif", "--out", "lib")
+    assert run(*build, cwd=scan_files).returncode == 0
+    lib = scan_files / "lib"
+    (lib / RECORD).unlink()  # as written by synthpack 0.6
+    (lib / "old_extra.npz").write_bytes(b"old")
+    result = run(*build, cwd=scan_files)
     assert result.returncode == 0, result.stderr
-    short_files = recorded(out)
-    stale = long_files - short_files
-    assert stale  # the 16-slice export wrote slices 10-15, which the 10-slice one does not
-    assert snapshot(out).keys() == short_files | {RECORD, "README_mine.md", "mine/model.txt",
-                                                   "images/train/extra.png"}
-    assert (out / "README_mine.md").read_text() == "# my dataset\n"
-    assert (out / "mine" / "model.txt").read_text() == "weights here\n"
-    assert (out / "images" / "train" / "extra.png").read_bytes() == b"not synthpack's"
-
-
-def test_a_new_file_on_a_users_file_is_refused_and_nothing_changes(scans, long_files, tmp_path):
-    out = tmp_path / "yolo"
-    assert export(scans, "short", out).returncode == 0
-    clash = sorted(long_files - recorded(out))[0]  # written by the 16-slice export, not by this one
-    (out / clash).write_bytes(b"the user's own")
-    (out / "README_mine.md").write_text("mine\n")
-    before = snapshot(out)
-    result = export(scans, "long", out, "-q")
-    assert result.returncode == 2, result.stderr
-    assert "Traceback" not in result.stderr
-    messages = [line for line in result.stderr.splitlines() if line.startswith("synthpack:")]  # not progress
-    assert len(messages) == 1 and result.stderr.strip().endswith(messages[0]), result.stderr
-    assert messages[0].startswith("synthpack: error:") and clash in messages[0], result.stderr
-    assert snapshot(out) == before
-    assert not [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name]
+    assert (lib / "old_extra.npz").read_bytes() == b"old"
+    assert "did not record its files" in result.stderr  # -q keeps warnings
+    assert np.load(lib / "crops.npz").files
