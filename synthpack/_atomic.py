@@ -26,8 +26,9 @@ warns about foreign files in a group) and is replaced whole.
 
 Temporary siblings left by a killed process (its PID no longer runs) are removed the
 next time the same output is written; an earlier output it had moved aside to replace
-(``.NAME.tmp-old-PID-XXXXXXXX``) is put back first when nothing took its place. :func:`check_output` runs the same checks up
-front, so a command can refuse a bad output path before any work starts.
+(``.NAME.tmp-old-PID-XXXXXXXX``) is put back first when nothing took its place.
+:func:`check_output` runs the same checks up front, so a command can refuse a bad output
+path before any work starts.
 """
 
 from __future__ import annotations
