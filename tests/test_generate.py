@@ -77,7 +77,7 @@ def test_generate_writes_complete_packs_and_skips_them_on_rerun(large_library, t
     (path,) = generate_packs(large_library, tmp_path, 1, config, progress=False)
     assert is_complete_pack(path)
     names = sorted(p.name for p in path.iterdir())
-    assert names == ["clean.tif", "labels.tif", "manifest.json", "placements.json", "tomogram.tif"]
+    assert names == [".synthpack-files", "clean.tif", "labels.tif", "manifest.json", "placements.json", "tomogram.tif"]
     manifest = json.loads((path / "manifest.json").read_text())
     assert manifest["seed"] == pack_seed(config.seed, 0)
     assert manifest["config"]["pour"]["n_particles"] == 10

@@ -218,7 +218,8 @@ def test_evaluate_command_writes_json_csv_markdown(tmp_path, capsys):
     pred_dir, truth_dir = write_folders(tmp_path)
     out = tmp_path / "report"
     assert main(["-q", "evaluate", "--pred", str(pred_dir), "--truth", str(truth_dir), "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["evaluation.csv", "evaluation.json", "evaluation.md"]
+    assert sorted(p.name for p in out.iterdir()) == [".synthpack-files", "evaluation.csv", "evaluation.json",
+                                                      "evaluation.md"]
     data = json.loads((out / "evaluation.json").read_text())
     assert data["summary"]["n_rows"] == 5 and len(data["rows"]) == 5
     assert (out / "evaluation.csv").read_text().splitlines()[0].startswith("file,slice,n_true")

@@ -206,7 +206,7 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert main(["-q", "compare", "--sample", "large", "--packs", str(packs[0]), str(packs[1]),
                  "--out", str(out), "--patch", "12", "--no-cnn"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [
-        "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
+        ".synthpack-files", "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
     report = json.loads((out / "realism.json").read_text())
     assert [p["name"] for p in report["packs"]] == ["generic/pack_0000", "default/pack_0000"]
     assert [p["mode"] for p in report["settings"]["packs"]] == ["generic", "calibrated"]

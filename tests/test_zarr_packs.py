@@ -68,7 +68,8 @@ def test_zarr_and_tiff_packs_hold_the_same_voxels(packs):
     assert zarr_pack.labels.chunks[0] == 1 and zarr_pack.labels.shards[0] == CONFIG.reconstruct.chunks[0]
     # an OME-Zarr image (level 0 only: the pack is smaller than 2 x MIN_LEVEL_SIZE), no scratch store left
     assert sorted(p.name for p in (zarr_pack.path / "pack.zarr").iterdir() if p.is_dir()) == ["0", "clean", "labels"]
-    assert sorted(p.name for p in zarr_pack.path.iterdir()) == ["manifest.json", "pack.zarr", "placements.json"]
+    assert sorted(p.name for p in zarr_pack.path.iterdir()) == [".synthpack-files", "manifest.json", "pack.zarr",
+                                                                "placements.json"]
 
 
 def test_yolo_export_of_a_zarr_pack_equals_that_of_the_tiff_pack(packs, tmp_path):
