@@ -94,3 +94,17 @@ def test_an_earlier_output_without_a_record_loses_nothing(scan_files):
     assert (lib / "old_extra.npz").read_bytes() == b"old"
     assert "did not record its files" in result.stderr  # -q keeps warnings
     assert np.load(lib / "crops.npz").files
+
+
+def test_an_earlier_output_moved_aside_by_a_killed_run_is_put_back_with_the_users_file(scan_files):
+    build = ("library", "build", "--tomogram", "t.tif", "--labels", "l.tif", "--out", "lib")
+    assert run(*build, cwd=scan_files).returncode == 0
+    (scan_files / "lib" / "my_notes.txt").write_text("my notes\n")
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # its PID no longer runs: a run killed between moving lib aside and renaming the new one in
+    (scan_files / "lib").rename(scan_files / f".lib.tmp-old-{gone.pid}-0123abcd")
+    result = run(*build, cwd=scan_files)
+    assert result.returncode == 0, result.stderr
+    assert "put back" in result.stderr  # -q keeps warnings
+    assert (scan_files / "lib" / "my_notes.txt").read_text() == "my notes\n"
+    assert not [p for p in scan_files.iterdir() if p.name.startswith(".lib")]
