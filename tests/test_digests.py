@@ -165,6 +165,8 @@ def library_record(folder: Path) -> dict:
                 record[path.name] = archive_record(archive)
         elif path.suffix == ".json":
             record[path.name] = _json_digest(json.loads(path.read_text()))
+        elif path.name == FILE_RECORD:  # the names synthpack wrote: portable as they are
+            record[path.name] = json.loads(path.read_text())
         elif path.suffix == ".csv":
             with path.open(newline="") as table:
                 record[path.name] = [[_csv_value(cell) for cell in row] for row in csv.reader(table)]
