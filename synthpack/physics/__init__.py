@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .._console import progress_bar
+from ..budget import check_pour
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
 from .compaction import PackingController, expected_fraction, report_target, resolve_target
@@ -139,11 +140,12 @@ def pour(
     chosen.check_available()
     low, high = parse_scale(scale)
     tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
+    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
+    length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
+    check_pour(n_particles, tube.inner_radius / length)
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
                      size_classes=size_classes, indices=indices)
-    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
-    length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
     mass_unit = float(np.median([library[i].mass for i in range(len(library))])) * reference_scale**3
     bodies = _bodies(library, plan, length, mass_unit)
     spec = tube.spec(length)
