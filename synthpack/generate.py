@@ -27,7 +27,7 @@ from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from .partial_volume import PartialVolume
-from .physics import Placements, Tube, pour
+from .physics import Placements, Tube, check_pour_size, pour
 from .physics.compaction import expected_fraction
 from .physics.container import DEFAULT_PACKING_FRACTION
 from .physics.registry import get_engine
@@ -425,6 +425,7 @@ def generate_packs(
         raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
     format = pack_format(format)
     config = config or PackConfig()
+    check_pour_size(library, config.pour.n_particles, _tube(library, config), config.pour.scale)
     out = check_output(out, PACKS_OUTPUT, overwrite=overwrite)
     check_postprocess(config.postprocess, library.statistics)
     if scheduler is None:  # a remote cluster's workers may have what this machine lacks
