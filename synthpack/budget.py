@@ -18,6 +18,11 @@ from .errors import SynthpackInputError
 #: in memory (README, "the whole volume is held in memory (about 30 bytes per voxel at the peak)").
 LABEL_BYTES_PER_VOXEL = 30
 
+#: Peak bytes per voxel of building a TIFF pack in memory: the clean, labels and tomogram
+#: volumes (float32, int32, float32 = 12 B) times the 1.21x net peak of reconstruction
+#: (docs/benchmarks.md, 512^3 grid), rounded up.
+PACK_BYTES_PER_VOXEL = 15
+
 #: Bytes per cell of the burial height map of a pour (`physics.burial`): about six float64
 #: arrays of the tube's cross-section in simulation units (coordinates, heights, padded minima).
 BURIAL_BYTES_PER_CELL = 48
@@ -94,3 +99,14 @@ def check_pour(n_particles: int, tube_radius: float) -> None:
                 f"pouring into a tube {tube_radius:,.3g} grain diameters in radius",
                 "give a smaller pour.tube_radius (--tube-radius) or pour.scale")
 
+
+
+def check_pack_grid(shape: tuple[int, int, int], fmt: str) -> None:
+    """Refuse a TIFF pack whose grid `shape` (Z, Y, X voxels) does not fit in memory.
+
+    A Zarr pack is built chunk by chunk, a few chunks in memory at a time, so it is not checked.
+    """
+    if fmt != "zarr":
+        check_volume(shape, PACK_BYTES_PER_VOXEL, "building the pack",
+                     "give a smaller pour.tube_radius, pour.tube_height or pour.scale, fewer grains, "
+                     "or --format zarr")
