@@ -60,9 +60,19 @@ def check_bytes(needed: float, what: str, change: str) -> None:
     free = available_bytes()
     if needed > free:
         raise SynthpackInputError(
-            f"{what} needs about {needed / _GIB:,.1f} GiB of memory but {free / _GIB:,.1f} GiB is "
-            f"available: {change}."
+            f"{what} needs about {_size(needed)} of memory but {_size(free)} is available: {change}."
         )
+
+
+def _size(n_bytes: float) -> str:
+    """`n_bytes` in GiB, TiB or PiB, one decimal: ``"40.0 GiB"``."""
+    for unit in ("GiB", "TiB"):
+        if n_bytes < 1024 * _GIB:
+            break
+        n_bytes /= 1024
+    else:
+        unit = "PiB"
+    return f"{n_bytes / _GIB:,.1f} {unit}"
 
 
 def check_volume(shape: tuple[int, ...], bytes_per_voxel: float, what: str, change: str) -> None:
