@@ -21,13 +21,14 @@ from . import __version__
 from ._atomic import check_output
 from ._chunks import bounded_map, chunk_boxes, thread_count
 from .artefacts.blockwise import apply_blockwise, device_for
+from .budget import check_pack_grid
 from .config import PackConfig, ReconstructConfig
 from .deform import PackGrains, pack_grains
 from .errors import PackBuildError, SynthpackInputError
 from .library import ParticleLibrary
 from .pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from .partial_volume import PartialVolume
-from .physics import Placements, Tube, pour
+from .physics import Placements, Tube, check_pour_size, pour
 from .physics.compaction import expected_fraction
 from .physics.container import DEFAULT_PACKING_FRACTION
 from .physics.registry import get_engine
@@ -89,6 +90,18 @@ def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
         inner_radius=pour_config.tube_radius, height=pour_config.tube_height,
         packing_fraction=expected_fraction(pour_config.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
     )
+
+
+def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:
+    """Refuse up front a pack whose pour or whose volumes cannot fit this machine (`synthpack.budget`).
+
+    The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out.
+    """
+    tube = _tube(library, config)
+    check_pour_size(library, config.pour.n_particles, tube, config.pour.scale)
+    grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
+                         margin=config.reconstruct.margin)
+    check_pack_grid(grid.shape, format)
 
 
 def _derived_seed(seed: int, stream: int) -> int:
@@ -425,6 +438,7 @@ def generate_packs(
         raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
     format = pack_format(format)
     config = config or PackConfig()
+    _check_size(library, config, format)
     out = check_output(out, PACKS_OUTPUT, overwrite=overwrite)
     check_postprocess(config.postprocess, library.statistics)
     if scheduler is None:  # a remote cluster's workers may have what this machine lacks

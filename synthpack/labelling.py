@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .budget import LABEL_BYTES_PER_VOXEL, check_volume
 from ._schema import finite, non_negative, one_of, positive, setting
 from .errors import SynthpackInputError
 from .scan import validate_tomogram
@@ -157,6 +158,7 @@ def label_scan(tomogram: np.ndarray, settings: LabelSettings | None = None) -> L
     from skimage.filters import threshold_otsu
 
     settings = settings or LabelSettings()
+    check_volume(np.shape(tomogram), LABEL_BYTES_PER_VOXEL, "labelling", "crop the volume first")
     volume = validate_tomogram(tomogram).astype(np.float32, copy=False)
     low, high = float(volume.min()), float(volume.max())
     if low == high:

@@ -19,6 +19,7 @@ from ._arrays import cupping_factor
 from ._atomic import Output, atomic_directory
 from ._console import progress_bar
 from ._schema import in_range, positive, setting
+from .budget import LABEL_BYTES_PER_VOXEL, check_volume
 from .errors import SynthpackInputError
 from .meshing import DECIMATION_FACTORS, mesh_from_mask
 from .particles import Particle, ParticleCrop, extract_particles
@@ -191,6 +192,7 @@ class ParticleLibrary(Sequence[Particle]):
         """
         if not density > 0:
             raise SynthpackInputError(f"density must be positive, got {density}")
+        check_volume(scan.shape, LABEL_BYTES_PER_VOXEL, "building the library", "crop the scan first")
         workers = (os.cpu_count() or 1) if workers is None else int(workers)
         if workers < 1:
             raise SynthpackInputError(f"workers must be at least 1, got {workers}")

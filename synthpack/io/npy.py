@@ -7,9 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..budget import check_read
 from ._base import Volume
 
 
 def _read_npy(path: Path, role: str | None, name: str | None) -> Volume:
-    return np.load(path, allow_pickle=False), None, None
+    volume = np.load(path, mmap_mode="r", allow_pickle=False)
+    check_read(volume.shape, volume.dtype, path)
+    return np.array(volume), None, None
 

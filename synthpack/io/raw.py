@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..budget import check_read
 from ..errors import SynthpackInputError
 from ._base import Volume
 
@@ -31,6 +32,7 @@ def _read_raw(path: Path, role: str | None, name: str | None) -> Volume:
             f"{path} is {size:,} bytes but {'x'.join(map(str, shape))} voxels of {dtype.name} take "
             f"{expected:,}: check the shape and dtype after the colon ({_RAW_LAYOUT})"
         )
+    check_read(shape, dtype, path)
     volume = np.fromfile(path, dtype=dtype).reshape(shape)
     return volume.astype(dtype.newbyteorder("="), copy=False), None, None
 

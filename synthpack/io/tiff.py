@@ -15,6 +15,7 @@ import numpy as np
 import tifffile
 
 from .._atomic import atomic_file
+from ..budget import check_read
 from ..errors import SynthpackInputError
 from ..scan import validate_voxel_size
 from ._base import Metadata, PathLike, Volume, _natural_sorted, _reading, _require_volume, _visible_files
@@ -185,6 +186,7 @@ def _read_tiff(path: Path, role: str | None, name: str | None) -> Volume:
         if len(tif.series) > 1:
             logger.warning("%s holds %d image series of shapes %s; reading the first only",
                            path, len(tif.series), [s.shape for s in tif.series])
+        check_read(tif.series[0].shape, tif.series[0].dtype, path)
         volume = tif.asarray()
         size, unit = _tiff_voxel_size(tif, stack=True)
     return volume, size, unit
@@ -202,6 +204,7 @@ def _read_tiff_folder(path: Path, role: str | None, name: str | None) -> Volume:
             f"{files[0]} holds an image of shape {shape}, but a folder of slices must "
             "hold one 2D grayscale image per file"
         )
+    check_read((len(files), *shape), dtype, path)
     volume = np.empty((len(files), *shape), dtype=dtype)
     for k, file in enumerate(files):
         with _reading(file, "TIFF"), _open_tiff(file) as tif:

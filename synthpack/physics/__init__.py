@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .._console import progress_bar
+from ..budget import check_pour
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
 from .compaction import PackingController, expected_fraction, report_target, resolve_target
@@ -43,7 +44,7 @@ from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "pour", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks",
+    "pour", "check_pour_size", "Placements", "PourConfig", "Tube", "Material", "SettleCriteria", "PourChecks",
     "ENGINES", "get_engine", "CONTAINMENT_ATTEMPTS",
 ]
 
@@ -139,11 +140,12 @@ def pour(
     chosen.check_available()
     low, high = parse_scale(scale)
     tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
+    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
+    length = _length_scale(library, reference_scale)
+    check_pour(n_particles, tube.inner_radius / length)
 
     plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
                      size_classes=size_classes, indices=indices)
-    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
-    length = float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
     mass_unit = float(np.median([library[i].mass for i in range(len(library))])) * reference_scale**3
     bodies = _bodies(library, plan, length, mass_unit)
     spec = tube.spec(length)
@@ -205,6 +207,34 @@ def _check_request(library: Any, n_particles: Any, batch_size: Any, seed: Any) -
             "The particle library is empty; build it from a labelled scan with grains in it."
         )
     return n_particles, batch_size, int(seed)
+
+
+def check_pour_size(library: Any, n_particles: int, tube: Tube, scale: float | Sequence[float] = 1.0) -> None:
+    """Refuse up front a pour too long or too large for this machine (:func:`synthpack.budget.check_pour`).
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains (their median diameter sets the simulation unit).
+    n_particles : int
+        Grains to pour.
+    tube : Tube
+        The container, physical units.
+    scale : float or (float, float)
+        The pour's grain scale, as for `pour`.
+
+    Raises
+    ------
+    SynthpackInputError
+        With the estimate (hours or GiB) and the setting to change.
+    """
+    low, high = parse_scale(scale)
+    check_pour(n_particles, tube.inner_radius / _length_scale(library, float(np.sqrt(low * high))))
+
+
+def _length_scale(library: Any, reference_scale: float) -> float:
+    """The simulation length unit, physical units: the median grain diameter at `reference_scale`."""
+    return float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
 
 
 def _count(value: Any, name: str) -> int:
