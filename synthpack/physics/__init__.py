@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .._console import progress_bar
+from .._text import sig
 from ..budget import check_pour
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
@@ -140,6 +141,7 @@ def pour(
     chosen.check_available()
     low, high = parse_scale(scale)
     tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
+    logger.info("Tube for %d grains: inner radius %s, height %s", n_particles, sig(tube.inner_radius), sig(tube.height))
     reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
     length = _length_scale(library, reference_scale)
     check_pour(n_particles, tube.inner_radius / length)

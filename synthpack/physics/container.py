@@ -164,7 +164,7 @@ class Tube:
         if height is None:
             height = fill * headroom + 4.0 * float(diameters.max()) * scale
         tube = cls(inner_radius=radius, height=height, wall_thickness=wall, base_thickness=wall)
-        logger.info(
+        logger.debug(  # the pour logs the tube it pours into, once (this is also called to check sizes)
             "Tube for %d grains: inner radius %s, height %s (expected fill %s)",
             n_particles, sig(radius), sig(height), sig(fill),
         )
