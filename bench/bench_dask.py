@@ -39,11 +39,11 @@ from pathlib import Path
 
 import psutil
 
-from synthpack.config import PackConfig
-from synthpack.generate import generate_packs
-from synthpack.library import ParticleLibrary
-from synthpack.pack import PACK_VOLUMES
-from synthpack.samples import sample_scan
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import generate_packs
+from synthpack.library.core import ParticleLibrary
+from synthpack.store.pack import PACK_VOLUMES
+from synthpack.scan.samples import sample_scan
 
 from _measure import TreeRss, generate_zarr_pack, load_average
 

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.dataset import SyntheticParticlePackDataset, collate_fn, collate_stacked
 from synthpack.io import memmap_volume
 

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from synthpack.config import PackConfig
-from synthpack.generate import generate_pack
-from synthpack.library import ParticleLibrary
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import generate_pack
+from synthpack.library.core import ParticleLibrary
 from synthpack.realism.region import Specimen
 from synthpack.realism.structure import grain_table, ks_distance
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 
 STRENGTHS = (0.0, 0.1, 0.2, 0.3)
 

@@ -32,15 +32,15 @@ import tifffile
 from PIL import Image
 from skimage.measure import find_contours
 
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.export import export_yolo
 from synthpack.export.slices import to_uint8
 from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, yolo_label_text
-from synthpack.generate import generate_packs
+from synthpack.pipeline.generate import generate_packs
 from synthpack.io import write_tiff
-from synthpack.library import ParticleLibrary
-from synthpack.pack import open_pack
-from synthpack.samples import sample_scan
+from synthpack.library.core import ParticleLibrary
+from synthpack.store.pack import open_pack
+from synthpack.scan.samples import sample_scan
 
 
 def _ultralytics_polygon2mask(config_dir: Path):

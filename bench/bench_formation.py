@@ -5,7 +5,7 @@ Run from the repository root (about 2 minutes on 2 cores)::
     .venv/bin/python bench/bench_formation.py [--grains 150] [--repeats 3]
 
 Both arms build the same pack (the "large" sample library, the same pour and seed) with
-`synthpack.generate.build_pack` and read its per-stage timings from the manifest:
+`synthpack.pipeline.generate.build_pack` and read its per-stage timings from the manifest:
 
 * **baseline** (synthpack 0.2's image): whole-voxel render (``reconstruct.partial_volume:
   false``) and the ``generic`` post-processing (the 0.2 default recipe);
@@ -16,7 +16,7 @@ It prints the seconds of reconstruct + post-process per million voxels of each a
 their ratio. The arms are built in turn (baseline, model, baseline, model, ...), so a busy
 machine slows both alike. A run's first model pack prepares the partial-volume crops of the
 grains it places; later packs of the run (in the same process) find them prepared
-(`synthpack.partial_volume.CACHE_BYTES`), so the model's first pack is reported apart and
+(`synthpack.render.partial_volume.CACHE_BYTES`), so the model's first pack is reported apart and
 the ratio is that of the best later packs against the best baseline. Target: model <= 1.5x
 baseline. The pour is the same in both arms and is not counted.
 """
@@ -28,10 +28,10 @@ import os
 import platform
 import time
 
-from synthpack.config import PackConfig
-from synthpack.generate import build_pack
-from synthpack.library import ParticleLibrary
-from synthpack.samples import sample_scan
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import build_pack
+from synthpack.library.core import ParticleLibrary
+from synthpack.scan.samples import sample_scan
 
 ARMS = {
     "baseline (0.2: whole voxels + generic)": {"reconstruct": {"partial_volume": False}, "postprocess": "generic"},

@@ -18,10 +18,10 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from synthpack.library import ParticleLibrary
-from synthpack.particles import extract_particles
-from synthpack.samples import sample_scan
-from synthpack.scan import Scan
+from synthpack.library.core import ParticleLibrary
+from synthpack.library.particles import extract_particles
+from synthpack.scan.samples import sample_scan
+from synthpack.scan.core import Scan
 
 
 def voronoi_labels(size: int, n_labels: int, seed: int = 0) -> np.ndarray:

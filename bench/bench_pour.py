@@ -31,9 +31,9 @@ import time
 
 import numpy as np
 
-from synthpack.library import ParticleLibrary
+from synthpack.library.core import ParticleLibrary
 from synthpack.physics import Placements, SettleCriteria, Tube, pour
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 
 PAPER_FRAMES = 1000
 PAPER_SUBSTEPS = 50

@@ -49,11 +49,11 @@ import scipy
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from synthpack.config import ReconstructConfig
-from synthpack.library import ParticleLibrary
+from synthpack.pipeline.config import ReconstructConfig
+from synthpack.library.core import ParticleLibrary
 from synthpack.physics import Placements, pour
-from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
-from synthpack.samples import sample_scan
+from synthpack.render.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.scan.samples import sample_scan
 
 from _measure import load_average
 

@@ -41,12 +41,12 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from synthpack.config import PackConfig
-from synthpack.library import ParticleLibrary
-from synthpack.pack import PACK_VOLUMES
+from synthpack.pipeline.config import PackConfig
+from synthpack.library.core import ParticleLibrary
+from synthpack.store.pack import PACK_VOLUMES
 from synthpack.physics import Tube, pour
-from synthpack.samples import sample_scan
-from synthpack.zarr_pack import VOLUME_PATHS
+from synthpack.scan.samples import sample_scan
+from synthpack.store.zarr_pack import VOLUME_PATHS
 
 from _measure import generate_zarr_pack, load_average
 

@@ -37,15 +37,15 @@ from pathlib import Path
 
 import numpy as np
 
-from synthpack.config import PackConfig
-from synthpack.generate import generate_packs
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import generate_packs
 from synthpack.io import read_scan
-from synthpack.library import ParticleLibrary
-from synthpack.pack import open_pack
+from synthpack.library.core import ParticleLibrary
+from synthpack.store.pack import open_pack
 from synthpack.realism.region import Specimen
 from synthpack.realism.report import solid_fraction
 from synthpack.realism.structure import grain_table
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 
 CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
 SHAPES = ("hull", "hull-unshrunk", "decomposition")

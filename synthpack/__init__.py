@@ -12,35 +12,23 @@ synthpack`` stays fast.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
+from ._shared.exports import lazy_exports
 from .errors import SynthpackInputError
-from .scan import Scan
+from .scan.core import Scan
 
 __version__ = "0.6.0"
 
-_LAZY = {
-    "read_scan": "synthpack.io",
-    "label_scan": "synthpack.labelling",
-    "ParticleLibrary": "synthpack.library",
-    "Particle": "synthpack.particles",
-    "pour": "synthpack.physics",
-    "Placements": "synthpack.physics",
-    "Tube": "synthpack.physics",
-    "SyntheticParticlePackDataset": "synthpack.dataset",
-    "ScanSliceDataset": "synthpack.dataset",
-    "PatchDataset": "synthpack.dataset",
-}
-
-__all__ = ["Scan", "SynthpackInputError", "__version__", *sorted(_LAZY)]
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'synthpack' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+_getattr, __dir__, _lazy = lazy_exports(__name__, {
+    "read_scan": ".io",
+    "label_scan": ".scan",
+    "ParticleLibrary": ".library",
+    "Particle": ".library",
+    "pour": ".physics",
+    "Placements": ".physics",
+    "Tube": ".physics",
+    "SyntheticParticlePackDataset": ".dataset",
+    "ScanSliceDataset": ".dataset",
+    "PatchDataset": ".dataset",
+})
+__getattr__ = _getattr
+__all__ = ["Scan", "SynthpackInputError", "__version__", *_lazy]

@@ -22,12 +22,12 @@ from typing import Any
 from pathlib import Path
 
 from . import __version__
-from ._atomic import Output, check_output, remove_stale_staging
-from ._console import show_logs
-from ._formats import PACK_FORMATS
-from ._schema import build, default_of, help_of, option_name
-from .config import LibraryConfig, PourConfig
-from .deform import Deform
+from .io.atomic import Output, check_output, remove_stale_staging
+from ._shared.console import show_logs
+from .store.formats import PACK_FORMATS
+from ._shared.schema import build, default_of, help_of, option_name
+from .pipeline.config import LibraryConfig, PourConfig
+from .library.deform import Deform
 from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
 from .errors import ContainmentError, PackBuildError, SynthpackInputError
@@ -43,10 +43,10 @@ _POUR_OPTIONS = ("n_particles", "batch_size", "engine", "collision_shape", "tube
                  "target_solid_fraction")
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
-#: checked before any work starts (:func:`synthpack._atomic.check_output`).
+#: checked before any work starts (:func:`synthpack.io.atomic.check_output`).
 _OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
-    "library build": (("out", "synthpack.library:LIBRARY_OUTPUT"), ("preview", "synthpack.preview:PREVIEW_OUTPUT")),
-    "generate": (("out", "synthpack.pack:PACKS_OUTPUT"),),
+    "library build": (("out", "synthpack.library.core:LIBRARY_OUTPUT"), ("preview", "synthpack.preview:PREVIEW_OUTPUT")),
+    "generate": (("out", "synthpack.store.pack:PACKS_OUTPUT"),),
     "compare": (("out", "synthpack.realism.report:REPORT_OUTPUT"),),
     "pour": (("out", "synthpack.physics.placements:PLACEMENTS_OUTPUT"),),
     "demo": (("out", "synthpack.cli:DEMO_OUTPUT"),),
@@ -110,7 +110,7 @@ def _read_source_scan(args: argparse.Namespace):
         if args.voxel_size is not None or args.unit is not None:
             raise SynthpackInputError("--voxel-size and --unit are for --tomogram/--labels: a built-in sample "
                                       "has its own voxel size")
-        from .samples import sample_scan
+        from .scan.samples import sample_scan
 
         return sample_scan(args.sample, seed=args.sample_seed)
     if not (args.tomogram and args.labels):
@@ -142,7 +142,7 @@ def _library_options(args: argparse.Namespace, scan) -> dict:
         target_faces=args.target_faces, workers=args.workers,
     )
     if args.exclude_test_block is not None:
-        from .split import central_block
+        from .scan.split import central_block
 
         axis = args.exclude_test_block
         options.update(exclude_slices=central_block(scan.shape[axis]), axis=axis)
@@ -152,7 +152,7 @@ def _library_options(args: argparse.Namespace, scan) -> dict:
 def _cmd_library_build(args: argparse.Namespace) -> None:
     scan = _read_source_scan(args)
     logger.debug("read %r", scan)
-    from .library import ParticleLibrary
+    from .library.core import ParticleLibrary
 
     library = ParticleLibrary.from_scan(scan, **_library_options(args, scan))
     library.save(args.out, overwrite=args.overwrite)
@@ -165,13 +165,13 @@ def _cmd_library_build(args: argparse.Namespace) -> None:
 
 
 def _cmd_library_info(args: argparse.Namespace) -> None:
-    from .library import ParticleLibrary
+    from .library.core import ParticleLibrary
 
     print(ParticleLibrary.load(args.library).summary())
 
 
 def _load_config(args: argparse.Namespace):
-    from .config import load_config
+    from .pipeline.config import load_config
 
     config = load_config(args.config)
     pour = {key: value for key, value in (
@@ -196,11 +196,11 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 
         print(yaml.safe_dump(config.to_dict(), sort_keys=False), end="")
         return
-    from .generate import generate_packs
-    from .library import ParticleLibrary
+    from .pipeline.generate import generate_packs
+    from .library.core import ParticleLibrary
 
     if args.scheduler is None:  # before the library is built; a remote cluster's workers are checked there
-        from .render_torch import resolve_device
+        from .render.torch_render import resolve_device
 
         get_engine(config.pour.engine).check_available()
         resolve_device(config.reconstruct.device, config.reconstruct.order)
@@ -225,8 +225,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 
 def _packs_kept(out: Path, n_packs: int) -> str:
     """What an interrupted run leaves in `out`, once the staging folders of its stopped packs are removed."""
-    from .generate import pack_name
-    from .pack import is_complete_pack
+    from .pipeline.generate import pack_name
+    from .store.pack import is_complete_pack
 
     complete = []
     for index in range(n_packs):
@@ -244,7 +244,7 @@ def _packs_kept(out: Path, n_packs: int) -> str:
 
 
 def _write_pack_preview(pack_path: Path, library, png: Path) -> Path:
-    from .pack import open_pack
+    from .store.pack import open_pack
     from .preview import save_pack_preview
 
     pack = open_pack(pack_path)
@@ -284,7 +284,7 @@ def _cmd_compare(args: argparse.Namespace) -> None:
 def _cmd_pour(args: argparse.Namespace) -> None:
     import math
 
-    from .library import ParticleLibrary
+    from .library.core import ParticleLibrary
     from .physics import pour
 
     settings = build(PourConfig, {name: getattr(args, name) for name in _POUR_OPTIONS}, name=option_name)
@@ -310,12 +310,12 @@ def _cmd_pour(args: argparse.Namespace) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> None:
-    from .config import PackConfig
-    from .generate import generate_packs
+    from .pipeline.config import PackConfig
+    from .pipeline.generate import generate_packs
     from .io import write_tiff
-    from .library import ParticleLibrary
+    from .library.core import ParticleLibrary
     from .preview import save_library_preview
-    from .samples import sample_scan
+    from .scan.samples import sample_scan
 
     out = Path(args.out)
     timings: dict[str, float] = {}
@@ -401,7 +401,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
 
 def _cmd_label(args: argparse.Namespace) -> None:
     from .io import read_tomogram, write_tiff
-    from .labelling import STARTING_POINT, LabelSettings, label_scan
+    from .scan.labelling import STARTING_POINT, LabelSettings, label_scan
 
     settings = build(LabelSettings, {name: getattr(args, name) for name, _ in _LABEL_OPTIONS}, name=option_name)
     if args.out.suffix.lower() not in (".tif", ".tiff"):
@@ -589,7 +589,7 @@ def _add_source_arguments(export: argparse.ArgumentParser, split: str, out: str,
 def _add_export_arguments(export: argparse.ArgumentParser, pieces: str) -> None:
     """The options every slice export command shares (what is sliced, how, and where to); `pieces`: what --min-area counts."""
     from .export.slices import MIN_AREA, SPLIT_MODES
-    from .split import VAL_FRACTION
+    from .scan.split import VAL_FRACTION
 
     _add_source_arguments(export, SPLIT_MODES[0], "dataset folder (new, empty or an earlier export)", "slicing axis")
     export.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
@@ -640,7 +640,7 @@ def _add_evaluate_command(commands: Any) -> None:
 
 
 def _add_label_command(commands: Any) -> None:
-    from .labelling import CONTRASTS, LabelSettings
+    from .scan.labelling import CONTRASTS, LabelSettings
 
     label = commands.add_parser(
         "label", help="starting instance labels for a scan that has none (threshold + distance-transform "
@@ -651,7 +651,7 @@ def _add_label_command(commands: Any) -> None:
                        help="label TIFF to write (0 = pore, 1..N = grains; the scan's voxel size)")
     label.add_argument("--preview", action="store_true",
                        help="also write a PNG of the middle slices with the label outlines, next to --out (.png)")
-    group = label.add_argument_group("segmentation (see synthpack.labelling)")
+    group = label.add_argument_group("segmentation (see synthpack.scan.labelling)")
     for name, kind in _LABEL_OPTIONS:
         group.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(LabelSettings, name),
                            help=help_of(LabelSettings, name), **({"choices": CONTRASTS} if name == "contrast" else {}))

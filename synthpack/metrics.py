@@ -61,8 +61,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ._json import dumps as strict_json
-from ._atomic import Output, atomic_directory
+from ._shared.strict_json import dumps as strict_json
+from .io.atomic import Output, atomic_directory
 from .errors import SynthpackInputError
 from .io import LABEL_IMAGE_SUFFIXES, read_label_image
 

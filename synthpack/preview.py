@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import Output, atomic_file
-from ._plotting import pyplot
-from .library import ParticleLibrary
-from .particles import equivalent_diameter
-from .scan import Scan
+from .io.atomic import Output, atomic_file
+from ._shared.plotting import pyplot
+from .library.core import ParticleLibrary
+from .library.particles import equivalent_diameter
+from .scan.core import Scan
 
 __all__ = ["label_overlay", "save_label_preview", "save_library_preview"]
 
@@ -208,7 +208,7 @@ def _middle_slices(shape: tuple[int, ...]) -> list[tuple[str, tuple]]:
 def save_label_preview(
     tomogram: np.ndarray, labels: np.ndarray, path: str | os.PathLike, *, overwrite: bool = False
 ) -> Path:
-    """Write a PNG to check starting labels (`synthpack.labelling`) by eye.
+    """Write a PNG to check starting labels (`synthpack.scan.labelling`) by eye.
 
     The middle z, y and x slices of the tomogram, grey, with the outline of every
     label drawn in colour (`skimage.segmentation.mark_boundaries`), above the same

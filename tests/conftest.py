@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.config import PackConfig
-from synthpack.generate import generate_packs
-from synthpack.library import ParticleLibrary
-from synthpack.samples import sample_scan
-from synthpack.scan import Scan
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import generate_packs
+from synthpack.library.core import ParticleLibrary
+from synthpack.scan.samples import sample_scan
+from synthpack.scan.core import Scan
 
 
 @pytest.fixture(scope="session")

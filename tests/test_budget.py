@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from synthpack import budget
+from synthpack._shared import budget
 from synthpack.errors import SynthpackInputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -95,10 +95,10 @@ def test_labelling_estimate_uses_the_readme_figure():
 
 def test_demo_sized_jobs_are_far_below_8_gib(large_library):
     """The demo's `large` sample (labelled at 30 B/voxel) and its default pack fit with room to spare."""
-    from synthpack.config import PackConfig
-    from synthpack.generate import _tube
-    from synthpack.reconstruct import Grid
-    from synthpack.samples import sample_scan
+    from synthpack.pipeline.config import PackConfig
+    from synthpack.pipeline.generate import _tube
+    from synthpack.render.reconstruct import Grid
+    from synthpack.scan.samples import sample_scan
 
     shape = sample_scan("large", seed=0).tomogram.shape
     assert math.prod(shape) * budget.LABEL_BYTES_PER_VOXEL < 2**30  # under 1 GiB, against 8

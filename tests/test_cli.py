@@ -9,7 +9,7 @@ import tifffile
 import synthpack
 from synthpack.cli import main
 from synthpack.io import write_tiff
-from synthpack.library import ParticleLibrary
+from synthpack.library.core import ParticleLibrary
 
 
 def test_library_build_from_sample_writes_library_and_preview(tmp_path, capsys):
@@ -71,7 +71,7 @@ def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
 
 
 def test_pour_and_generate_commands(tmp_path, large_library):
-    from synthpack.pack import open_pack
+    from synthpack.store.pack import open_pack
     from synthpack.physics import Placements
 
     library_dir = large_library.save(tmp_path / "lib")

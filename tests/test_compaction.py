@@ -8,13 +8,13 @@ import sys
 import numpy as np
 import pytest
 
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.library import ParticleLibrary
+from synthpack.library.core import ParticleLibrary
 from synthpack.physics import PourConfig, Tube, get_engine, pour
 from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
                                           resolve_target)
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 from synthpack.source.specimen import solid_fraction, specimen_mask
 
 

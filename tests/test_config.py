@@ -2,8 +2,8 @@ import logging
 
 import pytest
 
-from synthpack import config as config_module
-from synthpack.config import PackConfig, load_config
+from synthpack.pipeline import config as config_module
+from synthpack.pipeline.config import PackConfig, load_config
 from synthpack.errors import SynthpackInputError
 
 
@@ -88,7 +88,7 @@ def test_the_default_post_processing_is_calibrated_and_default_is_a_deprecated_a
     path = tmp_path / "old.yaml"
     path.write_text("postprocess: default\n")
     config_module._warn_deprecated_postprocess.cache_clear()
-    with caplog.at_level(logging.WARNING, logger="synthpack.config"):
+    with caplog.at_level(logging.WARNING, logger="synthpack.pipeline.config"):
         old = load_config(path)
         again = PackConfig.from_dict({"postprocess": "default"}).replace(seed=2)
     assert old == PackConfig() and again.postprocess == "calibrated"

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 
 from synthpack.cli import main
-from synthpack.config import PackConfig, ReconstructConfig
-from synthpack.generate import generate_packs
+from synthpack.pipeline.config import PackConfig, ReconstructConfig
+from synthpack.pipeline.generate import generate_packs
 from synthpack.io import write_tiff
-from synthpack.library import ParticleLibrary
+from synthpack.library.core import ParticleLibrary
 from synthpack.realism import Specimen
 from synthpack.realism.appearance import noise_levels
-from synthpack.reconstruct import Background
-from synthpack.scan import Scan
+from synthpack.render.reconstruct import Background
+from synthpack.scan.core import Scan
 from synthpack.source import estimate_noise
 
 #: A pack narrow and deep enough to have a bulk region to calibrate in; post-processing left at its default.

@@ -11,7 +11,7 @@ from torchvision import tv_tensors
 from torchvision.transforms import v2
 
 from synthpack.artefacts import GaussianNoise
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.dataset import (
     ScanSliceDataset,
     SyntheticParticlePackDataset,
@@ -22,8 +22,8 @@ from synthpack.dataset import (
 )
 from synthpack.errors import SynthpackInputError
 from synthpack.io import write_tiff
-from synthpack.pack import open_pack
-from synthpack.split import split_slices
+from synthpack.store.pack import open_pack
+from synthpack.scan.split import split_slices
 
 CONFIG = PackConfig().replace(pour={"n_particles": 20, "batch_size": 10})
 

@@ -1,4 +1,4 @@
-"""Free-form deformation of the grains (synthpack.deform): identity at 0, volume, watertight meshes,
+"""Free-form deformation of the grains (synthpack.library.deform): identity at 0, volume, watertight meshes,
 mesh and mask in agreement, recorded and reproducible placements."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 from scipy import ndimage
 
 from synthpack.cli import main
-from synthpack.config import PackConfig
-from synthpack.deform import MIN_JACOBIAN, Deform, LatticeFFD, deform_particle, draw_ffd, pack_grains, redo_grains
+from synthpack.pipeline.config import PackConfig
+from synthpack.library.deform import MIN_JACOBIAN, Deform, LatticeFFD, deform_particle, draw_ffd, pack_grains, redo_grains
 from synthpack.errors import SynthpackInputError
-from synthpack.generate import build_pack
+from synthpack.pipeline.generate import build_pack
 from synthpack.physics import pour
 from synthpack.physics.placements import Placements
 

@@ -46,13 +46,13 @@ import pytest
 import tifffile
 import zarr
 
-from synthpack._atomic import RECORD as FILE_RECORD
-from synthpack.config import PackConfig
+from synthpack.io.atomic import RECORD as FILE_RECORD
+from synthpack.pipeline.config import PackConfig
 from synthpack.export import export_yolo
-from synthpack.generate import generate_pack
-from synthpack.library import ParticleLibrary
+from synthpack.pipeline.generate import generate_pack
+from synthpack.library.core import ParticleLibrary
 from synthpack.physics import pour
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDED = Path(__file__).parent / "data" / "digests.json"

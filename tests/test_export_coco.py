@@ -13,8 +13,8 @@ from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.export import export_coco, export_yolo
 from synthpack.io import write_tiff
-from synthpack.pack import open_pack
-from synthpack.samples import sample_scan
+from synthpack.store.pack import open_pack
+from synthpack.scan.samples import sample_scan
 
 COCO = pytest.importorskip("pycocotools.coco").COCO
 # pycocotools' decode calls np.array(copy=False) on NumPy 2

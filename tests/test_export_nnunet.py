@@ -12,10 +12,10 @@ from synthpack.export import export_nnunet
 from synthpack.export.nnunet import LABELS, instances_from_target, semantic_target
 from synthpack.io import read_volume, write_tiff
 from synthpack.metrics import match_instances
-from synthpack.pack import open_pack
-from synthpack.samples import sample_scan
-from synthpack.scan import Scan
-from synthpack.split import central_block
+from synthpack.store.pack import open_pack
+from synthpack.scan.samples import sample_scan
+from synthpack.scan.core import Scan
+from synthpack.scan.split import central_block
 
 nibabel = pytest.importorskip("nibabel")
 

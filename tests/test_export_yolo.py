@@ -15,8 +15,8 @@ from synthpack.export import export_yolo
 from synthpack.export.slices import to_uint8
 from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, yolo_label_text
 from synthpack.io import write_tiff
-from synthpack.pack import open_pack
-from synthpack.split import slice_splits, split_slices
+from synthpack.store.pack import open_pack
+from synthpack.scan.split import slice_splits, split_slices
 
 SPLIT_NAMES = ("train", "val", "test")
 

@@ -19,7 +19,7 @@ import SimpleITK as sitk
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.io import read_scan, read_volume
-from synthpack.library import ParticleLibrary
+from synthpack.library.core import ParticleLibrary
 
 SHAPE = (5, 7, 9)  # (z, y, x)
 VOXEL = (3.0, 2.0, 1.0)  # (dz, dy, dx)

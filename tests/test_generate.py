@@ -4,13 +4,13 @@ import json
 import numpy as np
 import pytest
 
-import synthpack.pack as pack_module
-from synthpack.config import PackConfig
+import synthpack.store.pack as pack_module
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError
-from synthpack.generate import build_pack, generate_packs, pack_seed
-from synthpack.pack import is_complete_pack, open_pack
-from synthpack.pore_texture import PoreTexture
-from synthpack.render_torch import resolve_device
+from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed
+from synthpack.store.pack import is_complete_pack, open_pack
+from synthpack.render.pore_texture import PoreTexture
+from synthpack.render.torch_render import resolve_device
 
 SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
 

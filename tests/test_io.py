@@ -16,7 +16,7 @@ import zarr
 from synthpack import io
 from synthpack.errors import SynthpackInputError
 from synthpack.io import read_scan, read_volume, write_tiff, write_zarr
-from synthpack.scan import Scan
+from synthpack.scan.core import Scan
 
 SHAPE = (6, 20, 24)
 

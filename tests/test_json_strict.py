@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from synthpack._json import dumps
+from synthpack._shared.strict_json import dumps
 
 
 def _strict(text: str):

@@ -1,4 +1,4 @@
-"""`synthpack label`: starting instance labels for a scan that has none (synthpack.labelling)."""
+"""`synthpack label`: starting instance labels for a scan that has none (synthpack.scan.labelling)."""
 
 import logging
 
@@ -8,7 +8,7 @@ import pytest
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.io import read_volume, write_tiff
-from synthpack.labelling import STARTING_POINT, LabelSettings, label_scan
+from synthpack.scan.labelling import STARTING_POINT, LabelSettings, label_scan
 from synthpack.metrics import dice_stats
 
 

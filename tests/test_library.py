@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from synthpack.errors import SynthpackInputError
-from synthpack._arrays import cupping_factor
-from synthpack.library import ParticleLibrary
-from synthpack.particles import extract_particles
-from synthpack.scan import Scan
+from synthpack._shared.arrays import cupping_factor
+from synthpack.library.core import ParticleLibrary
+from synthpack.library.particles import extract_particles
+from synthpack.scan.core import Scan
 from synthpack.source import measure_source
-from synthpack.split import central_block
+from synthpack.scan.split import central_block
 
 
 def test_library_of_sample_has_meshed_particles(large_library, large_scan):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 
 MAX_LINE = 120
 #: A decimal number with more than 6 significant digits (e.g. 179.05899047851562).
@@ -127,7 +127,7 @@ def test_a_warning_of_packs_built_by_dask_workers_is_shown_once(scan_files):
 
 
 def test_figures_are_rounded_by_their_meaning():
-    from synthpack._text import fraction, sig, voxel_size
+    from synthpack._shared.text import fraction, sig, voxel_size
 
     assert [sig(v) for v in (179.05899047851562, 0.000522144374903, 3523.4, 4116138.488007309, -0.0011492)] == [
         "179", "0.000522", "3523", "4.12e+06", "-0.00115"]

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from synthpack.errors import SynthpackInputError
-from synthpack.meshing import mesh_from_mask
+from synthpack.library.meshing import mesh_from_mask
 
 
 def _ball(radius: float, margin: int = 2) -> np.ndarray:

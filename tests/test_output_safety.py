@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from synthpack._atomic import RECORD
+from synthpack.io.atomic import RECORD
 from synthpack.io import write_tiff
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,8 +3,8 @@ import pytest
 from scipy import ndimage
 
 from synthpack.errors import SynthpackInputError
-from synthpack.particles import extract_particles
-from synthpack.scan import Scan
+from synthpack.library.particles import extract_particles
+from synthpack.scan.core import Scan
 from synthpack.source import estimate_phases
 
 

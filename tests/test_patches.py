@@ -7,12 +7,12 @@ import zarr
 from torch.utils.data import DataLoader
 
 from synthpack.artefacts import GaussianNoise
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.dataset import PAD_LABEL, PatchDataset, ScanSliceDataset, SyntheticParticlePackDataset
 from synthpack.errors import SynthpackInputError
 from synthpack.io import memmap_volume, read_box
-from synthpack.pack import open_pack
-from synthpack.split import split_slices
+from synthpack.store.pack import open_pack
+from synthpack.scan.split import split_slices
 
 CONFIG = PackConfig().replace(pour={"n_particles": 20, "batch_size": 10})
 

@@ -9,8 +9,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from synthpack import generate
-from synthpack.config import PackConfig
+from synthpack.pipeline import generate
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.physics import ENGINES, Material, Placements, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, hulls, pybullet_engine

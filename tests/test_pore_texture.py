@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.pore_texture import PoreTexture
-from synthpack.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.render.pore_texture import PoreTexture
+from synthpack.render.reconstruct import Background, Grid, pose_maps, reconstruct
 from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.source.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
@@ -115,7 +115,7 @@ def test_measured_texture_is_chunking_independent_and_seeded():
 
 def test_without_a_measured_spectrum_the_texture_is_gaussian(caplog):
     texture = PoreTexture(tile=32)
-    with caplog.at_level(logging.WARNING, logger="synthpack.pore_texture"):
+    with caplog.at_level(logging.WARNING, logger="synthpack.render.pore_texture"):
         drawn = _empty_render(texture, None, 3, (40, 48, 56))
     assert "no measured pore spectrum" in caplog.text
     gaussian = _empty_render(PoreTexture(model="gaussian", tile=32), None, 3, (40, 48, 56))

@@ -1,4 +1,4 @@
-"""Tests of synthpack.postprocess: what every ``postprocess`` value resolves to, and the bulk region."""
+"""Tests of synthpack.artefacts.recipes: what every ``postprocess`` value resolves to, and the bulk region."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import logging
 import numpy as np
 import pytest
 
-from synthpack import postprocess as postprocess_module
+from synthpack.artefacts import recipes as postprocess_module
 from synthpack.artefacts import ColouredNoise, GaussianNoise, calibrate, generic_postprocessing
 from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
 from synthpack.errors import SynthpackInputError
-from synthpack.postprocess import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
-from synthpack.reconstruct import Grid
+from synthpack.artefacts.recipes import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
+from synthpack.render.reconstruct import Grid
 from synthpack.source import SourceStatistics, estimate_noise, fit_edge_spread, phase_spectra
 from synthpack.source.edges import edge_profile, signed_distance
 from synthpack.source.spectrum import white_ring_powers
@@ -184,7 +184,7 @@ def test_the_clean_spectrum_of_a_phase_too_thin_for_a_patch_is_white_noise_plus_
 def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_fitted(
         rendered, fresh_warnings, caplog):
     unmeasured = dataclasses.replace(STATISTICS, edge_width=None)
-    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+    with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.recipes"):
         for postprocess in [*POSTPROCESS_MODES, []]:
             check_postprocess(postprocess, unmeasured)  # nothing refused
         resolved = _resolve("calibrated", rendered, unmeasured)
@@ -203,7 +203,7 @@ def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_
 
     clean, labels, grid = rendered  # a pack without a bulk region to fit in
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+    with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.recipes"):
         shallow = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
                                          packing_region={"radius": 1.0, "z_min": 0.0, "z_max": 1.0})
     assert shallow.record["postprocess_mode"] == "match_source"

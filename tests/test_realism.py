@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 import yaml
 
-from synthpack import postprocess
+from synthpack.artefacts import recipes as postprocess
 from synthpack.artefacts import calibrate
 from synthpack.cli import main
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.generate import build_pack, generate_packs
-from synthpack.library import ParticleLibrary
+from synthpack.pipeline.generate import build_pack, generate_packs
+from synthpack.library.core import ParticleLibrary
 from synthpack.realism import CnnConfig, RealismReport, Specimen, compare
 from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
 from synthpack.realism.discriminator import classifier_test
-from synthpack.source.patches import patch_corners, take_patches
+from synthpack.source.lattice import patch_corners, take_patches
 from synthpack.realism.structure import coordination_numbers, grain_table, ks_distance
 from synthpack.source.specimen import solid_fraction
 
@@ -170,7 +170,7 @@ def test_without_the_source_edge_width_packs_get_match_source_with_a_warning(lar
                                  unit=large_library.unit, density=large_library.density, statistics=statistics,
                                  source_shape=large_library.source_shape)
     postprocess._warn_once.cache_clear()
-    with caplog.at_level(logging.WARNING, logger="synthpack.postprocess"):
+    with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.recipes"):
         pack = build_pack(unmeasured, PACK.replace(pour={"n_particles": 12, "batch_size": 12}), seed=0,
                           progress=False)
     assert "calibrated cannot be fitted" in caplog.text and "rebuild the library" in caplog.text

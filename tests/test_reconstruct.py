@@ -7,10 +7,10 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
-from synthpack.partial_volume import FAR, PAD, PartialVolume
-from synthpack.pore_texture import PoreTexture
-from synthpack.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
-from synthpack.render_torch import TorchRenderer, resolve_device
+from synthpack.render.partial_volume import FAR, PAD, PartialVolume
+from synthpack.render.pore_texture import PoreTexture
+from synthpack.render.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
+from synthpack.render.torch_render import TorchRenderer, resolve_device
 from synthpack.source import SourceStatistics, fit_edge_spread
 from synthpack.source.edges import edge_profile, signed_distance
 

@@ -119,7 +119,7 @@ def test_pour_refuses_a_user_file_and_replaces_its_own(user_folder, library):
 
 # 3. staging folders: cleaned when the final rename fails, and when a killed run left them
 def test_a_failed_final_rename_leaves_no_staging_folder(tmp_path, monkeypatch):
-    from synthpack import _atomic
+    from synthpack._shared import atomic as _atomic
 
     target = tmp_path / "out"
     real_replace = os.replace
@@ -244,7 +244,7 @@ def test_a_truncated_labels_file_is_rebuilt_by_a_rerun_and_refused_by_the_export
 
 def test_labels_replaced_by_random_content_are_refused_by_the_export(pack):
     from synthpack.io import write_tiff
-    from synthpack.pack import is_complete_pack, open_pack
+    from synthpack.store.pack import is_complete_pack, open_pack
 
     opened = open_pack(pack)
     noise = np.random.default_rng(0).integers(0, 60000, opened.shape).astype(opened.labels.dtype)

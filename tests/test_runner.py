@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from synthpack.cli import main
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError, SynthpackInputError
-from synthpack.generate import generate_packs, pack_name
-from synthpack.pack import PACK_VOLUMES, is_complete_pack
+from synthpack.pipeline.generate import generate_packs, pack_name
+from synthpack.store.pack import PACK_VOLUMES, is_complete_pack
 from synthpack.physics import Placements
-from synthpack.runner import run_packs
+from synthpack.pipeline.runner import run_packs
 
 CONFIG = PackConfig().replace(seed=3, pour={"n_particles": 6, "batch_size": 6})
 N_PACKS = 3

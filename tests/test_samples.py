@@ -1,4 +1,4 @@
-"""Tests of the built-in stand-in sample scans (synthpack.samples)."""
+"""Tests of the built-in stand-in sample scans (synthpack.scan.samples)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from scipy import ndimage
 from skimage.measure import regionprops
 
 from synthpack.errors import SynthpackInputError
-from synthpack.samples import SAMPLE_NAMES, sample_scan
-from synthpack.scan import Scan
+from synthpack.scan.samples import SAMPLE_NAMES, sample_scan
+from synthpack.scan.core import Scan
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from scipy import ndimage
 
 from synthpack.artefacts import BeamHardening, RingArtefacts
 from synthpack.errors import SynthpackInputError
-from synthpack.scan import Scan
+from synthpack.scan.core import Scan
 from synthpack.source import measure_source
 from synthpack.source.edges import signed_distance
 from synthpack.source.scanner import measure_scanner

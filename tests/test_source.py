@@ -11,7 +11,7 @@ from scipy import ndimage, special
 from synthpack.artefacts import GaussianNoise
 from synthpack.artefacts.coloured_noise import ring_powers_of_spectrum
 from synthpack.errors import SynthpackInputError
-from synthpack.scan import Scan
+from synthpack.scan.core import Scan
 from synthpack.source import (SourceStatistics, estimate_noise, estimate_phases, fit_edge_spread, measure_source,
                               noise_power_spectrum, volume_edge_width)
 from synthpack.source.edges import edge_profile, signed_distance

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from synthpack.samples import sample_scan
+from synthpack.scan.samples import sample_scan
 from synthpack.source.specimen import specimen_mask
 
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from synthpack.errors import SynthpackInputError
-from synthpack.split import split_slices, central_block
+from synthpack.scan.split import split_slices, central_block
 
 
 @pytest.mark.parametrize("n", [2, 5, 9, 10, 11, 99, 100, 101, 128, 237])

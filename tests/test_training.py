@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from synthpack.io import read_label_image, write_label_image
-from synthpack.library import ParticleLibrary
-from synthpack.split import VAL_FRACTION, central_block, slice_splits
+from synthpack.library.core import ParticleLibrary
+from synthpack.scan.split import VAL_FRACTION, central_block, slice_splits
 from training.arms import budget_slices
 from training.evaluate import score
 from training.experiment import ExperimentConfig

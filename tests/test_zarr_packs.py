@@ -15,14 +15,14 @@ import torch
 import zarr
 from scipy import ndimage
 
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.dataset import SyntheticParticlePackDataset
 from synthpack.export import export_yolo
 from synthpack.errors import SynthpackInputError
-from synthpack.generate import build_pack, generate_packs
+from synthpack.pipeline.generate import build_pack, generate_packs
 from synthpack.io import read_scan, read_volume
-from synthpack.pack import _file_records, open_pack, pack_format
-from synthpack.zarr_pack import create_volume, level_shapes, open_volumes, write_levels, write_volume
+from synthpack.store.pack import _file_records, open_pack, pack_format
+from synthpack.store.zarr_pack import create_volume, level_shapes, open_volumes, write_levels, write_volume
 
 CONFIG = PackConfig().replace(pour={"n_particles": 8, "batch_size": 8})
 

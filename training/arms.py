@@ -32,7 +32,7 @@ import yaml
 
 from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
-from synthpack.split import slice_splits
+from synthpack.scan.split import slice_splits
 
 __all__ = ["ARM_KINDS", "Arm", "budget_slices", "make_arms", "subset_dataset"]
 
@@ -115,7 +115,7 @@ def make_arms(kinds: dict[str, list[str]], budgets: list[int]) -> list[Arm]:
 def budget_slices(n_slices: int, k: int, val_fraction: float) -> np.ndarray:
     """`k` real training slices chosen evenly over the training part of a volume of `n_slices` slices.
 
-    The training part is `synthpack.split.slice_splits`' ``train``: the test block and the
+    The training part is `synthpack.scan.split.slice_splits`' ``train``: the test block and the
     val slices next to it are never chosen. The first and last training slices are always
     taken (for ``k >= 2``) and the rest spaced evenly by rank between them.
 

@@ -53,15 +53,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from synthpack.config import PackConfig
+from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.export.yolo import export_yolo
-from synthpack.generate import generate_packs
+from synthpack.pipeline.generate import generate_packs
 from synthpack.io import atomic_file, read_scan
-from synthpack.library import ParticleLibrary
-from synthpack.samples import SAMPLE_NAMES, sample_scan
-from synthpack.scan import Scan
-from synthpack.split import central_block
+from synthpack.library.core import ParticleLibrary
+from synthpack.scan.samples import SAMPLE_NAMES, sample_scan
+from synthpack.scan.core import Scan
+from synthpack.scan.split import central_block
 
 from .arms import ARM_KINDS, EXPORT_SUFFIXES, Arm, make_arms, subset_dataset
 from .evaluate import evaluate, score, write_scores

@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Union
 
 import numpy as np
 
-from .._arrays import as_image
+from .._shared.arrays import as_image
 from ..errors import SynthpackInputError
 from ._param import Param
 

@@ -50,8 +50,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._chunks import bounded_map, chunk_boxes, thread_count
-from .._arrays import as_image
+from .._shared.chunks import bounded_map, chunk_boxes, thread_count
+from .._shared.arrays import as_image
 from ..errors import SynthpackInputError
 from ._base import Compose, Transform, _plain
 

@@ -1,7 +1,7 @@
 """Post-processing fitted to a source scan: noise that matches its level; blur and noise that match its image formation.
 
 The clean synthetic volume is rendered with partial-volume edges
-(`synthpack.partial_volume`) from grain crops that hold the source's noise
+(`synthpack.render.partial_volume`) from grain crops that hold the source's noise
 thinned by resampling, between pores that hold the pore texture. `calibrate`
 fits the rest of the scanner's image formation to the source
 (`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk).
@@ -28,8 +28,8 @@ its cost is fixed and vanishes per voxel on big packs.
    phase too thin for a patch (small grains, narrow pores) the clean spectrum is
    that of white noise at the phase's clean noise level, plus, in the pores, the
    expected spectrum of the render's pore texture after the blur (computed from
-   its density, `~synthpack.pore_texture.PoreTexture.density`). The
-   same is done for the noise level `~synthpack.source.noise.estimate_noise`
+   its density, `~synthpack.render.pore_texture.PoreTexture.density`). The
+   same is done for the noise level `~synthpack.source.noise_estimate.estimate_noise`
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
 
@@ -58,10 +58,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .._text import sig
+from .._shared.text import sig
 from ..errors import SynthpackInputError
 from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
-from ..source.noise import estimate_noise
+from ..source.noise_estimate import estimate_noise
 from ..source.psf import EdgeSpread, fit_edge_spread
 from ..source.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose
@@ -92,7 +92,7 @@ def noise_to_add(source: float, clean: float) -> GaussianNoise:
     Parameters
     ----------
     source, clean : float
-        Noise standard deviations (as `~synthpack.source.noise.estimate_noise`
+        Noise standard deviations (as `~synthpack.source.noise_estimate.estimate_noise`
         measures them) of the real scan and of the clean synthetic volume, in
         intensity units.
 
@@ -130,7 +130,7 @@ class Calibration:
         blurred clean volume's, and the noise added (their clipped difference),
         intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
     target_phase_noise, clean_phase_noise, added_phase_noise : dict of str to float or None
-        The same for the noise level (`~synthpack.source.noise.estimate_noise`), intensity
+        The same for the noise level (`~synthpack.source.noise_estimate.estimate_noise`), intensity
         units (``added = sqrt(max(target^2 - clean^2, 0))``); None where not measured.
     target_edge_width, edge_width : float
         The source's 10-90 edge width and that of the blurred clean volume, voxels (a check).
@@ -347,7 +347,7 @@ def calibrate(
     labels : ndarray of int, shape (Z, Y, X)
         Its labels (0 = pore, tube or outside).
     region : ndarray of bool, shape (Z, Y, X)
-        Where to measure (the pack's bulk region, `~synthpack.postprocess.bulk_region`): its central
+        Where to measure (the pack's bulk region, `~synthpack.artefacts.recipes.bulk_region`): its central
         slices holding at most `max_voxels` voxels (`central_slices`).
     target_sigma, target_shift : float
         The source's fitted edge width and shift, voxels (`~synthpack.source.SourceStatistics.edge_sigma`).
@@ -364,7 +364,7 @@ def calibrate(
         The source's phase levels, intensity units.
     pore_texture : ndarray of float64, shape (T, T, T), optional
         Power spectral density of the render's pore texture on the FFT grid of its
-        tile (`~synthpack.pore_texture.PoreTexture.density`): the clean pores'
+        tile (`~synthpack.render.pore_texture.PoreTexture.density`): the clean pores'
         spectrum where no patch fits in the pack's pore interior.
     cupping_strength : float, optional
         The source's cupping (`~synthpack.source.SourceStatistics.cupping_strength`),

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from .._arrays import periodic_window
+from .._shared.arrays import periodic_window
 from ..source.spectrum import NPS_PATCH, ring_of
 from ._base import Transform
 from ._param import Param

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .._arrays import float32_value as _f32
+from .._shared.arrays import float32_value as _f32
 from ._base import Transform
 from ._param import Param, Range
 

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .._arrays import slabs
+from .._shared.arrays import slabs
 from ._base import Transform
 from ._param import Param, Range
 
@@ -25,7 +25,7 @@ def _standard_noise(shape: tuple[int, ...], rng: np.random.Generator) -> Iterato
     Yields
     ------
     slab : slice
-        Rows of axis 0 (`~synthpack._arrays.slabs`).
+        Rows of axis 0 (`~synthpack._shared.arrays.slabs`).
     noise : ndarray of float32, shape ``(rows, *shape[1:])``
         A new array.
     """

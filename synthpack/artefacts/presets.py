@@ -30,7 +30,7 @@ def generic_postprocessing(contrast: float = 1.0) -> Compose:
     it draws, 3.4 times the source's on the ``large`` sample and several times
     a real scan's. It was the default before synthpack 0.3.0 (``postprocess:
     default``); packs made from a source scan now get ``calibrated``
-    (`synthpack.postprocess`).
+    (`synthpack.artefacts.recipes`).
 
     Parameters
     ----------

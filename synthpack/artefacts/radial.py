@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .._arrays import cupping_factor, radius_grid
+from .._shared.arrays import cupping_factor, radius_grid
 from ..errors import SynthpackInputError
 from ._base import Transform
 from ._param import IntRange, Param, Range

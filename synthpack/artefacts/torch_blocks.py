@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from .._arrays import cupping_factor, periodic_indices
-from .._arrays import float32_value as _f32
+from .._shared.arrays import cupping_factor, periodic_indices
+from .._shared.arrays import float32_value as _f32
 from ._base import Transform
 from .blur import GaussianBlur, MotionBlur, gaussian_kernel, line_kernel
 from .coloured_noise import ColouredNoise
@@ -151,7 +151,7 @@ def _coloured_noise(volume: _Volume, transform: ColouredNoise, block: torch.Tens
 
 def _periodic_window(volume: _Volume, tile: torch.Tensor, origin: tuple[int, ...],
                      shape: Iterable[int]) -> torch.Tensor:
-    """`synthpack._arrays.periodic_window` on the device: the same indices, gathered there."""
+    """`synthpack._shared.arrays.periodic_window` on the device: the same indices, gathered there."""
     out = tile
     for axis, index in enumerate(periodic_indices(origin, tuple(shape), tile.shape)):
         out = out.index_select(axis, volume.put(index))

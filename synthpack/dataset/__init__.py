@@ -27,7 +27,7 @@ so that flips and crops by torchvision v2 transforms keep boxes and masks
 consistent. Instances are ordered by increasing instance id.
 
 Split: the slices of each volume along `axis` are split with
-`synthpack.split.split_slices` (the central 20% are ``"test"``, the rest
+`synthpack.scan.split.split_slices` (the central 20% are ``"test"``, the rest
 ``"train"``), so no test slice has a near-identical neighbour in the training set.
 
 Transform order in ``__getitem__``:

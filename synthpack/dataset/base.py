@@ -18,13 +18,13 @@ from torch.utils.data import Dataset
 
 from ..errors import SynthpackInputError
 from ..io import read_slice
-from ..split import split_slices
+from ..scan.split import split_slices
 from .targets import Item, image_tensor, instance_target
 from .transforms import SliceTransforms
 
 __all__ = ["EpochSeeded", "SliceDataset", "check_axis", "check_seed"]
 
-#: What a slice dataset serves: the paper's training or test slices (`synthpack.split`,
+#: What a slice dataset serves: the paper's training or test slices (`synthpack.scan.split`,
 #: without a validation part), or every slice.
 _SPLIT_CHOICES = ("train", "test", "all")
 _AXES = (0, 1, 2)

@@ -3,7 +3,7 @@
 This is the synthetic dataset's materialisation step (torchvision's
 ``_check_exists()`` and ``download()``), kept apart from loading: `PackCache.check`
 finds the usable cached packs, `PackCache.build` runs the pipeline (particle
-library, then `synthpack.generate.generate_packs`) for the others.
+library, then `synthpack.pipeline.generate.generate_packs`) for the others.
 
 Layout under the cache root::
 
@@ -25,13 +25,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .. import __version__
-from .._json import dumps as strict_json
-from .._atomic import atomic_file
-from ..config import PackConfig
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import atomic_file
+from ..pipeline.config import PackConfig
 from ..errors import SynthpackInputError
-from ..generate import generate_packs, pack_name
-from ..library import ParticleLibrary
-from ..pack import is_complete_pack, open_pack
+from ..pipeline.generate import generate_packs, pack_name
+from ..library.core import ParticleLibrary
+from ..store.pack import is_complete_pack, open_pack
 from .source import PackSource
 
 logger = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ class PackCache:
     config : PackConfig
         Pack configuration, seed included.
     format : {"tiff", "zarr"}
-        Pack format, as `synthpack.pack.pack_format` names it.
+        Pack format, as `synthpack.store.pack.pack_format` names it.
 
     Attributes
     ----------
@@ -82,7 +82,7 @@ class PackCache:
     def check(self) -> list[Shape | None]:
         """Shape of each cached pack; None where it is missing, incomplete, corrupt or stale (logged).
 
-        A pack's checksums and labels are verified (`synthpack.pack.verify_pack`)
+        A pack's checksums and labels are verified (`synthpack.store.pack.verify_pack`)
         the first time it is seen and again whenever one of its files changes size
         or modification time; the stamps of verified packs are kept in
         ``verified.json``, so an unchanged cache is not read again.
@@ -111,7 +111,7 @@ class PackCache:
         """Rebuild the packs that `check` found unusable (`shapes` is its result); return every pack's shape.
 
         Unusable pack directories are removed first; the packs are built as Dask
-        tasks (`synthpack.generate.generate_packs`), which skips complete ones.
+        tasks (`synthpack.pipeline.generate.generate_packs`), which skips complete ones.
         """
         for path, shape in zip(self.paths, shapes):
             if shape is None and path.is_symlink():

@@ -17,7 +17,7 @@ only says along which axis the split runs. The default DataLoader collate stacks
 items into ``image`` / ``label`` batches of shape (B, 1, D, H, W).
 
 Split: the slices of each volume along `axis` are split with
-`synthpack.split.split_slices` exactly as the slice datasets do (the paper's
+`synthpack.scan.split.split_slices` exactly as the slice datasets do (the paper's
 central 20% are ``"test"``; ``"val"``, when `val_fraction` > 0, the blocks next to
 it). A split's slices form one or two contiguous blocks along `axis`, and every
 patch lies wholly inside one block, so no voxel of another split is ever in a
@@ -71,8 +71,8 @@ from torch.utils.data import Dataset
 
 from ..errors import SynthpackInputError
 from ..io import read_box
-from ..scan import Scan
-from ..split import check_val_fraction, split_slices
+from ..scan.core import Scan
+from ..scan.split import check_val_fraction, split_slices
 from .base import EpochSeeded, SliceDataset, check_axis, check_seed
 from .real import ScanSliceDataset
 from .transforms import SliceTransforms
@@ -100,7 +100,7 @@ class PatchDataset(Dataset, EpochSeeded):
         built into its cache on first use; its ``postprocess`` and ``format``
         apply) or a `ScanSliceDataset`, of which only the volumes are used (not
         its split, axis or seed; it must have no transform: give that here); or
-        what `ScanSliceDataset` takes alone: a `~synthpack.scan.Scan`, a built-in
+        what `ScanSliceDataset` takes alone: a `~synthpack.scan.core.Scan`, a built-in
         sample name (``"large"``, ``"small"``: the sample scan itself), or a
         ``(tomogram_path, labels_path)`` pair.
     patch_size : sequence of 3 int
@@ -114,7 +114,7 @@ class PatchDataset(Dataset, EpochSeeded):
         Voxels shared by neighbouring grid tiles along (Z, Y, X), each in
         ``[0, patch size)`` (``"grid"`` only).
     split : {"train", "val", "test", "all"}
-        The part of each volume's slices along `axis` (`synthpack.split.split_slices`).
+        The part of each volume's slices along `axis` (`synthpack.scan.split.split_slices`).
     axis : {0, 1, 2}
         The axis the split runs along; 0 = along the tube.
     val_fraction : float

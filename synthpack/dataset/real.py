@@ -12,8 +12,8 @@ import torch
 
 from ..errors import SynthpackInputError
 from ..io import memmap_volume, read_scan
-from ..samples import SAMPLE_NAMES, sample_scan
-from ..scan import Scan
+from ..scan.samples import SAMPLE_NAMES, sample_scan
+from ..scan.core import Scan
 from .base import SliceDataset
 from .source import SAMPLE_SEED
 
@@ -69,7 +69,7 @@ class ScanSliceDataset(SliceDataset):
     Parameters
     ----------
     scan : Scan, str or path-like
-        A `~synthpack.scan.Scan`, a built-in sample name (``"large"``,
+        A `~synthpack.scan.core.Scan`, a built-in sample name (``"large"``,
         ``"small"``, seed 0) or the tomogram's path (then `labels` is its label
         volume's path). Uncompressed TIFF stacks and NPY files are memory-mapped
         in each process; other formats (and Scans) are held once in shared

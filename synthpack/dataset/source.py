@@ -10,8 +10,8 @@ from typing import Any
 
 from ..errors import SynthpackInputError
 from ..io import read_scan
-from ..samples import SAMPLE_NAMES, sample_scan
-from ..scan import Scan
+from ..scan.samples import SAMPLE_NAMES, sample_scan
+from ..scan.core import Scan
 
 __all__ = ["SAMPLE_SEED", "PackSource"]
 

@@ -8,9 +8,9 @@ from typing import Any
 
 from torch.utils.data import get_worker_info
 
-from ..config import PackConfig, load_config
+from ..pipeline.config import PackConfig, load_config
 from ..errors import SynthpackInputError
-from ..pack import Pack, open_pack, pack_format
+from ..store.pack import Pack, open_pack, pack_format
 from .base import SliceDataset, check_seed
 from .cache import PackCache
 from .source import PackSource
@@ -64,7 +64,7 @@ class SyntheticParticlePackDataset(SliceDataset):
         ``target["instance_map"]`` (H, W) instead, N times cheaper to send from
         DataLoader workers; :func:`expand_masks` turns it into ``masks``.
     format : {"tiff", "zarr", "ome-zarr"}
-        Format of the cached packs (`synthpack.pack.PACK_FORMATS`). Zarr packs
+        Format of the cached packs (`synthpack.store.pack.PACK_FORMATS`). Zarr packs
         (OME-Zarr stores; ``"ome-zarr"`` is another name) are built chunk by
         chunk, for volumes larger than memory, and an item reads only the Zarr
         chunks its slice crosses; the voxels are the same in both formats.

@@ -62,11 +62,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .. import __version__
-from .._json import dumps as strict_json
-from .._atomic import Output, atomic_directory, check_output
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
-from ..scan import Scan
-from ..split import SPLITS, VAL_FRACTION
+from ..scan.core import Scan
+from ..scan.split import SPLITS, VAL_FRACTION
 from .slices import MIN_AREA, ExportSummaryBase, check_slicing, plan_slices, split_counts
 
 logger = logging.getLogger(__name__)

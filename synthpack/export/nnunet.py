@@ -27,7 +27,7 @@ File format
     ``(dz, dy, dx)``.
 Cases
     Along `axis`, each volume's slices are split by the paper's rule
-    (`synthpack.split.central_block`: the central 20% are the test block).
+    (`synthpack.scan.split.central_block`: the central 20% are the test block).
     A real scan gives its test block as a test case (``imagesTs``) and each
     of the two slabs on either side of it as a training case of its own (the
     slabs are not adjacent, so they are not joined). A synthetic pack gives
@@ -70,7 +70,7 @@ Intensities
     the same intensity scale (a pack calibrated to its source scan is).
 Voxel size
     A pack's voxel size, and a real scan's from its file metadata (or its
-    `~synthpack.scan.Scan`). nnU-Net resamples every case to one target
+    `~synthpack.scan.core.Scan`). nnU-Net resamples every case to one target
     spacing, so all sources must be in one length unit: each is converted to
     the first source's unit (nm, um, mm, cm, m), and sources whose units do
     not convert (voxels, ``px``, beside a length) are refused.
@@ -93,13 +93,13 @@ import numpy as np
 from scipy import ndimage
 
 from .. import __version__
-from .._json import dumps as strict_json
-from .._atomic import Output, atomic_directory, check_output
-from .._console import progress_bar
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import Output, atomic_directory, check_output
+from .._shared.console import progress_bar
 from ..errors import SynthpackInputError
 from ..io import check_nifti_writer, convert_voxel_size, read_box, write_nifti
-from ..scan import Scan
-from ..split import central_block
+from ..scan.core import Scan
+from ..scan.split import central_block
 from .slices import Source, check_slicing, open_sources
 
 logger = logging.getLogger(__name__)
@@ -321,7 +321,7 @@ def export_nnunet(
     packs : sequence of path-like
         Pack folders, or folders holding ``pack_NNNN`` folders.
     real : sequence of Scan or (path, path)
-        Labelled real scans: `~synthpack.scan.Scan` objects, or
+        Labelled real scans: `~synthpack.scan.core.Scan` objects, or
         ``(tomogram, labels)`` paths read with their voxel size.
     axis : {0, 1, 2}
         The axis along which the central 20% test block is taken.

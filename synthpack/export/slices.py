@@ -21,7 +21,7 @@ Intensity window
     post-processing share the window. Pass `window` to fix it.
 Splits
     Along the slicing axis, each volume's slices are split into train, val
-    and test by `synthpack.split.slice_splits`: the paper's central 20% is the
+    and test by `synthpack.scan.split.slice_splits`: the paper's central 20% is the
     test set and the val slices are the training slices nearest it on both
     sides. With ``split="real-test"`` synthetic packs give training slices
     only (all of them), so val and test hold real slices only (the paper's
@@ -41,13 +41,13 @@ import numpy as np
 from PIL import Image
 
 from .. import __version__
-from .._console import progress_bar
+from .._shared.console import progress_bar
 from ..errors import SynthpackInputError
-from ..intensity import intensity_window
+from .._shared.windows import intensity_window
 from ..io import read_scan, read_slice
-from ..pack import Pack, find_packs, open_pack
-from ..scan import Scan
-from ..split import SPLITS, slice_splits
+from ..store.pack import Pack, find_packs, open_pack
+from ..scan.core import Scan
+from ..scan.split import SPLITS, slice_splits
 
 __all__ = [
     "SPLIT_MODES", "MIN_AREA", "to_uint8", "check_slicing", "Source", "open_sources", "ExportSlice", "SlicedVolumes",

@@ -78,12 +78,12 @@ from skimage.measure import approximate_polygon, find_contours
 from skimage.measure import label as connected_parts
 
 from .. import __version__
-from .._json import dumps as strict_json
-from .._atomic import Output, atomic_directory, check_output
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
 from ..io import write_label_image
-from ..scan import Scan
-from ..split import SPLITS, VAL_FRACTION
+from ..scan.core import Scan
+from ..scan.split import SPLITS, VAL_FRACTION
 from .slices import MIN_AREA, ExportSlice, ExportSummaryBase, check_slicing, plan_slices, split_counts
 
 logger = logging.getLogger(__name__)
@@ -361,7 +361,7 @@ def export_yolo(
         ``"real-test"``: synthetic packs give training slices only.
     val_fraction : float
         Fraction of each split volume's slices for validation, next to the test
-        block (`synthpack.split.slice_splits`).
+        block (`synthpack.scan.split.slice_splits`).
     postprocess : bool
         Synthetic images from the post-processed ``tomogram`` (True) or the
         ``clean`` volume (False).

@@ -2,7 +2,7 @@
 
 Volumes are NumPy arrays indexed ``(z, y, x)``. Readers return the voxel size
 ``(dz, dy, dx)`` and its length unit when the file records them; `read_scan`
-turns a tomogram and its label volume into a validated `~synthpack.scan.Scan`.
+turns a tomogram and its label volume into a validated `~synthpack.scan.core.Scan`.
 `memmap_volume` memory-maps a volume file; `read_slice` reads one slice and
 `read_box` one box of a memory map, a Zarr array or an array, so a slice or a
 patch is read without the volume.
@@ -26,7 +26,7 @@ Supported inputs
   ``voxel_size`` (z, y, x) and ``unit`` as written by `write_zarr`. An OME-Zarr
   image (NGFF 0.5 or 0.4, e.g. the ``pack.zarr`` of a Zarr pack): its
   full-resolution level, voxel size and unit from its ``multiscales`` scale and
-  axes (`synthpack.ngff.full_resolution`); for the labels (or ``name="labels"``)
+  axes (`synthpack.io.ngff.full_resolution`); for the labels (or ``name="labels"``)
   its first label image under ``labels/``, or by `name` another image group in
   it (``"clean"``, ``"labels/instances"``);
 - NetCDF files as written by the ANU CT lab's Mango tools (``.nc``), with the
@@ -72,11 +72,12 @@ the storage libraries.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from .._shared.exports import lazy_exports
 
 if TYPE_CHECKING:
-    from .._atomic import atomic_directory, atomic_file
+    from .atomic import atomic_directory, atomic_file
     from ._registry import SUPPORTED_FORMATS
     from .itk import check_nifti_writer, write_nifti
     from .label_images import LABEL_IMAGE_SUFFIXES, read_label_image, write_label_image
@@ -86,12 +87,11 @@ if TYPE_CHECKING:
     from .units import convert_voxel_size
     from .zarr_store import create_zarr_volume, write_zarr
 
-#: Public name -> the module that defines it.
-_PUBLIC = {
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "LABEL_IMAGE_SUFFIXES": ".label_images",
     "SUPPORTED_FORMATS": "._registry",
-    "atomic_directory": ".._atomic",
-    "atomic_file": ".._atomic",
+    "atomic_directory": ".atomic",
+    "atomic_file": ".atomic",
     "check_nifti_writer": ".itk",
     "convert_voxel_size": ".units",
     "create_zarr_volume": ".zarr_store",
@@ -99,23 +99,11 @@ _PUBLIC = {
     "read_box": ".lazy",
     "read_label_image": ".label_images",
     "read_scan": ".read",
-    "read_tomogram": ".read",
     "read_slice": ".lazy",
+    "read_tomogram": ".read",
     "read_volume": ".read",
     "write_label_image": ".label_images",
     "write_nifti": ".itk",
     "write_tiff": ".tiff",
     "write_zarr": ".zarr_store",
-}
-
-__all__ = sorted(_PUBLIC)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _PUBLIC:
-        return getattr(importlib.import_module(_PUBLIC[name], __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_PUBLIC))
+})

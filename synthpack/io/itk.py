@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_file
+from .atomic import atomic_file
 from ..errors import SynthpackInputError
-from ..scan import validate_voxel_size
+from ..scan.core import validate_voxel_size
 from ._base import Metadata, PathLike, Volume, _require_volume
 from ._registry import _optional
 from .units import _attribute_voxel_size, _normalise_unit

@@ -10,7 +10,7 @@ import numpy as np
 import tifffile
 from PIL import Image
 
-from .._atomic import atomic_file
+from .atomic import atomic_file
 from ..errors import SynthpackInputError
 from .tiff import _TIFF_SUFFIXES, _open_tiff
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..budget import check_read
+from .._shared.budget import check_read
 from ._base import Volume
 
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SynthpackInputError
-from .._text import voxel_size as voxel_size_text
-from ..scan import Scan, validate_tomogram
+from .._shared.text import voxel_size as voxel_size_text
+from ..scan.core import Scan, validate_tomogram
 from ._base import Metadata, PathLike, Volume, VoxelSize, _reading
 from ._registry import _reader_for, _split_spec
 from .units import _resolve_voxel_size

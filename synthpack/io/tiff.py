@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from .._atomic import atomic_file
-from ..budget import check_read
+from .atomic import atomic_file
+from .._shared.budget import check_read
 from ..errors import SynthpackInputError
-from ..scan import validate_voxel_size
+from ..scan.core import validate_voxel_size
 from ._base import Metadata, PathLike, Volume, _natural_sorted, _reading, _require_volume, _visible_files
 from .units import _normalise_unit
 

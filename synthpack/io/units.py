@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..scan import validate_voxel_size
+from ..scan.core import validate_voxel_size
 from ._base import Metadata, VoxelSize
 
 logger = logging.getLogger(__name__)

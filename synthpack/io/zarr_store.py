@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from .._atomic import Output, atomic_directory
+from .atomic import Output, atomic_directory
 from ..errors import SynthpackInputError
-from ..ngff import full_resolution, label_names
-from ..scan import validate_voxel_size
+from .ngff import full_resolution, label_names
+from ..scan.core import validate_voxel_size
 from ._base import PathLike, Volume, VoxelSize, _choose, _is_empty_dir, _is_zarr_store, _reading, _require_volume
 from .units import _attribute_voxel_size
 

@@ -38,7 +38,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .._schema import in_range, setting
+from .._shared.schema import in_range, setting
 from ..errors import SynthpackInputError
 from .engine import (
     Body,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from .._schema import in_range, non_negative, one_of, positive, setting
+from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .engine import COLLISION_SHAPES, Material, SettleCriteria
 from .compaction import MAX_TARGET, TARGET_SOURCE, parse_target

@@ -10,7 +10,7 @@ from typing import Any, Protocol
 import numpy as np
 import trimesh
 
-from .._text import sig
+from .._shared.text import sig
 from ..errors import SynthpackInputError
 from .engine import TubeSpec
 
@@ -27,7 +27,7 @@ MAX_FILL_ASPECT = 10.0
 
 
 class LibraryLike(Protocol):
-    """What the pour needs from a particle library (`synthpack.library.ParticleLibrary` has it).
+    """What the pour needs from a particle library (`synthpack.library.core.ParticleLibrary` has it).
 
     Physics sits below the library stage, so it names the interface rather than the class.
     """

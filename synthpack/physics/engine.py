@@ -9,7 +9,7 @@ z through x = y = 0, inner tube floor at z = 0.
 The scene (:class:`Body` per grain, :class:`TubeSpec`, :class:`Material`,
 :class:`SettleCriteria`) is one description, and each engine is a view of it (as
 Kubric's simulators are views of its scene). An engine is an :class:`Engine`: a
-``name``, a frozen dataclass of its ``Options`` (built on :mod:`synthpack._schema`, so
+``name``, a frozen dataclass of its ``Options`` (built on :mod:`synthpack._shared.schema`, so
 ``engine_options`` are checked like every other setting), checks of what it can
 simulate, an availability check, and :meth:`Engine.simulate`. For each batch, in
 order, it spawns the batch's bodies at ``(x, y, top + dz)`` (``spawn_offset = (x, y,
@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
-from .._schema import build, in_range, positive, setting
+from .._shared.schema import build, in_range, positive, setting
 from ..errors import SynthpackInputError
 from .hulls import MAX_HULL_VERTICES
 

@@ -12,8 +12,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._json import dumps as strict_json
-from .._atomic import Output, atomic_file
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import Output, atomic_file
 from ..errors import SynthpackInputError
 from .checks import PourChecks
 from .container import Tube
@@ -82,9 +82,9 @@ class Placements:
         None: placement ``i`` is library grain ``indices[i]`` as it is. Otherwise
         (JSON-able) how each placement's grain was made from library grain
         ``indices[i]``: e.g. the free-form deformation record of
-        `synthpack.deform.PackGrains.record` (method, strength, lattice, and per
+        `synthpack.library.deform.PackGrains.record` (method, strength, lattice, and per
         placement a seed and a damping factor), which redoes it
-        (`synthpack.deform.redo_grains`).
+        (`synthpack.library.deform.redo_grains`).
     snapshots : list of (numpy.ndarray, numpy.ndarray) or None
         Diagnostic, only when asked for and NOT saved: per batch k, positions (n_k, 3)
         and quaternions (n_k, 4) of the grains of batches 0..k right after batch k

@@ -177,7 +177,7 @@ def make_plan(
     indices : sequence of int, optional
         The library index of each grain, in pouring order (`n_particles` of them),
         instead of drawing them, e.g. one grain made for each placement
-        (`synthpack.deform`); not with `size_classes`.
+        (`synthpack.library.deform`); not with `size_classes`.
 
     Returns
     -------

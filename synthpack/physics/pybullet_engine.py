@@ -79,7 +79,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from .._schema import setting
+from .._shared.schema import setting
 from ..errors import SynthpackInputError
 from .burial import buried, largest_diameter
 from .compaction import FALL_QUIET, FALL_STEPS, BatchCompaction, PackingController

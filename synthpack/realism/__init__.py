@@ -17,7 +17,7 @@ Modules, one job each:
 
 The measurements it shares with the earlier stages come from them: edges, noise,
 spectra and patches from `synthpack.source`, the bulk region from
-`synthpack.postprocess`. The fit of the post-processing to the source is
+`synthpack.artefacts.recipes`. The fit of the post-processing to the source is
 `synthpack.artefacts.calibrate`.
 """
 

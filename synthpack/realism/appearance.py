@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import SynthpackInputError
 from ..source.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
-from ..source.noise import NoiseEstimate, estimate_noise
+from ..source.noise_estimate import NoiseEstimate, estimate_noise
 from ..source.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
 from .region import Specimen
 

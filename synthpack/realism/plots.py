@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_file
-from .._plotting import pyplot
+from ..io.atomic import atomic_file
+from .._shared.plotting import pyplot
 from .discriminator import ClassifierTest
 from .report import Measurements
 

@@ -12,7 +12,7 @@ it that is measured, its *bulk region*:
   diameter away from the tube wall and above the floor, and two diameters below
   the top of the pack (the highest grain point). That excludes the wall, the
   air outside the tube, the ordered layer at the floor and the loose top. It is
-  `synthpack.postprocess.bulk_region`, where ``postprocess: calibrated`` fits too.
+  `synthpack.artefacts.recipes.bulk_region`, where ``postprocess: calibrated`` fits too.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..postprocess import bulk_region
-from ..scan import Scan
+from ..artefacts.recipes import bulk_region
+from ..scan.core import Scan
 from ..source.specimen import specimen_mask
 
 __all__ = ["Specimen"]
@@ -82,7 +82,7 @@ class Specimen:
         name : str, optional
             Default: the directory name.
         """
-        from ..pack import open_pack
+        from ..store.pack import open_pack
 
         pack = open_pack(directory)
         manifest = pack.manifest

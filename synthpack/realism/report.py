@@ -35,11 +35,11 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .._json import dumps as strict_json
-from .._atomic import Output, atomic_directory
-from ..intensity import intensity_window
-from ..pack import find_packs
-from ..scan import Scan
+from .._shared.strict_json import dumps as strict_json
+from ..io.atomic import Output, atomic_directory
+from .._shared.windows import intensity_window
+from ..store.pack import find_packs
+from ..scan.core import Scan
 from .appearance import Appearance, measure_appearance, nps_ratio
 from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfig, check_patch, classifier_test,
                             specimen_patches)

@@ -9,7 +9,7 @@ view those are the grains not cut by the border, as in the particle library.
 * **Equivalent diameter**: of the sphere with the grain's voxel volume.
 * **Sphericity** (Wadell): ``pi^(1/3) (6 V)^(2/3) / A``, 1 for a sphere, lower for
   elongated or angular grains. ``V`` and ``A`` are the volume and area of the
-  grain's smoothed marching-cubes surface (`synthpack.meshing.mesh_from_mask`
+  grain's smoothed marching-cubes surface (`synthpack.library.meshing.mesh_from_mask`
   without decimation), which keeps the voxel volume and avoids the staircase
   area of the raw voxels.
 * **Aspect ratios**: with ``l1 >= l2 >= l3`` the eigenvalues of the covariance of
@@ -35,8 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, stats
 
-from ..meshing import mesh_from_mask
-from ..particles import equivalent_diameter
+from ..library.meshing import mesh_from_mask
+from ..library.particles import equivalent_diameter
 from .region import Specimen
 
 logger = logging.getLogger(__name__)

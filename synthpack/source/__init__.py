@@ -20,7 +20,7 @@ It comes right after reading the scan and imports nothing of the later stages.
 """
 
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
-from .noise import NoiseEstimate, estimate_noise
+from .noise_estimate import NoiseEstimate, estimate_noise
 from .phases import PhaseLevels, estimate_phases
 from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid

@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import SynthpackInputError
-from ..scan import Scan
+from ..scan.core import Scan
 
 logger = logging.getLogger(__name__)
 

@@ -51,7 +51,7 @@ import logging
 import numpy as np
 from scipy import fft
 
-from .._chunks import chunk_boxes
+from .._shared.chunks import chunk_boxes
 
 __all__ = ["BLOCK", "MAX_BLOCKS", "MIN_PAIRS", "MIN_VOXELS", "PORE_SPECTRUM_SIZE", "frequency_radius",
            "measure_pore_spectrum", "shell_frequencies", "spectrum_on_grid"]

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, special
 
-from .._text import sig
+from .._shared.text import sig
 from ..errors import SynthpackInputError
 from .edges import EdgeProfile
 

@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize
 
-from .._text import sig
+from .._shared.text import sig
 from .spectrum import phase_interiors
 
 logger = logging.getLogger(__name__)

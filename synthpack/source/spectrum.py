@@ -1,7 +1,7 @@
 """The noise power spectrum (NPS) of a phase: how the noise's power spreads over spatial frequency.
 
 The NPS is measured on ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a
-phase's interior (`~synthpack.source.patches`), each minus its own mean, and
+phase's interior (`~synthpack.source.lattice`), each minus its own mean, and
 averaged radially in the slice plane: ring ``k`` holds the frequencies whose
 magnitude rounds to ``k / NPS_PATCH`` cycles per voxel. The powers of all rings add
 up to the mean variance within a patch (ring 0, the patch mean, is 0), so the
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .edges import INTERIOR
-from .patches import patch_corners, take_patches
+from .lattice import patch_corners, take_patches
 
 __all__ = ["NPS_PATCH", "NoiseSpectrum", "noise_power_spectrum", "phase_interiors", "phase_spectra", "ring_of",
            "ring_frequencies", "white_ring_powers"]
@@ -86,7 +86,7 @@ def noise_power_spectrum(
     size : int
         Patch side, voxels.
     max_patches : int
-        At most this many patches, evenly spread (`~synthpack.source.patches.patch_corners`).
+        At most this many patches, evenly spread (`~synthpack.source.lattice.patch_corners`).
 
     Returns
     -------

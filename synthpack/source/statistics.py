@@ -6,11 +6,11 @@ import logging
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
-from .._text import fraction, sig
+from .._shared.text import fraction, sig
 from ..errors import SynthpackInputError
-from ..scan import Scan
+from ..scan.core import Scan
 from .edges import edge_profile, edge_width, signed_distance
-from .noise import estimate_noise
+from .noise_estimate import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
 from .pore_histogram import measure_pore_quantiles
@@ -52,7 +52,7 @@ class SourceStatistics:
         pore level: grains are darker than the phase around them in neutron CT,
         with doped brine, or for aggregates in cement paste (see `contrast`).
     noise_std : float
-        Noise level, pooled over grains and pores (`~synthpack.source.noise.estimate_noise`).
+        Noise level, pooled over grains and pores (`~synthpack.source.noise_estimate.estimate_noise`).
     edge_width : float or None
         10-90 % rise distance (voxels) of the mean intensity profile across the
         grain-pore boundaries (`~synthpack.source.edges.volume_edge_width`), the
@@ -64,7 +64,7 @@ class SourceStatistics:
         edge-spread function fitted to the same profile
         (`~synthpack.source.psf.fit_edge_spread`); None with `edge_width`.
     noise_grain_std, noise_pore_std : float or None
-        The noise level of each phase (`~synthpack.source.noise.estimate_noise`), intensity
+        The noise level of each phase (`~synthpack.source.noise_estimate.estimate_noise`), intensity
         units; None where the phase has too few interior voxels.
     nps_grains, nps_pores : tuple of float or None
         Noise power spectrum of the grain and of the pore interior
@@ -189,7 +189,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
         Tomogram and labels (0 = pore, > 0 = grain).
     exclude : (start, stop), optional
         Slices ``start <= i < stop`` along `axis` that no figure may read (a held-out
-        test block, `~synthpack.split.central_block`): they are taken out of the
+        test block, `~synthpack.scan.split.central_block`): they are taken out of the
         specimen region every measure is restricted to, so the scan keeps its
         geometry (the rotation axis, the wall's radius) whatever the `axis`.
     axis : int

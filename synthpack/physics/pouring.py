@@ -1,0 +1,320 @@
+"""Pouring grains into a virtual tube: batched, locked rigid-body simulation (paper 3.3).
+
+:func:`pour` checks its input, draws a pour plan from one seed (:mod:`.plan`),
+converts it to simulation units, runs an engine batch by batch (each batch falls,
+settles and is locked before the next enters), converts the poses back to physical
+units, checks the result (:mod:`.checks`) and returns :class:`Placements`.
+
+Containment is guaranteed: a pour that leaves a grain outside the tube is run again
+with twice the solver substeps; if one is still outside, or any grain reaches above
+the rim, :class:`~synthpack.errors.ContainmentError` is raised instead of returning
+a pack with grains outside.
+
+Simulation units: 1 length unit = the library's median equivalent diameter times the
+pour's reference scale (the geometric mean of its scale range), so grains are ~1 unit
+across at any scale and a pour of grains scaled by 2 in a tube twice as wide runs the
+same simulation as the unscaled one (gravity 9.81 units/s^2); 1 mass unit = the
+library's median grain mass times the reference scale cubed. The engines are listed in :mod:`.registry`: ``"pybullet"`` (default,
+:mod:`.pybullet_engine`) and ``"blender"`` (:mod:`.blender_engine`, bpy in a separate
+interpreter, as in the paper); :mod:`.engine` is their common interface.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, replace
+from typing import Any
+
+import numpy as np
+
+from .._shared.console import progress_bar
+from .._shared.text import sig
+from .._shared.budget import check_pour
+from ..errors import ContainmentError, SynthpackInputError
+from .checks import PourChecks, compute_checks
+from .compaction import PackingController, expected_fraction, report_target, resolve_target
+from .config import PourConfig
+from .container import DEFAULT_PACKING_FRACTION, Tube
+from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
+from .placements import Placements
+from .plan import PourPlan, make_plan, parse_scale
+from .registry import DEFAULT_ENGINE, ENGINES, get_engine
+
+logger = logging.getLogger(__name__)
+
+
+#: Runs of a pour before it gives up on containment: the first, then one with
+#: twice the solver substeps.
+CONTAINMENT_ATTEMPTS = 2
+
+
+def pour(
+    library: Any,
+    n_particles: int,
+    batch_size: int,
+    engine: str = DEFAULT_ENGINE,
+    seed: int = 0,
+    container: Tube | None = None,
+    scale: float | Sequence[float] = 1.0,
+    size_classes: Sequence[Sequence[float]] | None = None,
+    material: Material | None = None,
+    settle: SettleCriteria | None = None,
+    progress: bool = True,
+    engine_options: Mapping[str, Any] | None = None,
+    target_solid_fraction: float | str | None = PourConfig.target_solid_fraction,
+    indices: Sequence[int] | None = None,
+) -> Placements:
+    """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains: meshes in the local frame (physical units), masses
+        (density x volume, paper eq. 1), centres of mass.
+    n_particles : int
+        Number of grains to pour (drawn from the library with replacement).
+    batch_size : int
+        Grains per batch; each batch settles and is locked before the next falls.
+    engine : {"pybullet", "blender"}
+        Rigid-body engine, a name of :data:`~synthpack.physics.registry.ENGINES`.
+    seed : int
+        Seed of every random choice (grains, orientations, scales, spawn points).
+    container : Tube, optional
+        The tube, physical units; default :meth:`Tube.for_library`.
+    scale : float or (float, float)
+        Scale factor of the grains, or a (min, max) range drawn per grain.
+    size_classes : sequence of (d_min, d_max, fraction), optional
+        Target size distribution by number fraction over equivalent-diameter
+        classes (physical units), as by sifting.
+    material : Material, optional
+        Friction, restitution, damping; default ``Material()``.
+    settle : SettleCriteria, optional
+        Time step and settle detection; default ``SettleCriteria()``.
+    progress : bool
+        Show a progress bar over batches.
+    engine_options : mapping, optional
+        The engine's options that differ from its defaults: fields of
+        :class:`~synthpack.physics.pybullet_engine.PybulletOptions` (e.g.
+        ``max_hull_vertices``, ``fixed_steps``, ``allow_sleeping``) or
+        :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
+        ``blend_file``). They are recorded in ``Placements.parameters``.
+    target_solid_fraction : "source", float or None
+        Packing fraction of the bulk to reach, batch by batch, by compaction (denser
+        than a free pour) or spaced collision shells (looser)
+        (:mod:`synthpack.physics.compaction`): ``"source"`` (default) the source
+        scan's bulk solid fraction (``library.statistics.solid_fraction``), a number
+        in (0, 1), or None for a free pour. An engine without compaction pours
+        freely for ``"source"`` and refuses a number. The reached value is in the
+        checks (``target_reached`` False, and a warning, when it is more than
+        :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
+    indices : sequence of int, optional
+        The library index of each grain, in pouring order, instead of drawing
+        them (see :func:`~synthpack.physics.plan.make_plan`).
+
+    Returns
+    -------
+    Placements
+        Final poses in physical units, the tube, the parameters and the checks.
+
+    Raises
+    ------
+    SynthpackInputError
+        For a bad count, batch size, seed, engine, option, material, settle
+        criterion, scale, size class, tube, target or indices, or an engine that cannot run here.
+    ContainmentError
+        When grains end outside the tube even on the retry with twice the substeps,
+        or above its rim (never a pack with grains outside).
+    """
+    n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
+    chosen = get_engine(engine)
+    options = chosen.options(engine_options)
+    material = Material() if material is None else material
+    settle = SettleCriteria() if settle is None else settle
+    chosen.check(material, settle, options)
+    target = resolve_target(target_solid_fraction, library, chosen)
+    chosen.check_available()
+    low, high = parse_scale(scale)
+    tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
+    logger.info("Tube for %d grains: inner radius %s, height %s", n_particles, sig(tube.inner_radius), sig(tube.height))
+    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
+    length = _length_scale(library, reference_scale)
+    check_pour(n_particles, tube.inner_radius / length)
+
+    plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
+                     size_classes=size_classes, indices=indices)
+    mass_unit = float(np.median([library[i].mass for i in range(len(library))])) * reference_scale**3
+    bodies = _bodies(library, plan, length, mass_unit)
+    spec = tube.spec(length)
+    logger.info("Pouring %d grains in %d batches with %s (seed %d)%s",
+                n_particles, plan.n_batches, chosen.name, seed,
+                "" if target is None else f", to a packing fraction of {target:.3f}")
+    for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
+        controller = None if target is None else PackingController(
+            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed)
+        result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
+                               controller)
+        positions = np.asarray(result.positions, dtype=float) * length
+        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed),
+                               target, controller)
+        if checks.n_outside == 0 or attempt == CONTAINMENT_ATTEMPTS:
+            break
+        logger.warning("%d grains ended outside the tube; pouring again with %d substeps per step.",
+                       checks.n_outside, 2 * settle.substeps)
+        settle = replace(settle, substeps=2 * settle.substeps)
+    _check_containment(checks, tube)
+    parameters = {
+        "n_particles": n_particles,
+        "batch_size": batch_size,
+        "scale": [low, high],
+        "size_classes": [list(map(float, c)) for c in size_classes] if size_classes else None,
+        "material": asdict(material),
+        "settle": asdict(settle),
+        "length_scale": length,
+        "mass_unit": mass_unit,
+        "target_solid_fraction": target,
+        "engine_options": {name: getattr(options, name) for name in engine_options or {}},
+    }
+    return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)
+
+
+def _check_containment(checks: PourChecks, tube: Tube) -> None:
+    """Raise ContainmentError for grains outside the tube or above its rim."""
+    if checks.n_outside:
+        raise ContainmentError(
+            f"{checks.n_outside} grains ended outside the tube (up to "
+            f"{checks.max_wall_penetration_voxels:.2f} voxels into the wall or floor) even with "
+            "twice the solver substeps; use a smaller pour.scale or a smaller time step."
+        )
+    if checks.n_above_rim:
+        raise ContainmentError(
+            f"{checks.n_above_rim} grains reach above the tube's rim (height {tube.height:g}, pack top "
+            f"{checks.fill_height:g}); give a taller pour.tube_height or pour fewer grains."
+        )
+
+
+def _check_request(library: Any, n_particles: Any, batch_size: Any, seed: Any) -> tuple[int, int, int]:
+    """The counts and the seed as ints; SynthpackInputError for bad ones or an empty library."""
+    n_particles = _count(n_particles, "n_particles")
+    batch_size = _count(batch_size, "batch_size")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SynthpackInputError(f"seed must be a whole number >= 0, got {seed!r}.")
+    if len(library) == 0:
+        raise SynthpackInputError(
+            "The particle library is empty; build it from a labelled scan with grains in it."
+        )
+    return n_particles, batch_size, int(seed)
+
+
+def check_pour_size(library: Any, n_particles: int, tube: Tube, scale: float | Sequence[float] = 1.0) -> None:
+    """Refuse up front a pour too long or too large for this machine (:func:`synthpack._shared.budget.check_pour`).
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains (their median diameter sets the simulation unit).
+    n_particles : int
+        Grains to pour.
+    tube : Tube
+        The container, physical units.
+    scale : float or (float, float)
+        The pour's grain scale, as for `pour`.
+
+    Raises
+    ------
+    SynthpackInputError
+        With the estimate (hours or GiB) and the setting to change.
+    """
+    low, high = parse_scale(scale)
+    check_pour(n_particles, tube.inner_radius / _length_scale(library, float(np.sqrt(low * high))))
+
+
+def _length_scale(library: Any, reference_scale: float) -> float:
+    """The simulation length unit, physical units: the median grain diameter at `reference_scale`."""
+    return float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * reference_scale
+
+
+def _count(value: Any, name: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise SynthpackInputError(f"{name} must be a whole number >= 1, got {value!r}.")
+    return int(value)
+
+
+def _tube(
+    library: Any, n_particles: int, container: Tube | None, largest_scale: float, packing_fraction: float,
+) -> Tube:
+    """`container`, or the default tube for the library's grains at their largest scale, sized for `packing_fraction`."""
+    tube = container
+    if container is None:
+        tube = Tube.for_library(library, n_particles, scale=largest_scale, packing_fraction=packing_fraction)
+    if not isinstance(tube, Tube):
+        raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
+    return tube
+
+
+def _run(
+    engine: Engine, bodies: list[Body], tube: TubeSpec, material: Material, settle: SettleCriteria,
+    options: EngineOptions, n_batches: int, progress: bool, compaction: PackingController | None,
+) -> tuple[EngineResult, float]:
+    """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
+    bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)
+    start = time.perf_counter()
+    try:
+        result = engine.simulate(bodies, tube, material, settle, options,
+                                 progress=lambda done, total: bar.update(1), compaction=compaction)
+    finally:
+        bar.close()
+    return result, time.perf_counter() - start
+
+
+def _checks(
+    library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
+    length: float, seconds: float, seed: int,
+) -> PourChecks:
+    """The checks of the finished pour (:func:`~synthpack.physics.checks.compute_checks`)."""
+    meshes = [(np.asarray(library[i].mesh.vertices, dtype=float), np.asarray(library[i].mesh.faces))
+              for i in range(len(library))]
+    return compute_checks(
+        meshes, plan.indices, positions, result.quaternions, plan.scales, tube,
+        voxel_size=float(min(library.voxel_size)), length_scale=length,
+        steps_per_batch=result.steps_per_batch, settled_per_batch=result.settled_per_batch,
+        seconds=seconds, seed=seed,
+    )
+
+
+def _placements(
+    library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
+    engine: str, seed: int, parameters: dict[str, Any], checks: PourChecks,
+) -> Placements:
+    """The pour's Placements; snapshots (simulation units) scaled like `positions`."""
+    length = parameters["length_scale"]
+    snapshots = None
+    if result.snapshots is not None:
+        snapshots = [(np.asarray(pos) * length, np.asarray(quat)) for pos, quat in result.snapshots]
+    return Placements(
+        indices=plan.indices, positions=positions, quaternions=result.quaternions,
+        scales=plan.scales, batches=plan.batches, tube=tube, unit=str(library.unit),
+        voxel_size=tuple(library.voxel_size), seed=seed, engine=engine,
+        parameters=parameters, checks=checks, snapshots=snapshots,
+    )
+
+
+def _bodies(library: Any, plan: PourPlan, length: float, mass_unit: float) -> list[Body]:
+    """The plan's grains as engine bodies in simulation units."""
+    bodies = []
+    for k in range(len(plan)):
+        particle = library[int(plan.indices[k])]
+        s = float(plan.scales[k])
+        bodies.append(
+            Body(
+                vertices=np.asarray(particle.mesh.vertices, dtype=np.float64) * (s / length),
+                faces=np.asarray(particle.mesh.faces, dtype=np.int64),
+                mass=float(particle.mass) * s**3 / mass_unit,
+                center_mass=np.asarray(particle.center_mass, dtype=np.float64) * (s / length),
+                orientation=plan.quaternions[k],
+                spawn_offset=plan.spawn_offsets[k] / length,
+                batch=int(plan.batches[k]),
+            )
+        )
+    return bodies

@@ -1,0 +1,457 @@
+"""From a particle library to synthetic packs on disk: pour, reconstruct, post-process, write."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.metadata
+import logging
+import os
+import platform
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..io.atomic import check_output
+from .._shared.chunks import bounded_map, chunk_boxes, thread_count
+from ..artefacts.blockwise import apply_blockwise, device_for
+from .._shared.budget import check_pack_grid
+from .config import PackConfig, ReconstructConfig
+from ..library.deform import PackGrains, pack_grains
+from ..errors import PackBuildError, SynthpackInputError
+from ..library.core import ParticleLibrary
+from ..store.pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
+from ..render.partial_volume import PartialVolume
+from ..physics import Placements, Tube, check_pour_size, pour
+from ..physics.compaction import expected_fraction
+from ..physics.container import DEFAULT_PACKING_FRACTION
+from ..physics.registry import get_engine
+from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
+from ..render.reconstruct import Background, Grid, pose_maps, reconstruct
+from ..render.torch_render import TorchRenderer, resolve_device
+from .runner import run_packs
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name"]
+
+#: ``allocate(name, shape, dtype, chunks) -> array``: where `build_pack` writes a volume.
+Allocate = Callable[[str, tuple[int, int, int], Any, tuple[int, int, int]], Any]
+
+
+def pack_seed(run_seed: int, index: int) -> int:
+    """Seed of pack `index` of a run: a pure function of the run seed and the index."""
+    return _derived_seed(run_seed, index)
+
+
+def pack_name(index: int) -> str:
+    """Directory name of pack `index`: ``pack_0000``, ``pack_0001``, ..."""
+    return f"pack_{index:04d}"
+
+
+@dataclass
+class SyntheticPack:
+    """One synthetic pack in memory.
+
+    Attributes
+    ----------
+    tomogram : array of float32, shape (Z, Y, X)
+        Post-processed tomogram (NumPy, or the Zarr array `build_pack` was given).
+    clean : array of float32, shape (Z, Y, X)
+        Tomogram before post-processing.
+    labels : array of int32, shape (Z, Y, X)
+        Placement ``i`` has label ``i + 1``; 0 is pore, tube or outside.
+    placements : Placements
+        The pour.
+    grid : Grid
+        Where the volumes sit in the world frame.
+    manifest : dict
+        Config, seed, counts, contested voxels, artefacts applied, timings.
+    """
+
+    tomogram: Any
+    clean: Any
+    labels: Any
+    placements: Placements
+    grid: Grid
+    manifest: dict = field(default_factory=dict)
+
+
+def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
+    pour_config = config.pour
+    return Tube.for_library(
+        library, pour_config.n_particles, scale=float(max(np.atleast_1d(pour_config.scale))),
+        inner_radius=pour_config.tube_radius, height=pour_config.tube_height,
+        packing_fraction=expected_fraction(pour_config.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
+    )
+
+
+def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:
+    """Refuse up front a pack whose pour or whose volumes cannot fit this machine (`synthpack._shared.budget`).
+
+    The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out.
+    """
+    tube = _tube(library, config)
+    check_pour_size(library, config.pour.n_particles, tube, config.pour.scale)
+    grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
+                         margin=config.reconstruct.margin)
+    check_pack_grid(grid.shape, format)
+
+
+def _derived_seed(seed: int, stream: int) -> int:
+    """A 32-bit seed for stream `stream` of `seed` (pack `stream` of a run, or a pack's post-processing)."""
+    return int(np.random.SeedSequence([int(seed), int(stream)]).generate_state(1, np.uint32)[0])
+
+
+def _numpy_volume(name: str, shape: tuple[int, int, int], dtype, chunks: tuple[int, int, int]) -> np.ndarray:
+    return np.empty(shape, dtype=dtype)
+
+
+def build_pack(
+    library: ParticleLibrary,
+    config: PackConfig,
+    seed: int,
+    *,
+    progress: bool = True,
+    threads: int | None = None,
+    allocate: Allocate | None = None,
+) -> SyntheticPack:
+    """Pour, reconstruct and post-process one pack.
+
+    Reconstruction and post-processing go chunk by chunk (chunks
+    ``config.reconstruct.chunks``) from one volume to the next, so with Zarr
+    arrays from `allocate` no whole volume is ever held in memory. The volumes
+    depend only on `library`, `config` and `seed`: not on `threads`, nor on where
+    they are stored.
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains, and the statistics of their source scan.
+    config : PackConfig
+        Pour, reconstruction and post-processing settings. The post-processing is
+        resolved by `synthpack.artefacts.recipes.resolve_postprocessing`; with
+        ``postprocess: calibrated`` (the default) the blur and noise are fitted to
+        the source scan and the fit is recorded in the manifest under
+        ``calibration``. The mode applied is recorded under ``postprocess_mode``.
+    seed : int
+        Seed of this pack (pour, pore texture and artefacts).
+    progress : bool
+        Show progress bars.
+    threads : int, optional
+        Threads for the chunks; default: the number of CPU cores.
+    allocate : callable, optional
+        ``allocate(name, shape, dtype, chunks) -> array`` gives the arrays to fill:
+        ``"clean"`` (float32), ``"labels"`` (int32), ``"tomogram"`` (float32) and,
+        for post-processing pipelines with several blur-type steps, ``"scratch"``
+        (float32), e.g. Zarr arrays (`synthpack.store.pack.StagedPack.zarr_array`).
+        Default: NumPy arrays.
+    """
+    check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
+    device = resolve_device(config.reconstruct.device, config.reconstruct.order)
+    allocate = allocate or _numpy_volume
+    chunks = tuple(config.reconstruct.chunks)
+    timings: dict[str, float] = {}
+    grains = None
+    if config.grains.deform.strength > 0:
+        with _timed(timings, "deform"):
+            grains = pack_grains(library, config.pour.n_particles, config.grains.deform, seed)
+    with _timed(timings, "pour"):
+        placements = _pour(library, config, seed, progress, grains)
+    timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
+    with _timed(timings, "reconstruct"):
+        render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains, device)
+    with _timed(timings, "postprocess"):
+        postprocessing = resolve_postprocessing(
+            config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
+            grid=render.grid, packing_region=placements.checks.packing_region,
+            pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
+        )
+        # any render order post-processes on the device, if every transform has a torch version
+        postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.reconstruct.device))
+        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
+    grid = render.grid
+    manifest = dict(
+        seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
+        n_labels=_grains_present(render.labels, len(placements), chunks, threads),
+        contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
+        pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
+        wall=render.background.wall_record(render.wall),
+        partial_volume=render.partial_volume.record() if render.partial_volume else None,
+        postprocessing=applied, timings=timings, **postprocessing.record,
+        devices=dict(render=device or "cpu", postprocess=postprocess_device or "cpu"),  # "cpu": NumPy
+    )
+    return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
+
+
+@contextmanager
+def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
+    """Record the wall time of the ``with`` block as ``timings[step]``, seconds."""
+    start = time.perf_counter()
+    yield
+    timings[step] = time.perf_counter() - start
+
+
+@dataclass(frozen=True)
+class _Render:
+    """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
+    the partial volume (None: whole voxels), the wall's inner and outer radius (physical units)."""
+
+    grid: Grid
+    clean: Any
+    labels: Any
+    background: Background
+    contested: int
+    partial_volume: PartialVolume | None
+    wall: tuple[float, float]
+
+
+def _pour(
+    library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None,
+) -> Placements:
+    """The pour (paper 3.3) of ``config.pour`` with `seed`.
+
+    With `grains`, placement ``k`` pours ``grains.particles[k]`` (a deformed grain, in its
+    own frame); the placements name its library grain (``indices``) and record how it
+    was made (``grains``). The tube is the library's either way.
+    """
+    pour_config = config.pour
+    scale = pour_config.scale if isinstance(pour_config.scale, (int, float)) else tuple(pour_config.scale)
+    poured = library if grains is None else grains.particles
+    placements = pour(
+        poured, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
+        seed=seed, container=_tube(library, config), scale=scale,
+        material=pour_config.material(),
+        progress=progress, engine_options=pour_config.engine_options,
+        target_solid_fraction=pour_config.target_solid_fraction,
+        indices=None if grains is None else np.arange(len(poured)),
+    )
+    if grains is not None:
+        placements = dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
+    return placements
+
+
+def _render(
+    library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
+    threads: int | None, allocate: Allocate, grains: PackGrains | None, device: str | None,
+) -> _Render:
+    """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
+
+    Placement ``k``'s grain is ``library[placements.indices[k]]``, or ``grains.particles[k]`` with `grains`.
+    On the torch `device` (`synthpack.render.torch_render`), or with NumPy where it is None.
+    """
+    particles, placed = (library, placements.indices) if grains is None else (
+        grains.particles, np.arange(len(placements)))
+    tube = placements.tube
+    chunks = tuple(config.chunks)
+    background = Background.from_source(library.statistics, config)
+    wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
+    grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
+                         library.voxel_size, margin=config.margin)
+    partial_volume = config.partial_volume_of(library.statistics)
+    maps = pose_maps([p.mask for p in particles], placed,
+                     placements.rotation_matrices(), placements.positions, placements.scales, grid,
+                     reach=partial_volume.reach if partial_volume else 1.0)
+    renderer = None if device is None else TorchRenderer(device)
+    clean, labels, contested = reconstruct(
+        [(p.tomogram, p.mask) for p in particles], maps, grid, background,
+        tube=(wall[0], wall[1], -tube.base_thickness),
+        order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
+        out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
+        partial_volume=partial_volume, renderer=renderer,
+    )
+    if renderer is not None:
+        logger.info("rendered on %s: %d voxels within float rounding of the mask threshold", device,
+                    renderer.near_threshold)
+    return _Render(grid, clean, labels, background, contested, partial_volume, wall)
+
+
+def _postprocess(
+    postprocessing: Postprocessing, render: _Render, seed: int, threads: int | None, allocate: Allocate,
+    chunks: tuple[int, int, int], device: str | None,
+) -> tuple[Any, list[dict]]:
+    """The post-processed tomogram, chunk by chunk into `allocate`'s array, and the record of what was applied.
+
+    On the torch `device` (`synthpack.artefacts.torch_blocks`) where the pipeline allows, or with NumPy.
+    """
+    shape = render.grid.shape
+    tomogram = allocate("tomogram", shape, np.float32, chunks)
+    applied = apply_blockwise(
+        postprocessing.pipeline, render.clean, tomogram, _derived_seed(seed, 1), chunks, threads=threads,
+        scratch=lambda: allocate("scratch", shape, np.float32, chunks), device=device,
+    )
+    return tomogram, applied
+
+
+def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads: int | None) -> int:
+    """How many of the labels ``1..n_placed`` occur in `labels`, read chunk by chunk (warns if not all)."""
+    present = np.zeros(n_placed + 1, dtype=bool)
+
+    def found(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        lo, hi = box
+        return np.unique(labels[tuple(slice(a, b) for a, b in zip(lo, hi))])
+
+    for _, values in bounded_map(found, chunk_boxes(tuple(labels.shape), chunks), thread_count(threads)):
+        present[values] = True
+    n_present = int(np.count_nonzero(present[1:]))
+    if n_present < n_placed:
+        logger.warning("%d of %d placed grains have no voxel in the volume", n_placed - n_present, n_placed)
+    return n_present
+
+
+def _versions() -> dict[str, str]:
+    versions = {"synthpack": __version__, "python": platform.python_version()}
+    for name in ("numpy", "scipy", "scikit-image", "trimesh", "pybullet", "tifffile", "zarr", "dask", "distributed"):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
+def generate_pack(
+    library: ParticleLibrary,
+    index: int,
+    config: PackConfig,
+    out: str | os.PathLike,
+    *,
+    format: str = "tiff",
+    source: str = "",
+    threads: int | None = None,
+    progress: bool = False,
+) -> Path:
+    """Build pack `index` of a run into ``out/pack_NNNN``, atomically: the unit of work of a Dask task.
+
+    Its seed is :func:`pack_seed` ``(config.seed, index)``, so the pack is the same
+    whichever process or thread count builds it, byte for byte on one machine (another
+    CPU may differ in the last bits of its floats, and a pour then diverges). A Zarr pack is written
+    chunk by chunk (memory does not grow with the volume); a TIFF pack is built
+    in memory, then written.
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains.
+    index : int
+        Pack index in the run.
+    config : PackConfig
+        The run's config.
+    out : path-like
+        Output directory of the run.
+    format : {"tiff", "zarr", "ome-zarr"}
+        Volume format (`synthpack.store.pack.PACK_FORMATS`); Zarr packs are OME-Zarr stores.
+    source : str
+        Description of the source scan, for the manifest.
+    threads : int, optional
+        Threads for the chunks of this pack; default: the number of CPU cores.
+    progress : bool
+        Show the pour's progress bar.
+
+    Returns
+    -------
+    Path
+        The pack directory.
+    """
+    path = Path(out) / pack_name(index)
+    seed = pack_seed(config.seed, index)
+    with stage_pack(path, voxel_size=library.voxel_size, unit=library.unit, format=format) as staged:
+        pack = build_pack(library, config, seed, progress=progress, threads=threads,
+                          allocate=staged.zarr_array if staged.format == "zarr" else None)
+        start = time.perf_counter()
+        if staged.format == "tiff":
+            staged.write_volumes({"tomogram": pack.tomogram, "clean": pack.clean, "labels": pack.labels})
+        staged.write_levels(threads)
+        manifest = dict(pack.manifest, pack_index=index, run_seed=config.seed,
+                        source=source or library.source, versions=_versions())
+        manifest["timings"]["write"] = time.perf_counter() - start
+        staged.finish(pack.placements, manifest)
+    logger.info("wrote %s (%d grains, %s voxels)", path, len(pack.placements),
+                "x".join(map(str, pack.grid.shape)))
+    return path
+
+
+def generate_packs(
+    library: ParticleLibrary,
+    out: str | os.PathLike,
+    n_packs: int = 1,
+    config: PackConfig | None = None,
+    *,
+    format: str = "tiff",
+    source: str = "",
+    progress: bool = True,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+) -> list[Path]:
+    """Build `n_packs` packs into ``out/pack_0000``, ... as Dask tasks (complete packs are skipped).
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains.
+    out : path-like
+        Output directory.
+    n_packs : int
+        Number of packs; pack ``k`` uses seed :func:`pack_seed` ``(config.seed, k)``.
+    config : PackConfig, optional
+        Defaults to ``PackConfig()``.
+    format : {"tiff", "zarr", "ome-zarr"}
+        Volume format of the packs (`synthpack.store.pack.PACK_FORMATS`). Zarr packs
+        (``"ome-zarr"`` is another name) are OME-Zarr stores written chunk by
+        chunk, for volumes larger than memory, with downsampled levels for viewing.
+    source : str
+        Description of the source scan, for the manifests.
+    progress : bool
+        Show a progress bar over packs.
+    workers, scheduler
+        Where the packs are built; see :func:`synthpack.pipeline.runner.run_packs`.
+        Default: a local Dask cluster sized to the machine, or this process
+        when one pack is missing.
+    overwrite : bool
+        Write the packs into an `out` folder that holds something other than
+        packs (its files are kept).
+
+    Returns
+    -------
+    list of Path
+        The pack directories, in order.
+
+    Raises
+    ------
+    PackBuildError
+        If some packs failed (after all the others were built): it lists each
+        failed pack with its error. Calling again builds only the missing packs.
+    SynthpackInputError
+        Before any work: for an output path that cannot be used, an unknown
+        post-processing, or an engine or ``reconstruct.device`` that cannot run here
+        (checked when the packs are built on this machine). After the other packs were built: when every
+        failed pack failed on its input (a `~synthpack.errors.PackInputError`,
+        which is both a `PackBuildError` and a `SynthpackInputError`).
+    """
+    if isinstance(n_packs, bool) or not isinstance(n_packs, int) or n_packs < 1:
+        raise SynthpackInputError(f"n_packs must be a positive integer, got {n_packs!r}")
+    format = pack_format(format)
+    config = config or PackConfig()
+    _check_size(library, config, format)
+    out = check_output(out, PACKS_OUTPUT, overwrite=overwrite)
+    check_postprocess(config.postprocess, library.statistics)
+    if scheduler is None:  # a remote cluster's workers may have what this machine lacks
+        get_engine(config.pour.engine).check_available()
+        resolve_device(config.reconstruct.device, config.reconstruct.order)
+    paths = [out / pack_name(index) for index in range(n_packs)]
+    missing = [index for index, path in enumerate(paths) if not is_complete_pack(path)]
+    if len(missing) < n_packs:
+        logger.info("%d of %d packs in %s are complete: skipped", n_packs - len(missing), n_packs, out)
+    build = functools.partial(generate_pack, config=config, out=out, format=format,
+                              source=source or library.source)
+    failures = run_packs(build, missing, library, n_packs=n_packs, workers=workers, scheduler=scheduler,
+                         progress=progress)
+    if failures:
+        raise PackBuildError.of({pack_name(i): error for i, error in failures.items()}, out, n_packs)
+    return paths
