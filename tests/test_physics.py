@@ -145,7 +145,6 @@ def test_save_load_round_trip(poured, tmp_path):
     assert loaded.tube == poured.tube and loaded.seed == 3 and loaded.engine == "pybullet"
     assert loaded.checks == poured.checks
     assert loaded.parameters["batch_size"] == 15 and loaded.unit == poured.unit
-    np.testing.assert_allclose(loaded.voxel_positions(), poured.voxel_positions())
 
 
 def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
@@ -163,12 +162,6 @@ def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
     bad.write_text(json.dumps({"format": "other"}))
     with pytest.raises(SynthpackInputError, match="not a synthpack placements"):
         Placements.load(bad)
-
-
-def test_voxel_positions_map_world_to_grid_indices(poured):
-    vox = poured.voxel_positions(voxel_size=(2.0, 4.0, 5.0), origin=(10.0, 20.0, 30.0))
-    x, y, z = poured.positions.T
-    np.testing.assert_allclose(vox, np.column_stack([(z - 30) / 2, (y - 20) / 4, (x - 10) / 5]))
 
 
 @pytest.mark.parametrize(

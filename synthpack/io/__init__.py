@@ -72,20 +72,7 @@ the storage libraries.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from .._shared.exports import lazy_exports
-
-if TYPE_CHECKING:
-    from .atomic import atomic_directory, atomic_file
-    from ._registry import SUPPORTED_FORMATS
-    from .itk import check_nifti_writer, write_nifti
-    from .label_images import LABEL_IMAGE_SUFFIXES, read_label_image, write_label_image
-    from .lazy import memmap_volume, read_box, read_slice
-    from .read import read_scan, read_tomogram, read_volume
-    from .tiff import write_tiff
-    from .units import convert_voxel_size
-    from .zarr_store import create_zarr_volume, write_zarr
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "LABEL_IMAGE_SUFFIXES": ".label_images",

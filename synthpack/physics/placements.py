@@ -7,7 +7,7 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -142,35 +142,6 @@ class Placements:
         phi in [-pi/2, pi/2].
         """
         return self.rotations().as_euler("xyz")
-
-    def voxel_positions(
-        self,
-        voxel_size: Sequence[float] | None = None,
-        origin: Sequence[float] | None = None,
-    ) -> np.ndarray:
-        """Positions of the local origins as fractional voxel indices of a grid.
-
-        Parameters
-        ----------
-        voxel_size : (dz, dy, dx), optional
-            The grid's voxel size, physical units; default the library's.
-        origin : (x, y, z), optional
-            World position (physical units) of the CENTRE of voxel (0, 0, 0); default
-            ``(-R, -R, -base)`` with ``R`` the tube's outer radius, i.e. a grid whose
-            corner is the corner of the tube's bounding box.
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) float64 indices ``(k, j, i)`` along array axes (z, y, x).
-        """
-        dz, dy, dx = (float(v) for v in (voxel_size if voxel_size is not None else self.voxel_size))
-        if origin is None:
-            big_r = self.tube.outer_radius
-            origin = (-big_r, -big_r, -self.tube.base_thickness)
-        ox, oy, oz = (float(v) for v in origin)
-        x, y, z = self.positions.T
-        return np.column_stack([(z - oz) / dz, (y - oy) / dy, (x - ox) / dx])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dictionary (without `snapshots`); version 1 (no ``grains`` key) when `grains` is None."""

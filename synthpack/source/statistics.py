@@ -14,10 +14,10 @@ from .noise_estimate import estimate_noise
 from .phases import estimate_phases
 from .psf import fit_edge_spread
 from .pore_histogram import measure_pore_quantiles
-from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum
+from .pore_spectrum import measure_pore_spectrum
 from .scanner import measure_scanner
 from .specimen import solid_fraction, specimen_mask
-from .spectrum import NPS_PATCH, phase_interiors, phase_spectra
+from .spectrum import phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
 
@@ -143,17 +143,6 @@ class SourceStatistics:
         use it signed.
         """
         return self.grain_mean - self.pore_mean
-
-    @property
-    def nps_frequencies(self) -> tuple[float, ...]:
-        """Centre frequency (cycles/voxel) of each ring of `nps_grains` and `nps_pores`."""
-        n = len(self.nps_grains or self.nps_pores or ())
-        return tuple((k + 1) / NPS_PATCH for k in range(n))
-
-    @property
-    def pore_spectrum_frequencies(self) -> tuple[float, ...]:
-        """Centre frequency (cycles/voxel) of each shell of `pore_spectrum`."""
-        return tuple(k / PORE_SPECTRUM_SIZE for k in range(len(self.pore_spectrum or ())))
 
     def summary(self) -> str:
         """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction.
