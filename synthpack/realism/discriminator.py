@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._shared.schema import non_negative, positive, setting
 from ..errors import SynthpackInputError
 from ..source.lattice import patch_corners, take_patches
 from .region import Specimen
@@ -167,12 +168,12 @@ class CnnConfig:
         Torch threads while training; 1 makes the scores independent of the machine (`synthpack.realism.cnn`).
     """
 
-    epochs: int = 20
-    batch_size: int = 64
-    learning_rate: float = 3e-3
-    weight_decay: float = 1e-4
-    width: int = 16
-    threads: int = 1
+    epochs: int = setting(20, positive, "passes over each training fold")
+    batch_size: int = setting(64, positive, "patches per minibatch")
+    learning_rate: float = setting(3e-3, positive, "peak Adam step size of the one-cycle schedule")
+    weight_decay: float = setting(1e-4, non_negative, "L2 penalty on the weights")
+    width: int = setting(16, positive, "channels of the first convolutions")
+    threads: int = setting(1, positive, "torch threads while training (1: scores independent of the machine)")
 
 
 @dataclass
