@@ -119,7 +119,7 @@ def test_pour_refuses_a_user_file_and_replaces_its_own(user_folder, library):
 
 # 3. staging folders: cleaned when the final rename fails, and when a killed run left them
 def test_a_failed_final_rename_leaves_no_staging_folder(tmp_path, monkeypatch):
-    from synthpack._shared import atomic as _atomic
+    from synthpack.io import atomic as _atomic
 
     target = tmp_path / "out"
     real_replace = os.replace
