@@ -108,7 +108,8 @@ def test_each_device_step_equals_its_numpy_block_step_over_the_whole_block(volum
     from synthpack.artefacts.torch_blocks import DeviceVolume
 
     device = DeviceVolume("cpu")
-    block = volume[3:20, 5:33, 2:40]
+    block = volume[3:20, 5:33, 2:40]  # a view: the device tensor on the CPU shares its memory
+    before = block.copy()
     params = transform.sample(np.random.default_rng(0))
 
     def context() -> BlockContext:  # a fresh block generator for each path: the same draws
@@ -118,7 +119,7 @@ def test_each_device_step_equals_its_numpy_block_step_over_the_whole_block(volum
     got = device.get(transform._transform_block_torch(device.put(block), context(), device, **params))
     assert got.shape == expected.shape
     assert np.abs(got - expected).max() <= 1e-5 * np.ptp(expected)
-    assert np.array_equal(block, volume[3:20, 5:33, 2:40])  # neither step modified its input
+    assert np.array_equal(block, before)  # neither step modified its input
 
 
 class _DarkRings(RingArtefacts):

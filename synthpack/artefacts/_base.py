@@ -168,7 +168,7 @@ class Transform(ABC):
         returns a new float32 tensor of its shape there.
 
         A transform that has a torch step overrides this in its own module (importing
-        torch there, inside the method) and inherits it to its subclasses; this default
+        torch there, inside the method), and its subclasses inherit it; this default
         has none (`has_torch_step` is False), and a pipeline holding such a transform
         runs on the CPU.
         """

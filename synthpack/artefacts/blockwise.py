@@ -59,7 +59,7 @@ from ._base import BlockContext, Compose, Transform
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["apply_blockwise", "device_for", "steps", "without_torch"]
+__all__ = ["apply_blockwise", "device_for", "steps"]
 
 _PARAMS, _CALL, _BLOCK = 0, 1, 2
 
@@ -209,7 +209,7 @@ def _run_pass(
         target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
 
 
-def without_torch(pipeline: Transform | Compose) -> list[str]:
+def _without_torch(pipeline: Transform | Compose) -> list[str]:
     """The names of the transforms of `pipeline` without a torch step (empty: it can run on a device)."""
     return [t.name for t in steps(pipeline) if not t.has_torch_step]
 
@@ -217,10 +217,10 @@ def without_torch(pipeline: Transform | Compose) -> list[str]:
 def device_for(pipeline: Transform | Compose, device: str | None) -> str | None:
     """The torch device `pipeline` runs on when `apply_blockwise` is asked for `device`.
 
-    `device` itself where every transform has a torch step (`without_torch` is empty),
+    `device` itself where every transform has a torch step (`Transform.has_torch_step`),
     else None (NumPy on the CPU).
     """
-    return None if device is None or without_torch(pipeline) else device
+    return None if device is None or _without_torch(pipeline) else device
 
 
 def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
@@ -229,7 +229,7 @@ def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
     if runs_on is None:
         if device is not None:
             logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
-                        ", ".join(sorted(set(without_torch(pipeline)))))
+                        ", ".join(sorted(set(_without_torch(pipeline)))))
         return _HostSteps()
     logger.info("post-processing on %s", runs_on)
     return _DeviceSteps(runs_on)
