@@ -23,6 +23,7 @@ from synthpack.artefacts import (
     RingArtefacts,
     SpeckleNoise,
 )
+from synthpack.artefacts._base import BlockContext
 from synthpack.artefacts.blockwise import apply_blockwise, device_for
 
 CHUNKS = (8, 16, 13)  # cuts every axis unevenly; the blurs' halos cross block edges and the volume's border
@@ -104,16 +105,38 @@ def test_the_numpy_path_does_not_import_torch():
 ], ids=lambda t: t.name)
 def test_each_device_step_equals_its_numpy_block_step_over_the_whole_block(volume, transform):
     """Halo included: a blur mirrors beyond the block's edges as SciPy's "reflect" does."""
-    from synthpack.artefacts.torch_blocks import DeviceSteps
+    from synthpack.artefacts.torch_blocks import DeviceVolume
 
-    steps = DeviceSteps("cpu")
-    block, origin, shape = volume[3:20, 5:33, 2:40], (3, 5, 2), volume.shape
+    device = DeviceVolume("cpu")
+    block = volume[3:20, 5:33, 2:40]  # a view: the device tensor on the CPU shares its memory
+    before = block.copy()
     params = transform.sample(np.random.default_rng(0))
 
-    def run(step, put, get):
-        return get(step(put(block), np.random.default_rng(1), np.random.SeedSequence(2), origin, shape, **params))
+    def context() -> BlockContext:  # a fresh block generator for each path: the same draws
+        return BlockContext(np.random.default_rng(1), np.random.SeedSequence(2), (3, 5, 2), volume.shape)
 
-    expected = run(transform._transform_block, np.asarray, np.asarray)
-    got = run(steps.step(transform), steps.put, steps.get)
+    expected = transform._transform_block(block, context(), **params)
+    got = device.get(transform._transform_block_torch(device.put(block), context(), device, **params))
     assert got.shape == expected.shape
     assert np.abs(got - expected).max() <= 1e-5 * np.ptp(expected)
+    assert np.array_equal(block, before)  # neither step modified its input
+
+
+class _DarkRings(RingArtefacts):
+    """A user's ring transform, every ring darker: the parent's name and block steps, its own map."""
+
+    def _slice_map(self, shape, rng, **params):
+        return -np.abs(super()._slice_map(shape, rng, **params))
+
+
+def test_a_subclass_of_a_transform_gets_its_torch_step(volume):
+    pipeline = Compose([GaussianBlur(sigma=0.8), _DarkRings(amplitude=0.05, n_rings=4)])
+    assert all(t.has_torch_step for t in pipeline) and not PoissonNoise().has_torch_step
+    assert device_for(pipeline, "cpu") == "cpu"
+    (numpy_out, numpy_record), (torch_out, torch_record) = _both(pipeline, volume, "cpu")
+    assert torch_record == numpy_record
+    assert np.abs(torch_out - numpy_out).max() <= 1e-5 * np.ptp(numpy_out)
+    # the device path ran the subclass's own map: every ring darkens what the blur left
+    blurred = np.empty_like(volume)
+    apply_blockwise(pipeline[0], volume, blurred, 7, CHUNKS)
+    assert (torch_out <= blurred + 1e-6).all() and (torch_out < blurred - 1e-3).any()

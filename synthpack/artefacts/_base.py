@@ -20,7 +20,8 @@ from __future__ import annotations
 import logging
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any, ClassVar, Union
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar, Union
 
 import numpy as np
 
@@ -28,9 +29,15 @@ from .._shared.arrays import as_image
 from ..errors import SynthpackInputError
 from ._param import Param
 
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
+
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "BlockContext",
     "Compose",
     "RngLike",
     "Transform",
@@ -47,6 +54,29 @@ _REGISTRY: dict[str, type[Transform]] = {}
 
 
 _P = Param("p", minimum=0.0, maximum=1.0, rangeable=False)
+
+
+@dataclass(frozen=True)
+class BlockContext:
+    """Where a block sits in the volume, and its random sources: what a block step gets besides the block.
+
+    Attributes
+    ----------
+    rng : numpy.random.Generator
+        The block's own generator (its noise).
+    call : numpy.random.SeedSequence
+        The same for every block of a call: seeds what is drawn once per volume
+        (e.g. ring radii), so that every block draws the same.
+    origin : tuple of 3 int
+        The global index (z, y, x) of the block's first voxel.
+    shape : tuple of 3 int
+        The whole volume's shape.
+    """
+
+    rng: np.random.Generator
+    call: np.random.SeedSequence
+    origin: tuple[int, int, int]
+    shape: tuple[int, int, int]
 
 
 class Transform(ABC):
@@ -100,37 +130,58 @@ class Transform(ABC):
         """
         return (0, 0, 0)
 
-    def _transform_block(
-        self,
-        block: np.ndarray,
-        rng: np.random.Generator,
-        call: np.random.SeedSequence,
-        origin: tuple[int, int, int],
-        shape: tuple[int, int, int],
-        **params: Any,
-    ) -> np.ndarray:
+    def _transform_block(self, block: np.ndarray, context: BlockContext, **params: Any) -> np.ndarray:
         """The core on one block of a larger volume (see `synthpack.artefacts.blockwise`).
 
         Parameters
         ----------
         block : ndarray of float32, shape (z, y, x)
-            The input box whose first voxel is `origin` in a volume of `shape`
-            (with the halo for ``"neighbourhood"`` transforms, whole slices for
-            ``"slice"`` ones).
-        rng : numpy.random.Generator
-            This block's own generator (noise).
-        call : numpy.random.SeedSequence
-            The same for every block of the call: seeds what is drawn once per
-            volume (e.g. ring radii), so that every block draws the same.
-        origin, shape : tuple of 3 int
-            Where the block sits, and the whole volume's shape.
+            The input box whose first voxel is ``context.origin`` in a volume of
+            ``context.shape`` (with the halo for ``"neighbourhood"`` transforms, whole
+            slices for ``"slice"`` ones). Never modified.
+        context : BlockContext
+            Where the block sits and its random sources.
         **params
             The drawn parameter values.
 
-        The default applies `_transform` to the block: right for transforms whose
-        only draws are per-voxel noise and for neighbourhood filters.
+        Returns
+        -------
+        ndarray of float32, the shape of `block`
+            A new array.
+
+        The default applies `_transform` to the block, with the block's generator:
+        right for transforms whose only draws are per-voxel noise and for
+        neighbourhood filters.
         """
-        return self._transform(block, rng, **params)
+        return self._transform(block, context.rng, **params)
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: Any
+    ) -> torch.Tensor:
+        """`_transform_block` in torch, on `block`'s device: the same values within float32 rounding.
+
+        Every random draw and table is made on the CPU by the NumPy code of the
+        transform's module, from the same generators as `_transform_block`; only the
+        arithmetic runs on the device. `device` moves arrays there and keeps what is
+        made once per volume (`~synthpack.artefacts.torch_blocks.DeviceVolume`).
+        `block` (float32, shape (z, y, x), on ``device.device``) is never modified;
+        returns a new float32 tensor of its shape there.
+
+        A transform that has a torch step overrides this in its own module (importing
+        torch there, inside the method), and its subclasses inherit it; this default
+        has none (`has_torch_step` is False), and a pipeline holding such a transform
+        runs on the CPU.
+        """
+        raise NotImplementedError(f"{type(self).__name__} ({self.name!r}) has no torch block step")
+
+    @property
+    def has_torch_step(self) -> bool:
+        """Whether the transform, or a class it derives from, defines `_transform_block_torch`."""
+        return type(self)._transform_block_torch is not Transform._transform_block_torch
+
+    def record_entry(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """One entry of a record: ``{"name": ..., <parameter>: <value drawn>, ...}``, JSON/YAML-ready."""
+        return {"name": self.name, **_plain(params)}
 
     def apply(self, image: Any, rng: RngLike) -> tuple[np.ndarray, list[dict[str, Any]]]:
         """Apply the transform and return ``(output, record)``.
@@ -160,7 +211,7 @@ class Transform(ABC):
         drawn = self.sample(generator)
         logger.debug("%s %s on shape %s", self.name, drawn, array.shape)
         out = self._transform(array, generator, **drawn)
-        return out, [{"name": self.name, **_plain(drawn)}]
+        return out, [self.record_entry(drawn)]
 
     def __call__(self, image: Any, rng: RngLike) -> np.ndarray:
         """Apply the transform; see `apply`, which also returns the record."""

@@ -25,11 +25,12 @@ and the voxel transforms after it join that pass, so the default pipeline
 intermediate volumes to a `scratch` array.
 
 **On a torch device** (``device``, e.g. ``"cuda"``): each block is moved to the
-device, the steps run there (`synthpack.artefacts.torch_blocks`) and the finished
+device, each transform's own torch step runs there
+(`Transform._transform_block_torch`, defined beside its NumPy step) and the finished
 block comes back; reading, the block loop, the passes and every random draw are the
 same as on the CPU, so the result is the NumPy path's within float32 rounding. A
-pipeline holding any transform without a torch version runs on the CPU as a whole
-(logged at INFO), so a result never mixes the two.
+pipeline holding any transform without a torch step (`Transform.has_torch_step`) runs
+on the CPU as a whole (logged at INFO), so a result never mixes the two.
 
 Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
 from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
@@ -42,6 +43,7 @@ order); their statistics are the same.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -53,7 +55,7 @@ import numpy as np
 from .._shared.chunks import bounded_map, chunk_boxes, thread_count
 from .._shared.arrays import as_image
 from ..errors import SynthpackInputError
-from ._base import Compose, Transform, _plain
+from ._base import BlockContext, Compose, Transform
 
 logger = logging.getLogger(__name__)
 
@@ -147,6 +149,34 @@ class _HostSteps:
         return transform._transform_block
 
 
+class _DeviceSteps:
+    """The torch block steps on `device`: each transform's own `_transform_block_torch`, blocks moved there and back.
+
+    Each step gets its own `~synthpack.artefacts.torch_blocks.DeviceVolume`, which keeps
+    its per-volume tables for the blocks of its pass.
+    """
+
+    def __init__(self, device: str) -> None:
+        from .torch_blocks import DeviceVolume  # imports torch: only when a device is asked for
+
+        self._volume = functools.partial(DeviceVolume, device)
+        self._blocks = self._volume()
+
+    def put(self, block: np.ndarray) -> Any:
+        return self._blocks.put(block)
+
+    def get(self, block: Any) -> np.ndarray:
+        return self._blocks.get(block)
+
+    def step(self, transform: Transform) -> Callable[..., Any]:
+        return functools.partial(_torch_step, transform, self._volume())
+
+
+def _torch_step(transform: Transform, volume: Any, block: Any, context: BlockContext, **params: Any) -> Any:
+    """`transform`'s torch step with its `volume`, called as `_HostSteps`' steps are."""
+    return transform._transform_block_torch(block, context, volume, **params)
+
+
 def _run_pass(
     passed: list[_Step], source: Any, target: Any, seed: int, chunks: tuple[int, int, int], threads: int,
     where: _Where,
@@ -154,7 +184,7 @@ def _run_pass(
     """One pass over the volume: its lead step (with halo or whole slices), then its voxel steps.
 
     An empty pass copies `source` to `target`. `where` runs the steps: `_HostSteps`, or
-    `torch_blocks.DeviceSteps` (blocks moved to a torch device and back).
+    `_DeviceSteps` (blocks moved to a torch device and back).
     """
     shape = tuple(int(n) for n in source.shape)
     head = passed[0] if passed else None
@@ -166,9 +196,9 @@ def _run_pass(
         out = where.put(_read_with_halo(source, lo, hi, halo))
         origin = tuple(int(v) for v in lo - halo)
         for step, function in zip(passed, functions):
-            out = function(
-                out, np.random.default_rng([seed, step.index, _BLOCK, *map(int, lo)]),
-                np.random.SeedSequence([seed, step.index, _CALL]), origin, shape, **step.params)
+            context = BlockContext(np.random.default_rng([seed, step.index, _BLOCK, *map(int, lo)]),
+                                   np.random.SeedSequence([seed, step.index, _CALL]), origin, shape)
+            out = function(out, context, **step.params)
             if step is head and halo.any():
                 out = out[tuple(slice(int(h), int(h) + int(n)) for h, n in zip(halo, hi - lo))]
                 origin = tuple(int(v) for v in lo)
@@ -179,34 +209,30 @@ def _run_pass(
         target[tuple(slice(a, b) for a, b in zip(lo, hi))] = values
 
 
+def _without_torch(pipeline: Transform | Compose) -> list[str]:
+    """The names of the transforms of `pipeline` without a torch step (empty: it can run on a device)."""
+    return [t.name for t in steps(pipeline) if not t.has_torch_step]
+
+
 def device_for(pipeline: Transform | Compose, device: str | None) -> str | None:
     """The torch device `pipeline` runs on when `apply_blockwise` is asked for `device`.
 
-    `device` itself where every transform has a torch version
-    (`synthpack.artefacts.torch_blocks`), else None (NumPy on the CPU). Imports torch
-    only when `device` is not None.
+    `device` itself where every transform has a torch step (`Transform.has_torch_step`),
+    else None (NumPy on the CPU).
     """
-    if device is None:
-        return None
-    from . import torch_blocks  # imports torch: only when a device is asked for
-
-    return None if torch_blocks.without_torch(steps(pipeline)) else device
+    return None if device is None or _without_torch(pipeline) else device
 
 
 def _steps_on(pipeline: Transform | Compose, device: str | None) -> _Where:
-    """What runs the steps: `torch_blocks.DeviceSteps` on `device` if every transform has a torch version."""
+    """What runs the steps: `_DeviceSteps` on `device` if every transform has a torch step, else `_HostSteps`."""
     runs_on = device_for(pipeline, device)
     if runs_on is None:
         if device is not None:
-            from . import torch_blocks
-
             logger.info("post-processing on the CPU, not on %s: no torch version of %s", device,
-                        ", ".join(sorted(set(torch_blocks.without_torch(steps(pipeline))))))
+                        ", ".join(sorted(set(_without_torch(pipeline)))))
         return _HostSteps()
-    from . import torch_blocks
-
     logger.info("post-processing on %s", runs_on)
-    return torch_blocks.DeviceSteps(runs_on)
+    return _DeviceSteps(runs_on)
 
 
 def apply_blockwise(
@@ -243,10 +269,10 @@ def apply_blockwise(
         Returns a new array like `target`, for the intermediate volume of
         pipelines of more than one pass (see the module docstring).
     device : str, optional
-        A torch device (``"cuda"``, ``"cuda:1"``, ``"cpu"``) to run the steps on
-        (`synthpack.artefacts.torch_blocks`): the same values within float32 rounding,
-        with the same random draws. A pipeline holding a transform without a torch
-        version runs on the CPU as a whole (logged). Default None: NumPy on the CPU.
+        A torch device (``"cuda"``, ``"cuda:1"``, ``"cpu"``) to run the steps on (each
+        transform's `~Transform._transform_block_torch`): the same values within float32
+        rounding, with the same random draws. A pipeline holding a transform without a
+        torch step runs on the CPU as a whole (logged). Default None: NumPy on the CPU.
 
     Returns
     -------
@@ -283,4 +309,4 @@ def apply_blockwise(
                      ", ".join(s.transform.name for s in passed) or "copy")
         _run_pass(passed, current, out, seed, chunks, threads, where)
         current = out
-    return [{"name": s.transform.name, **_plain(s.params)} for s in drawn]
+    return [s.transform.record_entry(s.params) for s in drawn]

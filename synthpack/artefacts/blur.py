@@ -3,17 +3,33 @@
 Both work on a volume (Z, Y, X) or a slice (H, W) of float32 intensities, with
 lengths in voxels. Borders are handled by mirroring (``mode="reflect"``), so a
 uniform image stays uniform.
+
+Their torch block steps apply this module's kernels (`gaussian_kernel`,
+`line_kernel`) to the block mirrored beyond its edges as SciPy's ``"reflect"``
+(NumPy's ``"symmetric"``) mirrors it, as weighted sums of shifted copies (the
+Gaussian separably, axis after axis) in float64, rounded to float32 after each axis
+as SciPy rounds: plain multiply-adds, so no reduced-precision (TF32) convolution can
+enter, and the values are SciPy's but for the order of the sum. (A float32 sum
+differs in the last bits, which the coloured noise's ``sqrt`` of the grain fraction
+amplifies near the pore level to about 1e-5 of the intensity range.)
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
 
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import Param, Range
+
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
 
 __all__ = ["GaussianBlur", "MotionBlur", "gaussian_kernel", "line_kernel"]
 
@@ -87,6 +103,34 @@ def line_kernel(length: float, angle: float) -> np.ndarray:
     return kernel / kernel.sum()
 
 
+def _mirrored(device: DeviceVolume, block: torch.Tensor, halo: Iterable[int]) -> torch.Tensor:
+    """`block` extended by `halo` voxels on both sides of each axis, mirrored (NumPy ``"symmetric"``)."""
+    for axis, h in enumerate(halo):
+        if h:
+            n = block.shape[axis]
+            index = np.arange(-h, n + h) % (2 * n)
+            index = np.where(index < n, index, 2 * n - 1 - index)
+            block = block.index_select(axis, device.put(index))
+    return block
+
+
+def _correlate(padded: torch.Tensor, kernel: np.ndarray) -> torch.Tensor:
+    """The "valid" correlation of `padded` with `kernel` (same number of axes): ``sum_k kernel[k] padded[k:k+n]``.
+
+    Summed in float64 over the non-zero weights and rounded to float32 once, as SciPy's
+    filters sum and round (so the result is theirs but for the order of the sum). The
+    output is smaller than `padded` by ``kernel.shape - 1`` on each axis.
+    """
+    import torch
+
+    shape = [int(n) - k + 1 for n, k in zip(padded.shape, kernel.shape)]
+    wide = padded.to(torch.float64)
+    out = torch.zeros(shape, dtype=torch.float64, device=padded.device)
+    for offset in zip(*np.nonzero(kernel)):
+        out.add_(wide[tuple(slice(int(o), int(o) + n) for o, n in zip(offset, shape))], alpha=float(kernel[offset]))
+    return out.to(torch.float32)
+
+
 class GaussianBlur(Transform):
     """Isotropic Gaussian blur: the point-spread of the detector and focal spot.
 
@@ -119,6 +163,17 @@ class GaussianBlur(Transform):
         if sigma == 0:
             return image.copy()
         return ndimage.gaussian_filter(image, sigma, output=np.float32, mode="reflect", truncate=_TRUNCATE)
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, *, sigma: float
+    ) -> torch.Tensor:
+        if sigma == 0:
+            return block.clone()
+        kernel = gaussian_kernel(sigma)
+        out = _mirrored(device, block, (kernel.size // 2,) * 3)
+        for axis in range(3):
+            out = _correlate(out, kernel.reshape([-1 if a == axis else 1 for a in range(3)]))
+        return out
 
 
 class MotionBlur(Transform):
@@ -161,3 +216,13 @@ class MotionBlur(Transform):
         if image.ndim == 3:
             kernel = kernel[None]
         return ndimage.convolve(image, kernel, output=np.float32, mode="reflect")
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, *, length: float, angle: float
+    ) -> torch.Tensor:
+        kernel = line_kernel(length, angle).astype(np.float32)  # the weights `_transform` gives SciPy
+        if kernel.size == 1:
+            return block.clone()
+        half = kernel.shape[0] // 2
+        # SciPy's convolve is a correlation with the flipped kernel
+        return _correlate(_mirrored(device, block, (0, half, half)), np.flip(kernel)[None])

@@ -24,21 +24,30 @@ into blocks. The cube's white noise is drawn once per volume from the call's see
 ``sqrt(1 - w) n_pore + sqrt(w) n_grain``: its variance is interpolated linearly
 between the two phases' (CT noise variance depends on the intensity), and grain
 and pore keep their own spectra. Either contrast sign works.
+
+**On a torch device** the noise cubes are made on the CPU as above and moved to the
+device once per volume; the periodic gather and the mixing by phase fraction run there.
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import optimize
 
-from .._shared.arrays import periodic_window
+from .._shared.arrays import float32_value as _f32
+from .._shared.arrays import periodic_indices, periodic_window
 from ..source.spectrum import NPS_PATCH, ring_of
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import Param
+
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
 
 __all__ = ["ColouredNoise", "TILE", "highpass_variance_of_spectrum", "ring_powers_of_spectrum", "spectrum_for_rings"]
 
@@ -212,10 +221,30 @@ class ColouredNoise(Transform):
         key = tuple(int(v) for v in rng.integers(0, 2**32, size=2))
         return image + self._noise(image, key, (0,) * image.ndim, **params)
 
-    def _transform_block(
-        self, block: np.ndarray, rng: np.random.Generator, call: np.random.SeedSequence,
-        origin: tuple[int, int, int], shape: tuple[int, int, int], **params: Any,
-    ) -> np.ndarray:
-        noise = self._noise(block, self._call_key(call), origin, **params)
+    def _transform_block(self, block: np.ndarray, context: BlockContext, **params: Any) -> np.ndarray:
+        noise = self._noise(block, self._call_key(context.call), context.origin, **params)
         noise += block
         return noise
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: Any
+    ) -> torch.Tensor:
+        key = self._call_key(context.call)
+        tiles = device.once(("tiles", key), lambda: [device.put(t) for t in self._tiles(key, **params)])
+        pore_field, grain_field = (_periodic_window(device, tile, context.origin, block.shape) for tile in tiles)
+        contrast = params["grain_level"] - params["pore_level"]
+        grain = ((block - _f32(params["pore_level"])) / _f32(contrast if contrast else 1.0)).clamp_(0.0, 1.0)
+        pore = 1.0 - grain
+        pore_field *= pore.sqrt_()
+        grain_field *= grain.sqrt_()
+        pore_field += grain_field
+        return pore_field.add_(block)
+
+
+def _periodic_window(device: DeviceVolume, tile: torch.Tensor, origin: Sequence[int],
+                     shape: Sequence[int]) -> torch.Tensor:
+    """`synthpack._shared.arrays.periodic_window` on the device: the same indices, gathered there."""
+    out = tile
+    for axis, index in enumerate(periodic_indices(origin, shape, tile.shape)):
+        out = out.index_select(axis, device.put(index))
+    return out

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from skimage.transform import iradon, radon
 
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import Param, Range
 
 logger = logging.getLogger(__name__)
@@ -153,17 +153,9 @@ class CTSimulation(Transform):
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
         return self._scan(image, image.shape, rng, rng, **params)
 
-    def _transform_block(
-        self,
-        block: np.ndarray,
-        rng: np.random.Generator,
-        call: np.random.SeedSequence,
-        origin: tuple[int, int, int],
-        shape: tuple[int, int, int],
-        **params: Any,
-    ) -> np.ndarray:
-        """Scan the block's whole slices with the gains drawn from `call` (the same in every block)."""
-        return self._scan(block, shape, np.random.default_rng(call), rng, **params)
+    def _transform_block(self, block: np.ndarray, context: BlockContext, **params: Any) -> np.ndarray:
+        """Scan the block's whole slices with the gains drawn from ``context.call`` (the same in every block)."""
+        return self._scan(block, context.shape, np.random.default_rng(context.call), context.rng, **params)
 
     def _scan(
         self,

@@ -9,15 +9,20 @@ applies such a response point by point, between a pore and a grain level.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._shared.arrays import float32_value as _f32
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import Param, Range
 
-__all__ = ["ContrastGamma", "response"]
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
+
+__all__ = ["ContrastGamma"]
 
 
 class ContrastGamma(Transform):
@@ -58,10 +63,17 @@ class ContrastGamma(Transform):
         super().__init__(contrast=contrast, gamma=gamma, pore_level=pore_level, grain_level=grain_level, p=p)
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: float) -> np.ndarray:
-        return response(image, np.sign, **params).astype(np.float32, copy=False)
+        return _response(image, np.sign, **params).astype(np.float32, copy=False)
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: float
+    ) -> torch.Tensor:
+        import torch
+
+        return _response(block, torch.sign, **params)
 
 
-def response(image: Any, sign: Callable[[Any], Any], *, contrast: float, gamma: float, pore_level: float,
+def _response(image: Any, sign: Callable[[Any], Any], *, contrast: float, gamma: float, pore_level: float,
              grain_level: float) -> Any:
     """`ContrastGamma`'s response of float32 intensities: a NumPy array, or a torch tensor on any device.
 

@@ -8,13 +8,21 @@ is bounded. The noise of different voxels is independent ("white").
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._shared.arrays import float32_value as _f32
 from .._shared.arrays import slabs
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import Param, Range
+
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
 
 __all__ = ["GaussianNoise", "PoissonNoise", "SpeckleNoise"]
 
@@ -33,25 +41,6 @@ def _standard_noise(shape: tuple[int, ...], rng: np.random.Generator) -> Iterato
         yield s, rng.standard_normal((s.stop - s.start, *shape[1:]), dtype=np.float32)
 
 
-def _gaussian_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    """``image + N(0, std^2)`` per voxel; float32, a new array."""
-    out = np.empty(image.shape, dtype=np.float32)
-    for s, noise in _standard_noise(image.shape, rng):
-        noise *= np.float32(std)
-        np.add(image[s], noise, out=out[s])
-    return out
-
-
-def _speckle_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    """``image * (1 + N(0, std^2))`` per voxel; float32, a new array."""
-    out = np.empty(image.shape, dtype=np.float32)
-    for s, factor in _standard_noise(image.shape, rng):
-        factor *= np.float32(std)
-        factor += np.float32(1.0)
-        np.multiply(image[s], factor, out=out[s])
-    return out
-
-
 def _poisson_noise(image: np.ndarray, photons: float, rng: np.random.Generator) -> np.ndarray:
     """``Poisson(photons * max(image, 0)) / photons`` per voxel; float32, a new array."""
     out = np.empty(image.shape, dtype=np.float32)
@@ -61,7 +50,45 @@ def _poisson_noise(image: np.ndarray, photons: float, rng: np.random.Generator) 
     return out
 
 
-class GaussianNoise(Transform):
+class _WhiteNoise(Transform):
+    """White Gaussian noise ``n ~ N(0, std^2)`` per voxel, combined with the image by `_combine`.
+
+    The noise is drawn slab by slab (`_standard_noise`); the torch step draws the
+    same slabs on the CPU from the block's generator and combines them on the device.
+    """
+
+    params = (Param("std", minimum=0.0),)
+
+    def __init__(self, std: Range = 0.05, *, p: float = 1.0) -> None:
+        super().__init__(std=std, p=p)
+
+    @staticmethod
+    @abstractmethod
+    def _combine(noise: Any, image: Any) -> Any:
+        """`noise` (float32, ``std * N(0, 1)``) combined with `image` (float32, its shape), in place of `noise`.
+
+        Both NumPy arrays or both torch tensors on one device; returns `noise`.
+        """
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, std: float) -> np.ndarray:
+        out = np.empty(image.shape, dtype=np.float32)
+        for rows, noise in _standard_noise(image.shape, rng):
+            noise *= np.float32(std)
+            out[rows] = self._combine(noise, image[rows])
+        return out
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, *, std: float
+    ) -> torch.Tensor:
+        import torch
+
+        out = torch.empty_like(block)
+        for rows, noise in _standard_noise(tuple(block.shape), context.rng):
+            out[rows] = self._combine(device.put(noise).mul_(_f32(std)), block[rows])
+        return out
+
+
+class GaussianNoise(_WhiteNoise):
     """Add white Gaussian noise of standard deviation `std` (the paper's post-processing).
 
     ``out = image + n``, ``n ~ N(0, std^2)`` independently per voxel.
@@ -76,16 +103,14 @@ class GaussianNoise(Transform):
     """
 
     name = "gaussian_noise"
-    params = (Param("std", minimum=0.0),)
 
-    def __init__(self, std: Range = 0.05, *, p: float = 1.0) -> None:
-        super().__init__(std=std, p=p)
-
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, std: float) -> np.ndarray:
-        return _gaussian_noise(image, std, rng)
+    @staticmethod
+    def _combine(noise: Any, image: Any) -> Any:
+        noise += image
+        return noise
 
 
-class SpeckleNoise(Transform):
+class SpeckleNoise(_WhiteNoise):
     """Multiplicative (speckle) noise: ``out = image * (1 + n)``, ``n ~ N(0, std^2)``.
 
     The noise standard deviation is ``std * |image|``, i.e. proportional to the
@@ -101,13 +126,12 @@ class SpeckleNoise(Transform):
     """
 
     name = "speckle_noise"
-    params = (Param("std", minimum=0.0),)
 
-    def __init__(self, std: Range = 0.05, *, p: float = 1.0) -> None:
-        super().__init__(std=std, p=p)
-
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, std: float) -> np.ndarray:
-        return _speckle_noise(image, std, rng)
+    @staticmethod
+    def _combine(noise: Any, image: Any) -> Any:
+        noise += 1.0
+        noise *= image
+        return noise
 
 
 class PoissonNoise(Transform):

@@ -4,19 +4,29 @@ The rotation axis of the scan is axis 0 (z) and passes through the centre of eve
 slice, ``((Y-1)/2, (X-1)/2)``; both artefacts are functions of the distance ``r``
 (voxels) from it only, and are the same in every slice (constant along z), as
 they are in a real scan. A 2D input is treated as one slice.
+
+Each is a map over one slice, made once per call by the NumPy code below (on a
+torch device too: the map is moved there once per volume), which every voxel is
+combined with: the rings are added, the cupping factor multiplies.
 """
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._shared.arrays import cupping_factor, radius_grid
 from ..errors import SynthpackInputError
-from ._base import Transform
+from ._base import BlockContext, Transform
 from ._param import IntRange, Param, Range
+
+if TYPE_CHECKING:
+    import torch
+
+    from .torch_blocks import DeviceVolume
 
 __all__ = ["BeamHardening", "RingArtefacts"]
 
@@ -39,7 +49,48 @@ def _ring_pattern(
     return np.interp(r, table_r, profile).astype(np.float32)
 
 
-class RingArtefacts(Transform):
+def _window(origin: Sequence[int], shape: Sequence[int]) -> tuple[slice, slice]:
+    """The (y, x) slices of a slice map covering a block of `shape` at `origin`."""
+    return tuple(slice(o, o + n) for o, n in zip(origin[-2:], shape[-2:]))  # type: ignore[return-value]
+
+
+class _SliceMap(Transform):
+    """A map over one slice (Y, X), the same in every slice, combined with every voxel by `_combine`.
+
+    A block is combined with its window of the whole slice's map, drawn from the
+    call's generator (``BlockContext.call``), so every block gets the same map.
+    """
+
+    @abstractmethod
+    def _slice_map(self, shape: tuple[int, ...], rng: np.random.Generator, **params: Any) -> np.ndarray:
+        """The map of one slice of an image of `shape`, its draws from `rng`: float32, (Y, X)."""
+
+    @staticmethod
+    @abstractmethod
+    def _combine(image: Any, map_: Any) -> Any:
+        """`image` (float32) combined with `map_` (its (y, x) window): both NumPy arrays or both torch tensors.
+
+        Returns a new array or tensor of the shape of `image`.
+        """
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
+        return self._combine(image, self._slice_map(image.shape, rng, **params))
+
+    def _volume_map(self, context: BlockContext, **params: Any) -> np.ndarray:
+        """The map of the whole volume's slice, drawn from ``context.call``."""
+        return self._slice_map(context.shape, np.random.default_rng(context.call), **params)
+
+    def _transform_block(self, block: np.ndarray, context: BlockContext, **params: Any) -> np.ndarray:
+        return self._combine(block, self._volume_map(context, **params)[_window(context.origin, block.shape)])
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: Any
+    ) -> torch.Tensor:
+        map_ = device.once("slice map", lambda: device.put(self._volume_map(context, **params)))
+        return self._combine(block, map_[_window(context.origin, block.shape)])
+
+
+class RingArtefacts(_SliceMap):
     """Concentric rings about the rotation axis, constant along z.
 
     A detector pixel whose response is slightly off shifts every projection ray
@@ -94,7 +145,7 @@ class RingArtefacts(Transform):
                 f"{len(self.amplitudes)} amplitudes and radii {self.radii!r}: give both lists, of the same length"
             )
 
-    def _pattern(
+    def _slice_map(
         self,
         shape: tuple[int, ...],
         rng: np.random.Generator,
@@ -117,24 +168,12 @@ class RingArtefacts(Transform):
             peaks = np.asarray(amplitudes, dtype=np.float64)
         return _ring_pattern(shape, ring_radii, peaks, width)
 
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: Any) -> np.ndarray:
-        return image + self._pattern(image.shape, rng, **params)
-
-    def _transform_block(
-        self,
-        block: np.ndarray,
-        rng: np.random.Generator,
-        call: np.random.SeedSequence,
-        origin: tuple[int, int, int],
-        shape: tuple[int, int, int],
-        **params: Any,
-    ) -> np.ndarray:
-        """The block plus its part of the pattern, drawn from `call` (the same rings in every block)."""
-        pattern = self._pattern(shape, np.random.default_rng(call), **params)
-        return block + pattern[_window(origin, block.shape)]
+    @staticmethod
+    def _combine(image: Any, map_: Any) -> Any:
+        return image + map_
 
 
-class BeamHardening(Transform):
+class BeamHardening(_SliceMap):
     """Cupping: intensities fall off (or, with a negative strength, rise) towards the centre of each slice.
 
     A polychromatic beam hardens (loses its soft photons) along long paths, so
@@ -169,24 +208,11 @@ class BeamHardening(Transform):
     def __init__(self, strength: Range = 0.05, *, keep: str = "rim", p: float = 1.0) -> None:
         super().__init__(strength=strength, keep=keep, p=p)
 
-    def _transform(self, image: np.ndarray, rng: np.random.Generator, *, strength: float, keep: str) -> np.ndarray:
-        return image * cupping_factor(image.shape, strength, keep)
+    def _slice_map(self, shape: tuple[int, ...], rng: np.random.Generator, *, strength: float,
+                   keep: str) -> np.ndarray:
+        """The cupping factor of one slice (`~synthpack._shared.arrays.cupping_factor`); nothing is drawn."""
+        return cupping_factor(shape, strength, keep)
 
-    def _transform_block(
-        self,
-        block: np.ndarray,
-        rng: np.random.Generator,
-        call: np.random.SeedSequence,
-        origin: tuple[int, int, int],
-        shape: tuple[int, int, int],
-        *,
-        strength: float,
-        keep: str,
-    ) -> np.ndarray:
-        """The block times its part of the whole slice's factor."""
-        return block * cupping_factor(shape, strength, keep)[_window(origin, block.shape)]
-
-
-def _window(origin: Sequence[int], shape: Sequence[int]) -> tuple[slice, slice]:
-    """The (y, x) slices of a slice pattern covering a block of `shape` at `origin`."""
-    return tuple(slice(o, o + n) for o, n in zip(origin[-2:], shape[-2:]))  # type: ignore[return-value]
+    @staticmethod
+    def _combine(image: Any, map_: Any) -> Any:
+        return image * map_
