@@ -383,7 +383,7 @@ def test_protrusion_measures_how_far_points_reach_outside_the_parts():
 
 
 def test_bad_engine_option_values_raise():
-    with pytest.raises(SynthpackInputError, match="'engine_options.max_hull_vertices' is out of range"):
+    with pytest.raises(SynthpackInputError, match="'pour.engine_options.max_hull_vertices' is out of range"):
         PourConfig(engine_options={"max_hull_vertices": 3})
 
 
