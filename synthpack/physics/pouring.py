@@ -69,12 +69,14 @@ def pour(
         The grains: meshes in the local frame (physical units), masses
         (density x volume, paper eq. 1), centres of mass.
     config : PourConfig
-        The pour's settings (the ``pour`` section of a pack config): count, batch size,
-        engine and its ``engine_options``, grain scale, tube, material and
-        ``target_solid_fraction`` (the bulk packing fraction to reach, batch by batch, by
-        compaction or spaced collision shells, :mod:`synthpack.physics.compaction`; the
-        reached value is in the checks, ``target_reached`` False and a warning when it is
-        more than :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
+        The pour's settings, the ``pour`` section of a pack config: count, batch size,
+        engine and its ``engine_options`` (recorded in ``Placements.parameters``), grain
+        scale, tube (:meth:`PourConfig.tube`), material and ``target_solid_fraction``, the
+        bulk packing fraction to reach, batch by batch, by compaction or spaced collision
+        shells (:mod:`synthpack.physics.compaction`); ``"source"`` is the source scan's
+        (``library.statistics.solid_fraction``), which an engine without compaction ignores
+        (a free pour). The reached value is in the checks (``target_reached`` False, and a
+        warning, when it is more than :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
     seed : int
         Seed of every random choice (grains, orientations, scales, spawn points).
     container : Tube, optional
