@@ -27,12 +27,13 @@ It builds the particle library of the built-in "large" sample scan once, then
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import numpy as np
 
 from synthpack.library.core import ParticleLibrary
-from synthpack.physics import Placements, SettleCriteria, Tube, pour
+from synthpack.physics import Placements, PourConfig, SettleCriteria, Tube, pour
 from synthpack.scan.samples import sample_scan
 
 PAPER_FRAMES = 1000
@@ -92,7 +93,8 @@ def main() -> None:
     target = library.statistics.solid_fraction
     for n in (n_small, n_large):
         for name, value in (("free pour (target none)", None), (f"packed to the source's {target:.3f}", "source")):
-            placements = pour(library, n, batch, seed=args.seed, progress=False, target_solid_fraction=value)
+            config = PourConfig(n_particles=n, batch_size=batch, target_solid_fraction=value)
+            placements = pour(library, config, args.seed, progress=False)
             reached = placements.checks.target_reached
             rows.append(_row(name, placements, "default tube" + ("" if value is None else f", reached: {reached}")))
             print(f"poured {n} grains ({name}) in {placements.checks.seconds:.1f} s")
@@ -101,14 +103,14 @@ def main() -> None:
 
     d = float(np.median(library.equivalent_diameters))
     narrow = Tube(inner_radius=2.0 * d, height=25.0 * d, wall_thickness=30.0, base_thickness=30.0)
-    ours = pour(library, n_baseline, batch, seed=args.seed, container=narrow, progress=False,
-                target_solid_fraction=None)
+    free = PourConfig(n_particles=n_baseline, batch_size=batch, target_solid_fraction=None)
+    ours = pour(library, free, args.seed, container=narrow, progress=False)
     rows.append(_row("default (settle detection)", ours, "tube r = 2 d_med, same pour as below"))
     print(f"poured {n_baseline} grains (narrow tube) in {ours.checks.seconds:.1f} s")
     paper = pour(
-        library, n_baseline, batch, seed=args.seed, container=narrow, progress=False,
+        library, dataclasses.replace(free, engine_options={"fixed_steps": PAPER_FRAMES, "allow_sleeping": False}),
+        args.seed, container=narrow, progress=False,
         settle=SettleCriteria(time_step=PAPER_FRAME_TIME, substeps=PAPER_SUBSTEPS),
-        engine_options={"fixed_steps": PAPER_FRAMES, "allow_sleeping": False}, target_solid_fraction=None,
     )
     rows.append(_row(
         "paper's Blender schedule (emulated)", paper,

@@ -51,7 +51,7 @@ from scipy.spatial.transform import Rotation
 
 from synthpack.pipeline.config import ReconstructConfig
 from synthpack.library.core import ParticleLibrary
-from synthpack.physics import Placements, pour
+from synthpack.physics import Placements, PourConfig, pour
 from synthpack.render.reconstruct import Background, Grid, pose_maps, reconstruct
 from synthpack.scan.samples import sample_scan
 
@@ -229,7 +229,7 @@ def target_speed_quality(workdir: Path) -> tuple[list[str], float]:
         placements = Placements.load(placements_path)
         poured = f"placements reused from {placements_path}"
     else:
-        placements = pour(library, 150, 50, seed=0, progress=False)
+        placements = pour(library, PourConfig(n_particles=150, batch_size=50), 0, progress=False)
         placements.save(placements_path)
         poured = f"poured in {placements.checks.seconds:.1f} s, saved to {placements_path}"
     pour_rate = placements.checks.seconds / len(placements)

@@ -44,7 +44,7 @@ import zarr
 from synthpack.pipeline.config import PackConfig
 from synthpack.library.core import ParticleLibrary
 from synthpack.store.pack import PACK_VOLUMES
-from synthpack.physics import Tube, pour
+from synthpack.physics import pour
 from synthpack.scan.samples import sample_scan
 from synthpack.store.zarr_pack import VOLUME_PATHS
 
@@ -98,11 +98,10 @@ def bandwidth_floor(store: Path, workdir: Path) -> dict[str, dict[str, float]]:
 
 def pour_per_grain(library: ParticleLibrary, n: int, radius: float, scale: float) -> float:
     """Seconds per grain of a pour of `n` grains in the bench's tube (the generate run's settings)."""
-    config = PackConfig().pour
-    tube = Tube.for_library(library, n, scale=scale, inner_radius=radius)
+    batch = min(n, PackConfig().pour.batch_size)
+    config = PackConfig().replace(pour={"n_particles": n, "batch_size": batch, "scale": scale, "tube_radius": radius})
     start = time.perf_counter()
-    pour(library, n, config.batch_size if n >= config.batch_size else n, seed=0, container=tube, scale=scale,
-         progress=False, target_solid_fraction=config.target_solid_fraction)
+    pour(library, config.pour, 0, progress=False)
     return (time.perf_counter() - start) / n
 
 

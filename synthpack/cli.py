@@ -38,9 +38,19 @@ logger = logging.getLogger("synthpack")
 __all__ = ["main"]
 
 _ENGINE_CHOICES = tuple(ENGINES)
-#: The `pour` command's options that are `PourConfig` settings (validated by it).
-_POUR_OPTIONS = ("n_particles", "batch_size", "engine", "collision_shape", "tube_radius", "tube_height",
-                 "target_solid_fraction")
+
+
+def _target_option(text: str) -> float | str:
+    """A ``--target-solid-fraction`` value: a number as a float, 'source' or 'none' as given (checked by PourConfig)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+#: The options of `pour` and `generate` that are `PourConfig` settings (validated by it), with their types.
+_POUR_OPTIONS = (("n_particles", int), ("batch_size", int), ("engine", str), ("collision_shape", str),
+                 ("tube_radius", float), ("tube_height", float), ("target_solid_fraction", _target_option))
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack.io.atomic.check_output`).
@@ -174,11 +184,7 @@ def _load_config(args: argparse.Namespace):
     from .pipeline.config import load_config
 
     config = load_config(args.config)
-    pour = {key: value for key, value in (
-        ("n_particles", args.n_particles), ("batch_size", args.batch_size), ("engine", args.engine),
-        ("collision_shape", args.collision_shape),
-        ("target_solid_fraction", args.target_solid_fraction),
-    ) if value is not None}
+    pour = _pour_options(args)
     changes = {"pour": pour} if pour else {}
     if args.seed is not None:
         changes["seed"] = args.seed
@@ -287,17 +293,8 @@ def _cmd_pour(args: argparse.Namespace) -> None:
     from .library.core import ParticleLibrary
     from .physics import pour
 
-    settings = build(PourConfig, {name: getattr(args, name) for name in _POUR_OPTIONS}, name=option_name)
-    library = ParticleLibrary.load(args.library)
-    container = None
-    if settings.tube_radius is not None or settings.tube_height is not None:
-        from .physics import Tube
-
-        container = Tube.for_library(library, settings.n_particles, inner_radius=settings.tube_radius,
-                                     height=settings.tube_height)
-    placements = pour(library, settings.n_particles, settings.batch_size, engine=settings.engine, seed=args.seed,
-                      container=container, material=settings.material(),
-                      target_solid_fraction=settings.target_solid_fraction)
+    config = build(PourConfig, _pour_options(args), name=option_name)
+    placements = pour(ParticleLibrary.load(args.library), config, args.seed, progress=not args.quiet)
     placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks
     packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
@@ -476,20 +473,13 @@ def _add_demo_command(commands: Any) -> None:
     demo.set_defaults(run=_cmd_demo)
 
 
-
 def _add_generate_command(commands: Any) -> None:
     generate = commands.add_parser("generate", help="make synthetic packs from a labelled scan or a library")
     _add_scan_arguments(generate)
     generate.add_argument("--library", type=Path, help="use a saved particle library instead of a scan")
     generate.add_argument("--out", type=Path, required=True, help="output folder: one pack_NNNN folder per pack")
     generate.add_argument("--n-packs", type=int, default=1, help="number of packs (default 1)")
-    generate.add_argument("--n-particles", type=int, help="grains per pack (config pour.n_particles)")
-    generate.add_argument("--batch-size", type=int, help="grains per batch (config pour.batch_size)")
-    generate.add_argument("--engine", choices=_ENGINE_CHOICES, help="rigid-body engine (config pour.engine)")
-    generate.add_argument("--collision-shape", choices=COLLISION_SHAPES,
-                          help=help_of(PourConfig, "collision_shape") + " (config pour.collision_shape)")
-    generate.add_argument("--target-solid-fraction", type=_target_option, metavar="TARGET",
-                          help=help_of(PourConfig, "target_solid_fraction").replace("(default", "(config default"))
+    _add_pour_arguments(generate, in_config=True)
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--deform-strength", type=float, metavar="S",
                           help=help_of(Deform, "strength") + " (config grains.deform.strength)")
@@ -515,7 +505,6 @@ def _add_generate_command(commands: Any) -> None:
     generate.set_defaults(run=_cmd_generate)
 
 
-
 def _add_compare_command(commands: Any) -> None:
     compare = commands.add_parser("compare", help="realism report: how close synthetic packs are to the source scan")
     _add_scan_arguments(compare)
@@ -537,32 +526,31 @@ def _add_compare_command(commands: Any) -> None:
     compare.set_defaults(run=_cmd_compare)
 
 
+def _add_pour_arguments(parser: argparse.ArgumentParser, in_config: bool = False) -> None:
+    """The options :data:`_POUR_OPTIONS`, unset unless given; `in_config`: their help names the config keys."""
+    choices = {"engine": _ENGINE_CHOICES, "collision_shape": COLLISION_SHAPES}
+    for name, kind in _POUR_OPTIONS:
+        text = help_of(PourConfig, name)
+        if in_config:
+            key = f"config pour.{name}"
+            text = text.replace("(default", f"({key}, default") if "(default" in text else f"{text} ({key})"
+        parser.add_argument("--" + name.replace("_", "-"), type=kind, choices=choices.get(name), help=text,
+                            metavar="TARGET" if kind is _target_option else None)
 
-def _target_option(text: str) -> float | str:
-    """A ``--target-solid-fraction`` value: a number as a float, 'source' or 'none' as given (checked by PourConfig)."""
-    try:
-        return float(text)
-    except ValueError:
-        return text
+
+def _pour_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The `PourConfig` settings given as options (:data:`_POUR_OPTIONS`), by name."""
+    return {name: getattr(args, name) for name, _ in _POUR_OPTIONS if getattr(args, name) is not None}
 
 
 def _add_pour_command(commands: Any) -> None:
     pour = commands.add_parser("pour", help="pour a library's grains into a tube (placements only)")
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
     pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
-    choices = {"engine": _ENGINE_CHOICES, "collision_shape": COLLISION_SHAPES}
-    for name, kind in (("n_particles", int), ("batch_size", int), ("engine", str), ("collision_shape", str)):
-        pour.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(PourConfig, name),
-                          help=help_of(PourConfig, name), **({"choices": choices[name]} if name in choices else {}))
+    _add_pour_arguments(pour)
     pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    for name in ("tube_radius", "tube_height"):
-        pour.add_argument("--" + name.replace("_", "-"), type=float, help=help_of(PourConfig, name))
-    pour.add_argument("--target-solid-fraction", type=_target_option, metavar="TARGET",
-                      default=default_of(PourConfig, "target_solid_fraction"),
-                      help=help_of(PourConfig, "target_solid_fraction"))
     _add_overwrite_argument(pour)
     pour.set_defaults(run=_cmd_pour)
-
 
 
 def _add_source_arguments(export: argparse.ArgumentParser, split: str, out: str, axis: str) -> None:
@@ -623,7 +611,6 @@ def _add_export_command(commands: Any) -> None:
     nnunet.set_defaults(run=_cmd_export_nnunet)
 
 
-
 def _add_evaluate_command(commands: Any) -> None:
     evaluate = commands.add_parser("evaluate", help="Dice scores of predicted label images against the truth")
     evaluate.add_argument("--pred", type=Path, required=True, help="folder of predicted label images")
@@ -636,7 +623,6 @@ def _add_evaluate_command(commands: Any) -> None:
     evaluate.add_argument("--iou", type=float, default=0.5, help="IoU threshold of a matched instance (default 0.5)")
     _add_overwrite_argument(evaluate)
     evaluate.set_defaults(run=_cmd_evaluate)
-
 
 
 def _add_label_command(commands: Any) -> None:

@@ -96,14 +96,13 @@ def test_labelling_estimate_uses_the_readme_figure():
 def test_demo_sized_jobs_are_far_below_8_gib(large_library):
     """The demo's `large` sample (labelled at 30 B/voxel) and its default pack fit with room to spare."""
     from synthpack.pipeline.config import PackConfig
-    from synthpack.pipeline.generate import _tube
     from synthpack.render.reconstruct import Grid
     from synthpack.scan.samples import sample_scan
 
     shape = sample_scan("large", seed=0).tomogram.shape
     assert math.prod(shape) * budget.LABEL_BYTES_PER_VOXEL < 2**30  # under 1 GiB, against 8
     config = PackConfig()
-    tube = _tube(large_library, config)
+    tube = config.pour.tube(large_library)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, large_library.voxel_size)
     assert math.prod(grid.shape) * budget.PACK_BYTES_PER_VOXEL < 2**30
     assert config.pour.n_particles < budget.MAX_POUR_GRAINS

@@ -70,22 +70,36 @@ def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
     assert not (tmp_path / "lib").exists()
 
 
-def test_pour_and_generate_commands(tmp_path, large_library):
+def test_pour_and_generate_with_the_same_settings_pour_the_same_pack_in_the_same_tube(tmp_path, large_library):
+    """One PourConfig from the options of either command, one tube sizing (`PourConfig.tube`), one `pour`.
+
+    A looser target than the default packing fraction sizes a taller tube; ``synthpack pour`` with a
+    ``--tube-radius`` sized its tube without the target, so the two commands poured into different tubes.
+    """
+    from synthpack.physics import Placements, Tube
+    from synthpack.pipeline.generate import pack_seed
     from synthpack.store.pack import open_pack
-    from synthpack.physics import Placements
 
     library_dir = large_library.save(tmp_path / "lib")
-    assert main(["-q", "pour", "--library", str(library_dir), "--out", str(tmp_path / "p.json"),
-                 "--n-particles", "12", "--batch-size", "6", "--seed", "3"]) == 0
-    placements = Placements.load(tmp_path / "p.json")
-    assert len(placements) == 12 and placements.checks.n_outside == 0
+    settings = ["--n-particles", "8", "--batch-size", "8", "--tube-radius", "400", "--target-solid-fraction", "0.4"]
+    assert main(["-q", "pour", "--library", str(library_dir), "--out", str(tmp_path / "p.json"), *settings,
+                 "--seed", str(pack_seed(0, 0))]) == 0
+    poured = Placements.load(tmp_path / "p.json")
+    assert len(poured) == 8 and poured.checks.n_outside == 0
     config = tmp_path / "pack.yaml"
     config.write_text("postprocess: none\nreconstruct:\n  wall: false\n")
-    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "packs"),
-                 "--n-particles", "8", "--batch-size", "8", "--config", str(config), "--preview"]) == 0
+    assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "packs"), *settings,
+                 "--config", str(config), "--preview"]) == 0
     pack = open_pack(tmp_path / "packs" / "pack_0000")
     assert pack.manifest["config"]["pour"]["n_particles"] == 8
+    assert pack.manifest["config"]["pour"]["tube_radius"] == 400.0
     assert (tmp_path / "packs" / "pack_0000" / "preview.png").is_file()
+    generated = Placements.load(tmp_path / "packs" / "pack_0000" / "placements.json")
+    assert generated.tube == poured.tube
+    assert poured.tube.inner_radius == 400.0
+    assert poured.tube.height > Tube.for_library(large_library, 8, inner_radius=400.0).height  # sized for 0.4
+    np.testing.assert_array_equal(generated.indices, poured.indices)
+    np.testing.assert_array_equal(generated.positions, poured.positions)
     bad = tmp_path / "bad.yaml"
     bad.write_text("pour:\n  n_particle: 8\n")
     assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "x"),

@@ -34,8 +34,8 @@ def _narrow_tube(library: ParticleLibrary, n: int, radius: float) -> Tube:
 def test_a_target_above_the_free_pour_is_reached(sample, target, large_library, small_library):
     library = large_library if sample == "large" else small_library
     tube = _narrow_tube(library, 150, 2.5)
-    free = pour(library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=None)
-    packed = pour(library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=target)
+    free, packed = (pour(library, PourConfig(n_particles=150, batch_size=30, target_solid_fraction=value), 1,
+                         container=tube, progress=False) for value in (None, target))
     assert free.checks.packing_fraction < target - TARGET_TOLERANCE  # the free pour is looser
     assert abs(packed.checks.packing_fraction - target) <= TARGET_TOLERANCE
     assert packed.checks.target_reached is True and packed.checks.target_packing_fraction == target
@@ -45,7 +45,8 @@ def test_a_target_above_the_free_pour_is_reached(sample, target, large_library, 
 
 def test_a_target_below_the_free_pour_is_reached_with_spaced_grains(large_library):
     tube = _narrow_tube(large_library, 150, 2.5)
-    packed = pour(large_library, 150, 30, seed=1, container=tube, progress=False, target_solid_fraction=0.30)
+    config = PourConfig(n_particles=150, batch_size=30, target_solid_fraction=0.30)
+    packed = pour(large_library, config, 1, container=tube, progress=False)
     assert abs(packed.checks.packing_fraction - 0.30) <= TARGET_TOLERANCE
     assert packed.checks.target_reached is True
     assert min(packed.checks.compaction["knobs"]) < 0  # spaced shells
@@ -56,7 +57,8 @@ def test_a_target_below_the_free_pour_is_reached_with_spaced_grains(large_librar
 def test_an_impossible_target_is_reported_not_hidden(large_library, caplog):
     tube = _narrow_tube(large_library, 120, 2.5)
     with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
-        placements = pour(large_library, 120, 40, seed=0, container=tube, progress=False, target_solid_fraction=0.75)
+        config = PourConfig(n_particles=120, batch_size=40, target_solid_fraction=0.75)
+        placements = pour(large_library, config, 0, container=tube, progress=False)
     checks = placements.checks
     assert checks.target_reached is False and checks.target_packing_fraction == 0.75
     assert checks.packing_fraction < 0.75 - TARGET_TOLERANCE
@@ -68,7 +70,8 @@ def test_an_impossible_target_is_reported_not_hidden(large_library, caplog):
 
 
 def test_same_seed_same_placements_with_compaction(large_library):
-    runs = [pour(large_library, 40, 20, seed=3, progress=False, target_solid_fraction=0.6) for _ in range(2)]
+    config = PourConfig(n_particles=40, batch_size=20, target_solid_fraction=0.6)
+    runs = [pour(large_library, config, 3, progress=False) for _ in range(2)]
     np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
     np.testing.assert_array_equal(runs[0].quaternions, runs[1].quaternions)
 
@@ -147,7 +150,8 @@ def test_the_cli_refuses_an_unreachable_target_before_any_work(tmp_path):
 
 def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_needs(large_library, caplog):
     with caplog.at_level(logging.WARNING, logger="synthpack.physics.compaction"):
-        placements = pour(large_library, 4, 4, seed=2, progress=False, target_solid_fraction=0.6)
+        placements = pour(large_library, PourConfig(n_particles=4, batch_size=4, target_solid_fraction=0.6), 2,
+                          progress=False)
     assert placements.checks.target_reached is None and np.isnan(placements.checks.packing_fraction)
     (line,) = [r.getMessage() for r in caplog.records if "0.600" in r.getMessage()]
     assert "not judged (no bulk" in line

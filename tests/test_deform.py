@@ -14,7 +14,7 @@ from synthpack.pipeline.config import PackConfig
 from synthpack.library.deform import MIN_JACOBIAN, Deform, LatticeFFD, deform_particle, draw_ffd, pack_grains, redo_grains
 from synthpack.errors import SynthpackInputError
 from synthpack.pipeline.generate import build_pack
-from synthpack.physics import pour
+from synthpack.physics import PourConfig, pour
 from synthpack.physics.placements import Placements
 
 CONFIG = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12}, reconstruct={"chunks": [32, 64, 64]},
@@ -129,7 +129,8 @@ def test_bad_settings_and_indices_are_refused(large_library):
     with pytest.raises(SynthpackInputError, match="unknown config key 'grains.deform.amount'"):
         PackConfig.from_dict({"grains": {"deform": {"amount": 0.1}}})
     with pytest.raises(SynthpackInputError, match="indices must be 4 whole numbers"):
-        pour(large_library, 4, 4, indices=[0, 1, 2, len(large_library)], progress=False)
+        pour(large_library, PourConfig(n_particles=4, batch_size=4), 0, indices=[0, 1, 2, len(large_library)],
+             progress=False)
 
 
 def test_cli_deform_strength_sets_the_config(capsys):

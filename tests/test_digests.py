@@ -51,7 +51,7 @@ from synthpack.pipeline.config import PackConfig
 from synthpack.export import export_yolo
 from synthpack.pipeline.generate import generate_pack
 from synthpack.library.core import ParticleLibrary
-from synthpack.physics import pour
+from synthpack.physics import PourConfig, pour
 from synthpack.scan.samples import sample_scan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,7 +74,8 @@ CASES = ("library", *POURED)
 def build(root: Path, library: ParticleLibrary) -> None:
     """Build every output of the run into the folders :data:`CASES` of `root`."""
     library.save(root / "library")
-    pour(library, 12, 6, seed=3, progress=False).save(root / "placements" / "placements.json")
+    pour(library, PourConfig(n_particles=12, batch_size=6), 3, progress=False).save(
+        root / "placements" / "placements.json")
     for index, mode in enumerate(MODES):
         generate_pack(library, index, CONFIG.replace(postprocess=mode), root / f"packs-{mode}")
     generate_pack(library, 0, CONFIG.replace(postprocess="generic"), root / "packs-zarr", format="zarr")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -12,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from synthpack.pipeline import generate
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import ENGINES, Material, Placements, SettleCriteria, Tube, get_engine, pour
+from synthpack.physics import ENGINES, Material, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, hulls, pybullet_engine
 from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.container import MAX_FILL_ASPECT
@@ -37,10 +38,8 @@ def narrow_tube(large_library) -> Tube:
 @pytest.fixture(scope="module")
 def poured(large_library, narrow_tube) -> Placements:
     """45 real grains in 3 batches, with per-batch snapshots."""
-    return pour(
-        large_library, 45, 15, seed=3, container=narrow_tube, progress=False,
-        engine_options={"record_snapshots": True},
-    )
+    config = PourConfig(n_particles=45, batch_size=15, engine_options={"record_snapshots": True})
+    return pour(large_library, config, 3, container=narrow_tube, progress=False)
 
 
 def _world_vertices(library, placements: Placements) -> list[np.ndarray]:
@@ -96,7 +95,8 @@ def test_locked_batches_never_move_again(poured):
 
 def test_same_seed_same_pack_other_seed_other_pack(large_library, narrow_tube):
     def run(seed):
-        return pour(large_library, 16, 8, seed=seed, container=narrow_tube, progress=False)
+        return pour(large_library, PourConfig(n_particles=16, batch_size=8), seed, container=narrow_tube,
+                    progress=False)
 
     a, b, c = run(11), run(11), run(12)
     for name in ("indices", "positions", "quaternions", "scales", "batches"):
@@ -176,19 +176,22 @@ def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
         ({"scale": (2.0, 1.0)}, "max < min"),
         ({"size_classes": [(5.0, 1.0, 1.0)]}, "d_min < d_max"),
         ({"size_classes": [(1.0, 2.0, 1.0)]}, "No grain of the library"),
-        ({"engine_options": {"warp_speed": 9}}, "unknown config key 'engine_options.warp_speed'"),
-        ({"engine_options": {"fixed_steps": 0}}, "'engine_options.fixed_steps' is out of range"),
-        ({"engine_options": {"blend_file": "a.blend"}}, "unknown config key 'engine_options.blend_file'"),
+        ({"engine_options": {"warp_speed": 9}}, "unknown config key 'pour.engine_options.warp_speed'"),
+        ({"engine_options": {"fixed_steps": 0}}, "'pour.engine_options.fixed_steps' is out of range"),
+        ({"engine_options": {"blend_file": "a.blend"}}, "unknown config key 'pour.engine_options.blend_file'"),
         ({"container": Tube(50.0, 1000.0, 10.0, 10.0)}, "too narrow for the largest grain"),
-        ({"material": Material(restitution=1.5)}, r"restitution must be a number in \[0, 1\]"),
+        ({"restitution": 1.5}, r"restitution must be a number in \[0, 1\]"),
         ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps must be"),
         ({"settle": SettleCriteria(min_steps=10, max_steps=5)}, "min_steps must be"),
     ],
 )
 def test_bad_arguments_raise_clear_errors(large_library, kwargs, match):
-    args = {"n_particles": 4, "batch_size": 2, "progress": False, **kwargs}
+    """A bad setting is refused by PourConfig or by pour, a bad keyword by pour, before any simulation."""
+    fields = {field.name for field in dataclasses.fields(PourConfig)}
+    settings = {"n_particles": 4, "batch_size": 2, **{k: v for k, v in kwargs.items() if k in fields}}
+    keywords = {k: v for k, v in kwargs.items() if k not in fields}
     with pytest.raises(SynthpackInputError, match=match):
-        pour(large_library, **args)
+        pour(large_library, PourConfig(**settings), keywords.pop("seed", 0), progress=False, **keywords)
 
 
 def test_empty_library_and_bad_tube_raise():
@@ -197,7 +200,9 @@ def test_empty_library_and_bad_tube_raise():
             return 0
 
     with pytest.raises(SynthpackInputError, match="library is empty"):
-        pour(Empty(), 3, 1, progress=False)
+        pour(Empty(), PourConfig(n_particles=3, batch_size=1), 0, progress=False)
+    with pytest.raises(SynthpackInputError, match="config must be a PourConfig, got int"):
+        pour(Empty(), 3, 1)
     with pytest.raises(SynthpackInputError, match="inner_radius must be a finite positive"):
         Tube(0.0, 1.0, 1.0, 1.0)
 
@@ -262,8 +267,8 @@ def test_default_tube_follows_the_grain_scale_and_never_stacks_a_tall_column(lar
 
 def test_grains_scaled_by_2_in_the_default_tube_pour_like_unscaled_ones(large_library):
     """Simulation units follow the scale: the same pour, twice as large (it took 2x the steps before)."""
-    one, two = (pour(large_library, 40, 20, seed=3, scale=s, progress=False, target_solid_fraction=None)
-                for s in (1.0, 2.0))
+    one, two = (pour(large_library, PourConfig(n_particles=40, batch_size=20, scale=s, target_solid_fraction=None),
+                     3, progress=False) for s in (1.0, 2.0))
     assert two.parameters["length_scale"] == pytest.approx(2 * one.parameters["length_scale"])
     assert sum(two.checks.steps_per_batch) == pytest.approx(sum(one.checks.steps_per_batch), rel=0.1)
     assert two.checks.n_outside == 0 and all(two.checks.settled_per_batch)
@@ -318,18 +323,20 @@ def test_winding_number_separates_inside_from_outside():
 
 def test_convex_decomposition_pours_a_concave_aware_pack(large_library):
     one = large_library[:1]  # one distinct grain: a single V-HACD run
-    placements = pour(one, 3, 3, seed=2, progress=False, material=Material(collision_shape="decomposition"))
+    config = PourConfig(n_particles=3, batch_size=3, collision_shape="decomposition")
+    placements = pour(one, config, 2, progress=False)
     assert placements.checks.n_outside == 0 and all(placements.checks.settled_per_batch)
     assert placements.parameters["material"]["collision_shape"] == "decomposition"
     with pytest.raises(SynthpackInputError, match="now the collision shape: set pour.collision_shape"):
-        pour(one, 3, 3, progress=False, engine_options={"convex_decomposition": True})
+        PourConfig(engine_options={"convex_decomposition": True})
 
 
 def test_big_grains_in_a_narrow_tube_stay_inside(large_library):
     """Grains scaled by 4 in a tube 3 of their median diameters wide (64 of 799 ended outside at 1024^3)."""
     d = float(np.median(large_library.equivalent_diameters))
     tube = Tube.for_library(large_library, 40, scale=4.0, inner_radius=1.5 * 4.0 * d)
-    placements = pour(large_library, 40, 20, seed=0, container=tube, scale=4.0, progress=False)
+    placements = pour(large_library, PourConfig(n_particles=40, batch_size=20, scale=4.0), 0, container=tube,
+                      progress=False)
     checks = placements.checks
     assert checks.n_outside == 0 and checks.n_above_rim == 0
     assert checks.max_wall_penetration_voxels < TOLERANCE_VOXELS
@@ -368,16 +375,16 @@ def test_protrusion_measures_how_far_points_reach_outside_the_parts():
     assert hulls.protrusion(points[:1], [cube]) == 0.0
 
 
-def test_bad_engine_option_values_raise(large_library):
-    with pytest.raises(SynthpackInputError, match="'engine_options.max_hull_vertices' is out of range"):
-        pour(large_library, 2, 2, progress=False, engine_options={"max_hull_vertices": 3})
+def test_bad_engine_option_values_raise():
+    with pytest.raises(SynthpackInputError, match="'pour.engine_options.max_hull_vertices' is out of range"):
+        PourConfig(engine_options={"max_hull_vertices": 3})
 
 
 def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow_tube, caplog):
     tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)
     with caplog.at_level("DEBUG", logger="synthpack.physics.pybullet_engine"):
-        placements = pour(large_library, 140, 20, seed=4, container=tall, progress=False,
-                          engine_options={"record_snapshots": True})
+        config = PourConfig(n_particles=140, batch_size=20, engine_options={"record_snapshots": True})
+        placements = pour(large_library, config, 4, container=tall, progress=False)
     assert any("Retired" in r.message for r in caplog.records)
     checks = placements.checks
     assert checks.n_outside == 0 and all(checks.settled_per_batch)
@@ -415,7 +422,8 @@ def test_engine_options_reach_the_engine(large_library, monkeypatch):
         return hulls.simplify_hull(hull, max_vertices)
 
     monkeypatch.setattr(pybullet_engine, "simplify_hull", spy)
-    placements = pour(large_library, 2, 2, seed=1, progress=False, engine_options={"max_hull_vertices": 16})
+    placements = pour(large_library, PourConfig(n_particles=2, batch_size=2, engine_options={"max_hull_vertices": 16}),
+                      1, progress=False)
     assert seen and set(seen) == {16}
     assert placements.parameters["engine_options"] == {"max_hull_vertices": 16}
 

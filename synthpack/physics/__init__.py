@@ -3,8 +3,8 @@
 Modules, one job each, in the order a pour runs them:
 
 =====================  ==================================================================================
-``config``             `PourConfig`: the pour's settings (count, batch, tube, scale, engine, target)
-``pouring``            `pour`: check -> plan -> engine, batch by batch -> checks -> `Placements`
+``config``             `PourConfig`: the pour's settings (count, batch, tube, scale, engine, target); sizes its tube
+``pouring``            `pour(library, config, seed)`: check -> plan -> engine, batch by batch -> checks -> `Placements`
 ``plan``               the seeded pour plan: which grains, at what scale, orientation and drop height
 ``container``          `Tube`: the container, sized for the pour
 ``compaction``         packing to a target solid fraction, steered by the bulk after each locked batch

@@ -8,7 +8,8 @@ from typing import Any
 from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .engine import COLLISION_SHAPES, Material, SettleCriteria
-from .compaction import MAX_TARGET, TARGET_SOURCE, parse_target
+from .compaction import MAX_TARGET, TARGET_SOURCE, expected_fraction, parse_target
+from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 
@@ -88,3 +89,29 @@ class PourConfig:
         """The pour's :class:`~synthpack.physics.engine.Material`: these settings, the rest its defaults."""
         return Material(friction=self.friction, restitution=self.restitution,
                         collision_shape=self.collision_shape)
+
+    def tube(self, library: LibraryLike) -> Tube:
+        """The tube this pour fills, sized for `library`; ``tube_radius`` and ``tube_height`` override it.
+
+        The one sizing of a pour's tube (:meth:`Tube.for_library`), for `pour`, ``synthpack
+        generate`` and ``synthpack pour`` alike: for ``n_particles`` grains of `library` at the
+        largest ``scale``, at the packing fraction the target gives
+        (:func:`~synthpack.physics.compaction.expected_fraction`: the usual
+        :data:`~synthpack.physics.container.DEFAULT_PACKING_FRACTION`, or a looser target,
+        so a spaced pack fits).
+
+        Parameters
+        ----------
+        library : ParticleLibrary
+            The grains; for ``target_solid_fraction: source`` its source scan's solid fraction.
+
+        Returns
+        -------
+        Tube
+            Physical units (the library's ``unit``).
+        """
+        return Tube.for_library(
+            library, self.n_particles, scale=parse_scale(self.scale)[1],
+            inner_radius=self.tube_radius, height=self.tube_height,
+            packing_fraction=expected_fraction(self.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
+        )

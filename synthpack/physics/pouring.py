@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, replace
 from typing import Any
 
@@ -34,13 +34,13 @@ from .._shared.text import sig
 from .._shared.budget import check_pour
 from ..errors import ContainmentError, SynthpackInputError
 from .checks import PourChecks, compute_checks
-from .compaction import PackingController, expected_fraction, report_target, resolve_target
+from .compaction import PackingController, report_target, resolve_target
 from .config import PourConfig
-from .container import DEFAULT_PACKING_FRACTION, Tube
+from .container import Tube
 from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
-from .registry import DEFAULT_ENGINE, ENGINES, get_engine
+from .registry import get_engine
 
 logger = logging.getLogger(__name__)
 
@@ -52,66 +52,45 @@ CONTAINMENT_ATTEMPTS = 2
 
 def pour(
     library: Any,
-    n_particles: int,
-    batch_size: int,
-    engine: str = DEFAULT_ENGINE,
-    seed: int = 0,
+    config: PourConfig,
+    seed: int,
+    *,
     container: Tube | None = None,
-    scale: float | Sequence[float] = 1.0,
-    size_classes: Sequence[Sequence[float]] | None = None,
-    material: Material | None = None,
     settle: SettleCriteria | None = None,
-    progress: bool = True,
-    engine_options: Mapping[str, Any] | None = None,
-    target_solid_fraction: float | str | None = PourConfig.target_solid_fraction,
+    size_classes: Sequence[Sequence[float]] | None = None,
     indices: Sequence[int] | None = None,
+    progress: bool = True,
 ) -> Placements:
-    """Pour `n_particles` grains of `library` into a tube, `batch_size` at a time.
+    """Pour ``config.n_particles`` grains of `library` into a tube, ``config.batch_size`` at a time.
 
     Parameters
     ----------
     library : ParticleLibrary
         The grains: meshes in the local frame (physical units), masses
         (density x volume, paper eq. 1), centres of mass.
-    n_particles : int
-        Number of grains to pour (drawn from the library with replacement).
-    batch_size : int
-        Grains per batch; each batch settles and is locked before the next falls.
-    engine : {"pybullet", "blender"}
-        Rigid-body engine, a name of :data:`~synthpack.physics.registry.ENGINES`.
+    config : PourConfig
+        The pour's settings, the ``pour`` section of a pack config: count, batch size,
+        engine and its ``engine_options`` (recorded in ``Placements.parameters``), grain
+        scale, tube (:meth:`PourConfig.tube`), material and ``target_solid_fraction``, the
+        bulk packing fraction to reach, batch by batch, by compaction or spaced collision
+        shells (:mod:`synthpack.physics.compaction`); ``"source"`` is the source scan's
+        (``library.statistics.solid_fraction``), which an engine without compaction ignores
+        (a free pour). The reached value is in the checks (``target_reached`` False, and a
+        warning, when it is more than :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
     seed : int
         Seed of every random choice (grains, orientations, scales, spawn points).
     container : Tube, optional
-        The tube, physical units; default :meth:`Tube.for_library`.
-    scale : float or (float, float)
-        Scale factor of the grains, or a (min, max) range drawn per grain.
+        The tube, physical units, instead of the one `config` sizes (:meth:`PourConfig.tube`).
+    settle : SettleCriteria, optional
+        Time step and settle detection; default ``SettleCriteria()``.
     size_classes : sequence of (d_min, d_max, fraction), optional
         Target size distribution by number fraction over equivalent-diameter
         classes (physical units), as by sifting.
-    material : Material, optional
-        Friction, restitution, damping; default ``Material()``.
-    settle : SettleCriteria, optional
-        Time step and settle detection; default ``SettleCriteria()``.
-    progress : bool
-        Show a progress bar over batches.
-    engine_options : mapping, optional
-        The engine's options that differ from its defaults: fields of
-        :class:`~synthpack.physics.pybullet_engine.PybulletOptions` (e.g.
-        ``max_hull_vertices``, ``fixed_steps``, ``allow_sleeping``) or
-        :class:`~synthpack.physics.blender_engine.BlenderOptions` (e.g.
-        ``blend_file``). They are recorded in ``Placements.parameters``.
-    target_solid_fraction : "source", float or None
-        Packing fraction of the bulk to reach, batch by batch, by compaction (denser
-        than a free pour) or spaced collision shells (looser)
-        (:mod:`synthpack.physics.compaction`): ``"source"`` (default) the source
-        scan's bulk solid fraction (``library.statistics.solid_fraction``), a number
-        in (0, 1), or None for a free pour. An engine without compaction pours
-        freely for ``"source"`` and refuses a number. The reached value is in the
-        checks (``target_reached`` False, and a warning, when it is more than
-        :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
     indices : sequence of int, optional
         The library index of each grain, in pouring order, instead of drawing
         them (see :func:`~synthpack.physics.plan.make_plan`).
+    progress : bool
+        Show a progress bar over batches.
 
     Returns
     -------
@@ -121,28 +100,32 @@ def pour(
     Raises
     ------
     SynthpackInputError
-        For a bad count, batch size, seed, engine, option, material, settle
-        criterion, scale, size class, tube, target or indices, or an engine that cannot run here.
+        For a `config` that is not a PourConfig, a bad count, batch size, seed, settle
+        criterion, scale, size class, tube or indices, or an engine that cannot run here.
     ContainmentError
         When grains end outside the tube even on the retry with twice the substeps,
         or above its rim (never a pack with grains outside).
     """
-    n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
-    chosen = get_engine(engine)
-    options = chosen.options(engine_options)
-    material = Material() if material is None else material
+    if not isinstance(config, PourConfig):
+        raise SynthpackInputError(f"config must be a PourConfig, got {type(config).__name__}: "
+                                  "e.g. pour(library, PourConfig(n_particles=150, batch_size=50), seed=0).")
+    n_particles, batch_size, seed = _check_request(library, config.n_particles, config.batch_size, seed)
+    chosen = get_engine(config.engine)
+    options = chosen.options(config.engine_options)
+    material = config.material()
     settle = SettleCriteria() if settle is None else settle
     chosen.check(material, settle, options)
-    target = resolve_target(target_solid_fraction, library, chosen)
+    target = resolve_target(config.target_solid_fraction, library, chosen)
     chosen.check_available()
-    low, high = parse_scale(scale)
-    tube = _tube(library, n_particles, container, high, expected_fraction(target, library, DEFAULT_PACKING_FRACTION))
+    tube = config.tube(library) if container is None else container
+    if not isinstance(tube, Tube):
+        raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
     logger.info("Tube for %d grains: inner radius %s, height %s", n_particles, sig(tube.inner_radius), sig(tube.height))
-    reference_scale = float(np.sqrt(low * high))  # grains stay ~1 unit across at any scale
+    check_pour_size(library, config, tube)
+    reference_scale = _reference_scale(config.scale)
     length = _length_scale(library, reference_scale)
-    check_pour(n_particles, tube.inner_radius / length)
 
-    plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=scale,
+    plan = make_plan(library, n_particles, batch_size, tube, seed=seed, scale=config.scale,
                      size_classes=size_classes, indices=indices)
     mass_unit = float(np.median([library[i].mass for i in range(len(library))])) * reference_scale**3
     bodies = _bodies(library, plan, length, mass_unit)
@@ -167,14 +150,14 @@ def pour(
     parameters = {
         "n_particles": n_particles,
         "batch_size": batch_size,
-        "scale": [low, high],
+        "scale": list(parse_scale(config.scale)),
         "size_classes": [list(map(float, c)) for c in size_classes] if size_classes else None,
         "material": asdict(material),
         "settle": asdict(settle),
         "length_scale": length,
         "mass_unit": mass_unit,
         "target_solid_fraction": target,
-        "engine_options": {name: getattr(options, name) for name in engine_options or {}},
+        "engine_options": {name: getattr(options, name) for name in config.engine_options},
     }
     return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)
 
@@ -207,27 +190,30 @@ def _check_request(library: Any, n_particles: Any, batch_size: Any, seed: Any) -
     return n_particles, batch_size, int(seed)
 
 
-def check_pour_size(library: Any, n_particles: int, tube: Tube, scale: float | Sequence[float] = 1.0) -> None:
+def check_pour_size(library: Any, config: PourConfig, tube: Tube) -> None:
     """Refuse up front a pour too long or too large for this machine (:func:`synthpack._shared.budget.check_pour`).
 
     Parameters
     ----------
     library : ParticleLibrary
         The grains (their median diameter sets the simulation unit).
-    n_particles : int
-        Grains to pour.
+    config : PourConfig
+        The pour (its count and grain scale).
     tube : Tube
-        The container, physical units.
-    scale : float or (float, float)
-        The pour's grain scale, as for `pour`.
+        The container, physical units (:meth:`PourConfig.tube`).
 
     Raises
     ------
     SynthpackInputError
         With the estimate (hours or GiB) and the setting to change.
     """
+    check_pour(config.n_particles, tube.inner_radius / _length_scale(library, _reference_scale(config.scale)))
+
+
+def _reference_scale(scale: float | Sequence[float]) -> float:
+    """The geometric mean of the scale range: grains stay ~1 simulation unit across at any scale."""
     low, high = parse_scale(scale)
-    check_pour(n_particles, tube.inner_radius / _length_scale(library, float(np.sqrt(low * high))))
+    return float(np.sqrt(low * high))
 
 
 def _length_scale(library: Any, reference_scale: float) -> float:
@@ -239,18 +225,6 @@ def _count(value: Any, name: str) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
         raise SynthpackInputError(f"{name} must be a whole number >= 1, got {value!r}.")
     return int(value)
-
-
-def _tube(
-    library: Any, n_particles: int, container: Tube | None, largest_scale: float, packing_fraction: float,
-) -> Tube:
-    """`container`, or the default tube for the library's grains at their largest scale, sized for `packing_fraction`."""
-    tube = container
-    if container is None:
-        tube = Tube.for_library(library, n_particles, scale=largest_scale, packing_fraction=packing_fraction)
-    if not isinstance(tube, Tube):
-        raise SynthpackInputError(f"container must be a Tube, got {type(tube).__name__}.")
-    return tube
 
 
 def _run(

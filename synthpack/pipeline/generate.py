@@ -28,9 +28,7 @@ from ..errors import PackBuildError, SynthpackInputError
 from ..library.core import ParticleLibrary
 from ..store.pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from ..render.partial_volume import PartialVolume
-from ..physics import Placements, Tube, check_pour_size, pour
-from ..physics.compaction import expected_fraction
-from ..physics.container import DEFAULT_PACKING_FRACTION
+from ..physics import Placements, check_pour_size, pour
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
 from ..render.reconstruct import Background, Grid, pose_maps, reconstruct
@@ -83,22 +81,13 @@ class SyntheticPack:
     manifest: dict = field(default_factory=dict)
 
 
-def _tube(library: ParticleLibrary, config: PackConfig) -> Tube:
-    pour_config = config.pour
-    return Tube.for_library(
-        library, pour_config.n_particles, scale=float(max(np.atleast_1d(pour_config.scale))),
-        inner_radius=pour_config.tube_radius, height=pour_config.tube_height,
-        packing_fraction=expected_fraction(pour_config.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
-    )
-
-
 def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:
     """Refuse up front a pack whose pour or whose volumes cannot fit this machine (`synthpack._shared.budget`).
 
     The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out.
     """
-    tube = _tube(library, config)
-    check_pour_size(library, config.pour.n_particles, tube, config.pour.scale)
+    tube = config.pour.tube(library)
+    check_pour_size(library, config.pour, tube)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
                          margin=config.reconstruct.margin)
     check_pack_grid(grid.shape, format)
@@ -221,20 +210,11 @@ def _pour(
     own frame); the placements name its library grain (``indices``) and record how it
     was made (``grains``). The tube is the library's either way.
     """
-    pour_config = config.pour
-    scale = pour_config.scale if isinstance(pour_config.scale, (int, float)) else tuple(pour_config.scale)
-    poured = library if grains is None else grains.particles
-    placements = pour(
-        poured, pour_config.n_particles, pour_config.batch_size, engine=pour_config.engine,
-        seed=seed, container=_tube(library, config), scale=scale,
-        material=pour_config.material(),
-        progress=progress, engine_options=pour_config.engine_options,
-        target_solid_fraction=pour_config.target_solid_fraction,
-        indices=None if grains is None else np.arange(len(poured)),
-    )
-    if grains is not None:
-        placements = dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
-    return placements
+    if grains is None:
+        return pour(library, config.pour, seed, progress=progress)
+    placements = pour(grains.particles, config.pour, seed, container=config.pour.tube(library),
+                      indices=np.arange(len(grains.particles)), progress=progress)
+    return dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
 
 
 def _render(
