@@ -26,7 +26,7 @@ from .io.atomic import Output, check_output, remove_stale_staging
 from ._shared.console import show_logs
 from .store.formats import PACK_FORMATS
 from ._shared.schema import build, default_of, help_of, option_name
-from .pipeline.config import LibraryConfig, PourConfig
+from .pipeline.config import LibraryConfig, PackConfig, PourConfig
 from .library.deform import Deform
 from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
@@ -468,7 +468,8 @@ def _add_demo_command(commands: Any) -> None:
     demo = commands.add_parser("demo", help="run the pipeline on a built-in sample scan")
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out)")
     demo.add_argument("--sample", choices=("large", "small"), default="large", help="built-in sample (default large)")
-    demo.add_argument("--seed", type=int, default=0, help="seed of the sample scan (default 0)")
+    demo.add_argument("--seed", type=int, default=default_of(PackConfig, "seed"),
+                      help=f"seed of the sample scan and the run (default {default_of(PackConfig, 'seed')})")
     _add_overwrite_argument(demo)
     demo.set_defaults(run=_cmd_demo)
 
@@ -516,7 +517,8 @@ def _add_compare_command(commands: Any) -> None:
     compare.add_argument("--out", type=Path, required=True,
                          help="report folder: realism.md, realism.json and PNG pictures")
     compare.add_argument("--patch", type=int, default=16, help="classifier patch side in voxels (default 16)")
-    compare.add_argument("--seed", type=int, default=0, help="seed of the classifiers' folds and the CNN (default 0)")
+    compare.add_argument("--seed", type=int, default=default_of(PackConfig, "seed"),
+                         help=f"seed of the classifiers' folds and the CNN (default {default_of(PackConfig, 'seed')})")
     compare.add_argument("--slab", type=int, metavar="SLICES",
                          help="the floor's slab thickness along z: the source's even slabs are classified against "
                               "its odd ones (default 10, synthpack.realism.floor.DEFAULT_SLAB)")
@@ -548,7 +550,8 @@ def _add_pour_command(commands: Any) -> None:
     pour.add_argument("--library", type=Path, required=True, help="particle library folder")
     pour.add_argument("--out", type=Path, required=True, help="placements JSON to write")
     _add_pour_arguments(pour)
-    pour.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    pour.add_argument("--seed", type=int, default=default_of(PackConfig, "seed"),
+                      help=f"seed (default {default_of(PackConfig, 'seed')}, as generate's)")
     _add_overwrite_argument(pour)
     pour.set_defaults(run=_cmd_pour)
 
