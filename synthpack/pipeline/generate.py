@@ -33,7 +33,7 @@ from ..physics.compaction import expected_fraction
 from ..physics.container import DEFAULT_PACKING_FRACTION
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
-from ..render.reconstruct import Background, Grid, pose_maps, reconstruct
+from ..render import Background, Grid, pose_maps, reconstruct
 from ..render.torch_render import TorchRenderer, resolve_device
 from .runner import run_packs
 
