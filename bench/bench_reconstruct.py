@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation
 from synthpack.pipeline.config import ReconstructConfig
 from synthpack.library.core import ParticleLibrary
 from synthpack.physics import Placements, PourConfig, pour
-from synthpack.render.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.render import Background, Grid, pose_maps, reconstruct
 from synthpack.scan.samples import sample_scan
 
 from _measure import load_average

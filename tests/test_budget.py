@@ -96,7 +96,7 @@ def test_labelling_estimate_uses_the_readme_figure():
 def test_demo_sized_jobs_are_far_below_8_gib(large_library):
     """The demo's `large` sample (labelled at 30 B/voxel) and its default pack fit with room to spare."""
     from synthpack.pipeline.config import PackConfig
-    from synthpack.render.reconstruct import Grid
+    from synthpack.render import Grid
     from synthpack.scan.samples import sample_scan
 
     shape = sample_scan("large", seed=0).tomogram.shape

@@ -23,7 +23,7 @@ from synthpack.io import write_tiff
 from synthpack.library.core import ParticleLibrary
 from synthpack.realism import Specimen
 from synthpack.realism.appearance import noise_levels
-from synthpack.render.reconstruct import Background
+from synthpack.render import Background
 from synthpack.scan.core import Scan
 from synthpack.source import estimate_noise
 

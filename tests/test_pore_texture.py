@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.render.pore_texture import PoreTexture
-from synthpack.render.reconstruct import Background, Grid, pose_maps, reconstruct
+from synthpack.render import Background, Grid, PoreTexture, pose_maps, reconstruct
 from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.source.pore_spectrum import (
     PORE_SPECTRUM_SIZE,

@@ -13,7 +13,7 @@ from synthpack.artefacts import ColouredNoise, GaussianNoise, calibrate, generic
 from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
-from synthpack.render.reconstruct import Grid
+from synthpack.render import Grid
 from synthpack.source import SourceStatistics, estimate_noise, fit_edge_spread, phase_spectra
 from synthpack.source.edges import edge_profile, signed_distance
 from synthpack.source.spectrum import white_ring_powers

@@ -7,10 +7,18 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from synthpack.errors import SynthpackInputError
-from synthpack.render.partial_volume import FAR, PAD, PartialVolume
-from synthpack.render.pore_texture import PoreTexture
-from synthpack.render.reconstruct import Background, Grid, ReconstructConfig, pose_maps, reconstruct
-from synthpack.render.torch_render import TorchRenderer, resolve_device
+from synthpack.render import (
+    Background,
+    Grid,
+    PartialVolume,
+    PoreTexture,
+    ReconstructConfig,
+    TorchRenderer,
+    pose_maps,
+    reconstruct,
+    resolve_device,
+)
+from synthpack.render.partial_volume import FAR, PAD
 from synthpack.source import SourceStatistics, fit_edge_spread
 from synthpack.source.edges import edge_profile, signed_distance
 
@@ -338,8 +346,13 @@ def test_prepared_crop_replaces_the_rim_by_the_interior():
     assert prepared.intensity.shape == prepared.distance.shape == tuple(n + 2 * PAD for n in mask.shape)
     np.testing.assert_array_equal(prepared.intensity, np.float32(0.8))  # rim and outside: the interior
     assert prepared.distance[PAD + 2, PAD + 5, PAD + 5] == 0.5 and prepared.distance[PAD + 1, PAD + 5, PAD + 5] == -0.5
-    occupancy = PartialVolume(shift=0.25).occupancy(np.array([-1.0, -0.5, 0.0, 0.25, 0.5, 1.0]))
+    distance = np.array([-1.0, -0.5, 0.0, 0.25, 0.5, 1.0], dtype=np.float32)
+    occupancy = PartialVolume(shift=0.25).occupancy(distance)
+    assert occupancy.dtype == np.float32
     np.testing.assert_allclose(occupancy, [0, 0, 0.25, 0.5, 0.75, 1])
+    # the torch render's occupancy is the same formula, to the bit
+    on_torch = PartialVolume(shift=0.25).occupancy(torch.from_numpy(distance))
+    assert on_torch.dtype == torch.float32 and on_torch.numpy().tobytes() == occupancy.tobytes()
 
 
 def test_partial_volume_from_source_statistics():

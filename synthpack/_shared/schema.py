@@ -1,7 +1,7 @@
 """Settings dataclasses with their own checks: the one place every default is written.
 
 Each stage owns a frozen dataclass of its settings (`synthpack.library.core.LibraryConfig`,
-`synthpack.physics.PourConfig`, `synthpack.render.reconstruct.ReconstructConfig`), whose fields
+`synthpack.physics.PourConfig`, `synthpack.render.ReconstructConfig`), whose fields
 are declared with :func:`setting`: a default, a check and a help text. The pack config
 (`synthpack.pipeline.config.PackConfig`) nests them, :func:`build` validates a (partial) dict
 against them, and the command line takes its defaults and help from the same fields

@@ -81,7 +81,7 @@ from . import (
     noise_to_add,
 )
 from ..errors import SynthpackInputError
-from ..render.reconstruct import Grid
+from ..render.grid import Grid
 from ..source.noise_estimate import estimate_noise
 from ..source.spectrum import NPS_PATCH, white_ring_powers
 from ..source.statistics import SourceStatistics

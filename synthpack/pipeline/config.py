@@ -14,7 +14,7 @@ optional and falls back to the default shown by ``synthpack generate
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.core.LibraryConfig`, :class:`GrainsConfig` (with
 :class:`~synthpack.library.deform.Deform`), :class:`~synthpack.physics.PourConfig` and
-:class:`~synthpack.render.reconstruct.ReconstructConfig` (with its sub-section
+:class:`~synthpack.render.config.ReconstructConfig` (with its sub-section
 :class:`~synthpack.render.pore_texture.PoreTexture`). What each ``postprocess`` value
 means is resolved by :func:`~synthpack.artefacts.recipes.resolve_postprocessing`; the
 default, ``calibrated``, fits the post-processing to the source scan of the
@@ -43,7 +43,7 @@ from ..errors import SynthpackInputError
 from ..library.core import LibraryConfig
 from ..physics.config import PourConfig
 from ..artefacts.recipes import POSTPROCESS_MODES
-from ..render.reconstruct import ReconstructConfig
+from ..render.config import ReconstructConfig
 
 logger = logging.getLogger(__name__)
 

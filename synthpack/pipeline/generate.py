@@ -31,7 +31,7 @@ from ..render.partial_volume import PartialVolume
 from ..physics import Placements, check_pour_size, pour
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
-from ..render.reconstruct import Background, Grid, pose_maps, reconstruct
+from ..render import Background, Grid, pose_maps, reconstruct
 from ..render.torch_render import TorchRenderer, resolve_device
 from .runner import run_packs
 

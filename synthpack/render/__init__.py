@@ -1,12 +1,20 @@
 """Render: a new tomogram and label volume from the grains' voxels at their poured poses (paper 3.4).
 
-Modules, one job each:
+Modules, one job each, from the whole render down:
 
 ==================  ================================================================================
-``reconstruct``     `reconstruct`: the grid, background and pose maps, rendered chunk by chunk
-``partial_volume``  each grain's occupancy (partial volume) from its crop, prepared once per grain
+``chunked``         `reconstruct`: the whole grid, chunk by chunk, with a chunk renderer
+``numpy_render``    `render_chunk`: one chunk with NumPy and SciPy, at the voxels each grain can change
+``torch_render``    `TorchRenderer`: one chunk on a torch device (a CUDA GPU); `resolve_device`
+``canvas``          `Canvas`: a chunk as grains are drawn on it (claims, partial-volume composite),
+                    one code for NumPy and torch
+``background``      `Background`: pore level, pore texture and tube wall; `background_values`
+``crops``           `RenderCrop`, `prepare_crops`: the library crops as the render takes them
+``poses``           `pose_maps`: each placement's affine map into its crop and the box it reaches
+``config``          `ReconstructConfig`: the render's settings
+``grid``            `Grid`: the output voxel grid
+``partial_volume``  `PartialVolume`: each grain's occupancy from its crop, prepared once per grain
 ``pore_texture``    `PoreTexture`: the pore phase's seeded, correlated texture
-``torch_render``    the same render on a CUDA GPU
 ==================  ================================================================================
 """
 
@@ -15,10 +23,19 @@ from __future__ import annotations
 from .._shared.exports import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "Background": ".reconstruct",
-    "Grid": ".reconstruct",
+    "Background": ".background",
+    "Canvas": ".canvas",
+    "Grid": ".grid",
     "PartialVolume": ".partial_volume",
     "PoreTexture": ".pore_texture",
-    "ReconstructConfig": ".reconstruct",
+    "PoseMaps": ".poses",
+    "ReconstructConfig": ".config",
+    "RenderCrop": ".crops",
+    "TorchRenderer": ".torch_render",
+    "background_values": ".background",
+    "pose_maps": ".poses",
+    "prepare_crops": ".crops",
+    "reconstruct": ".chunked",
+    "render_chunk": ".numpy_render",
     "resolve_device": ".torch_render",
 })

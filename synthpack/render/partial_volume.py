@@ -33,7 +33,7 @@ import hashlib
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -160,10 +160,13 @@ class PartialVolume:
         crop voxel has no occupancy: ``(shift - 1/2) / scale`` (`occupancy` of ``distance * scale``)."""
         return (self.shift - 0.5) / np.asarray(scale, dtype=np.float64)
 
-    def occupancy(self, distance: np.ndarray) -> np.ndarray:
-        """Occupancy ``clip(distance - shift + 1/2, 0, 1)`` of voxels at signed `distance` (voxels), float32."""
-        out = np.asarray(distance, dtype=np.float32) - np.float32(self.shift - 0.5)
-        return np.clip(out, 0.0, 1.0, out=out)
+    def occupancy(self, distance: Any) -> Any:
+        """Occupancy ``clip(distance - shift + 1/2, 0, 1)`` of voxels at signed `distance` (voxels).
+
+        `distance` is a float32 NumPy array or torch tensor (the NumPy and the torch render
+        share this formula); the occupancy is one of the same type and dtype, computed in float32.
+        """
+        return (distance - float(np.float32(self.shift - 0.5))).clip(0.0, 1.0)
 
 
 def _digest(*arrays: np.ndarray) -> bytes:

@@ -1,15 +1,16 @@
-"""The render on a torch device (a CUDA GPU where there is one): `synthpack.render.reconstruct.render_chunk` in torch.
+"""The render on a torch device (a CUDA GPU where there is one): `TorchRenderer`, and `resolve_device`.
 
-`TorchRenderer` renders a chunk as `~synthpack.render.reconstruct.render_chunk` does (the
-same pose maps, prepared crops, claims, partial-volume compositing and background),
-with the grains' mask, signed distance and intensity interpolated linearly on the
-device over each grain's box. Coordinates and interpolation weights are computed in
-float64, summed in the order SciPy's ``affine_transform`` sums them, so labels equal
-the NumPy render's except where a voxel's interpolated mask value lies within float
-rounding of the 0.5 threshold (`TorchRenderer.near_threshold` counts those voxels)
-and intensities agree within float32 rounding. Only linear interpolation of the
-intensities (``order: 1``, the default) is offered on the device: `resolve_device`
-keeps other orders on the CPU.
+`TorchRenderer` renders a chunk as `~synthpack.render.numpy_render.render_chunk` does, with
+the same code: the same pose maps, prepared crops and background, and the same
+`~synthpack.render.canvas.Canvas` for the claims and the partial-volume compositing, run
+on torch tensors. It visits every voxel of each grain's box (no support search) and
+interpolates the grains' mask, signed distance and intensity linearly on the device.
+Coordinates and interpolation weights are computed in float64, summed in the order
+SciPy's ``affine_transform`` sums them, so labels equal the NumPy render's except where
+a voxel's interpolated mask value lies within float rounding of the 0.5 threshold
+(`TorchRenderer.near_threshold` counts those voxels) and intensities agree within
+float32 rounding. Only linear interpolation of the intensities (``order: 1``, the
+default) is offered on the device: `resolve_device` keeps other orders on the CPU.
 
 The device is chosen by ``reconstruct.device`` (`resolve_device`): ``auto`` (the
 default) renders on the first CUDA GPU when torch sees one, else with NumPy on the
@@ -21,17 +22,18 @@ of its pipeline has a torch version, else on the CPU.
 from __future__ import annotations
 
 import glob
-import logging
 import sys
 from typing import Any, Sequence
 
 import numpy as np
 
 from ..errors import SynthpackInputError
-from .partial_volume import FAR, PAD, PartialVolume
-from .reconstruct import Background, Grid, PoseMaps, RenderCrop, background_values, grain_boxes
-
-logger = logging.getLogger(__name__)
+from .background import Background, background_values
+from .canvas import Canvas
+from .crops import RenderCrop
+from .grid import Grid
+from .partial_volume import PartialVolume
+from .poses import PoseMaps, grain_boxes, mapped
 
 __all__ = ["TorchRenderer", "resolve_device"]
 
@@ -86,10 +88,12 @@ def _may_have_cuda() -> bool:
 
 
 class TorchRenderer:
-    """`~synthpack.render.reconstruct.render_chunk` on a torch device, with its crops kept there.
+    """`~synthpack.render.numpy_render.render_chunk` on a torch device, with its crops kept there.
 
-    Call it with `render_chunk`'s arguments (as `~synthpack.render.reconstruct.reconstruct`'s
-    ``renderer``); it returns what `render_chunk` returns, as NumPy arrays.
+    Call it with `render_chunk`'s arguments (as `~synthpack.render.chunked.reconstruct`'s
+    ``renderer``); it returns what `render_chunk` returns, as NumPy arrays. It draws every
+    voxel of each grain's box on the chunk's `~synthpack.render.canvas.Canvas`, the NumPy
+    render's code run on torch tensors.
 
     Parameters
     ----------
@@ -109,15 +113,15 @@ class TorchRenderer:
         self.torch = torch
         self.device = torch.device(device)
         self.near_threshold = 0
-        self._crops: dict[int, tuple[Any, Any, Any]] = {}
+        self._crops: dict[int, RenderCrop] = {}
 
-    def _crop(self, index: int, crop: RenderCrop) -> tuple[Any, Any, Any]:
+    def _crop(self, index: int, crop: RenderCrop) -> RenderCrop:
         """The crop's mask, intensity and distance as float64 tensors on the device (kept for later chunks)."""
         if index not in self._crops:
             def tensor(array: np.ndarray | None) -> Any:
                 return None if array is None else self.torch.as_tensor(
                     np.asarray(array, dtype=np.float64), device=self.device)
-            self._crops[index] = (tensor(crop.mask), tensor(crop.intensity), tensor(crop.distance))
+            self._crops[index] = RenderCrop(tensor(crop.mask), tensor(crop.intensity), tensor(crop.distance), None)
         return self._crops[index]
 
     def __call__(
@@ -138,63 +142,30 @@ class TorchRenderer:
         if order != 1:
             raise SynthpackInputError(f"the torch render interpolates linearly (order 1), got order {order}")
         shape = tuple(int(n) for n in hi - lo)
-        tomogram = torch.as_tensor(background_values(grid, lo, hi, background, tube, seed), device=self.device)
-        labels = torch.zeros(shape, dtype=torch.int32, device=self.device)
-        claim = torch.zeros(shape, dtype=torch.float32, device=self.device)
-        occupancy = value = None
-        if partial_volume is not None:
-            occupancy = torch.zeros(shape, dtype=torch.float32, device=self.device)
-            value = torch.zeros(shape, dtype=torch.float32, device=self.device)
-        contested = 0
+        canvas = Canvas(torch.as_tensor(background_values(grid, lo, hi, background, tube, seed), device=self.device),
+                        self._sample, torch, order, partial_volume)
         for i, sub_lo, sub_hi, offset in grain_boxes(maps, lo, hi):
             index = int(maps.library_index[i])
-            mask, intensity, distance = self._crop(index, crops[index])
-            matrix = maps.matrix[i]
-            window = tuple(slice(int(a - b), int(c - b)) for a, b, c in zip(sub_lo, lo, sub_hi))
-            base = self._mapped(matrix, tuple(int(n) for n in sub_hi - sub_lo))
-            weight = _linear(torch, mask, _shift(base, offset + 1.0), cval=0.0).to(torch.float32)
+            voxels, where = self._box(sub_lo - lo, sub_hi - lo, shape)
+            weight = canvas.draw(i + 1, voxels, mapped(maps.matrix[i], where, torch), offset,
+                                 self._crop(index, crops[index]), maps.matrix[i])
             self.near_threshold += int(torch.count_nonzero((weight - 0.5).abs() < 1e-6))
-            inside = weight > 0.5
-            region_claim = claim[window]
-            contested += int(torch.count_nonzero(inside & (region_claim > 0.5)))
-            wins = inside & (weight > region_claim)
-            labels[window][wins] = int(i) + 1
-            region_claim[wins] = weight[wins]
-            if partial_volume is None:
-                coordinates = _shift(base, offset)
-                sampled = _linear(torch, intensity, coordinates, cval=None)
-                tomogram[window][wins] = sampled.to(torch.float32)[wins]
-                continue
-            coordinates = _shift(base, offset + PAD)
-            scale = np.float32(abs(np.linalg.det(matrix)) ** (-1.0 / 3.0))
-            grain_distance = _linear(torch, distance, coordinates, cval=FAR).to(torch.float32)
-            grain = torch.clamp(grain_distance * float(scale) - float(np.float32(partial_volume.shift - 0.5)),
-                                0.0, 1.0)
-            occupancy[window] += grain
-            sampled = _linear(torch, intensity, coordinates, cval=None).to(torch.float32)
-            value[window] += grain * sampled
-        if occupancy is not None:
-            tomogram *= 1.0 - torch.clamp(occupancy, max=1.0)
-            tomogram += value * (1.0 / torch.clamp(occupancy, min=1.0))
-        return tomogram.cpu().numpy(), labels.cpu().numpy(), contested
+        canvas.finish()
+        return canvas.tomogram.cpu().numpy(), canvas.labels.cpu().numpy(), canvas.contested
 
-    def _mapped(self, matrix: np.ndarray, shape: tuple[int, int, int]) -> Any:
-        """``matrix @ o`` (float64, shape (3, *shape)) of every box index ``o``, summed as SciPy sums it."""
+    def _box(self, lo: np.ndarray, hi: np.ndarray, shape: tuple[int, int, int]) -> tuple[Any, tuple[Any, Any, Any]]:
+        """Every voxel of the box ``[lo, hi)`` of a chunk of `shape`: flat chunk indices and (float64) box indices."""
         torch = self.torch
-        axes = torch.meshgrid(*(torch.arange(n, dtype=torch.float64, device=self.device) for n in shape),
+        axes = torch.meshgrid(*(torch.arange(int(a), int(b), device=self.device) for a, b in zip(lo, hi)),
                               indexing="ij")
-        rows = []
-        for row in range(3):
-            mapped = axes[0] * float(matrix[row, 0])
-            for column in (1, 2):
-                mapped = mapped + axes[column] * float(matrix[row, column])
-            rows.append(mapped)
-        return torch.stack(rows)
+        index = ((axes[0] * shape[1] + axes[1]) * shape[2] + axes[2]).reshape(-1)
+        where = tuple((axis - int(start)).reshape(-1).to(torch.float64) for axis, start in zip(axes, lo))
+        return index, where
 
-
-def _shift(mapped: Any, shift: np.ndarray) -> Any:
-    """``mapped + shift`` per axis (the crop coordinates of an affine offset `shift`)."""
-    return mapped + mapped.new_tensor(np.asarray(shift, dtype=np.float64)).reshape(3, 1, 1, 1)
+    def _sample(self, volume: Any, mapped: Any, shift: np.ndarray, order: int, cval: float | None) -> Any:
+        """`~synthpack.render.canvas.Sampler` on the device, linear only (float32)."""
+        coordinates = mapped + mapped.new_tensor(np.asarray(shift, dtype=np.float64)).reshape(3, 1)
+        return _linear(self.torch, volume, coordinates, cval=cval).to(self.torch.float32)
 
 
 def _linear(torch: Any, volume: Any, coordinates: Any, *, cval: float | None) -> Any:

@@ -1,0 +1,151 @@
+"""One chunk of the output as grains are drawn onto it: labels by claim, intensities pasted or composited.
+
+Written once against the array module (``xp``: numpy or torch), so the NumPy render
+(`~synthpack.render.numpy_render.render_chunk`) and the torch one
+(`~synthpack.render.torch_render.TorchRenderer`) draw with the same code; they differ
+only in which voxels of a grain's box they visit and in how they interpolate its crop
+(a `Sampler`).
+
+Claims: placement ``i`` labels ``i + 1`` the voxels where its resampled mask exceeds 0.5;
+a voxel claimed by two goes to the larger mask value (the earlier placement on a tie),
+a rule that does not depend on the chunking. Intensities: where a grain wins a voxel its
+resampled crop is pasted (whole voxels), or every grain is composited over the
+background by its occupancy (`synthpack.render.partial_volume`),
+
+    out = (1 - min(O, 1)) background + V / max(O, 1),   O = sum_i o_i,   V = sum_i o_i g_i.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+
+from .crops import RenderCrop
+from .partial_volume import FAR, PAD, PartialVolume
+
+__all__ = ["Canvas", "Sampler"]
+
+
+class Sampler(Protocol):
+    """Interpolates a crop at the crop coordinates ``mapped + shift`` (per axis), as `scipy.ndimage.map_coordinates`.
+
+    Parameters
+    ----------
+    volume : array
+        A crop array of `RenderCrop` (its mask, intensity or distance).
+    mapped : array of float64, shape (3, K)
+        `~synthpack.render.poses.mapped` of the voxels.
+    shift : ndarray of float64, shape (3,)
+        Added to `mapped` per axis: the affine offset (plus the crop's padding).
+    order : int
+        Spline order.
+    cval : float or None
+        Value beyond the crop (SciPy's ``"constant"`` mode); None: the nearest crop voxel's (``"nearest"``).
+
+    Returns
+    -------
+    array of float32, shape (K,)
+    """
+
+    def __call__(self, volume: Any, mapped: Any, shift: np.ndarray, order: int, cval: float | None) -> Any: ...
+
+
+class Canvas:
+    """One chunk's tomogram and labels as grains are drawn onto its background, in NumPy or torch.
+
+    Parameters
+    ----------
+    background : array of float32, shape (z, y, x), C-contiguous
+        The chunk's background (`~synthpack.render.background.background_values`); drawn over in place.
+    sample : Sampler
+        Interpolates the grains' crops.
+    xp : module
+        numpy or torch: the array module of `background`, `sample`'s values and the voxel indices.
+    order : int
+        Spline order of the intensities (masks and signed distances are interpolated linearly).
+    partial_volume : PartialVolume, optional
+        Composite grains by their occupancy of each voxel; None: paste whole voxels (a hard step).
+
+    Attributes
+    ----------
+    tomogram : array of float32, shape (z, y, x)
+        `background`, with the grains drawn once `finish` is called.
+    labels : array of int32, shape (z, y, x)
+    contested : int
+        Voxels claimed by more than one placement.
+    """
+
+    def __init__(
+        self, background: Any, sample: Sampler, xp: Any, order: int = 1, partial_volume: PartialVolume | None = None,
+    ) -> None:
+        self.tomogram = background
+        self.labels = xp.zeros_like(background, dtype=xp.int32)
+        self.contested = 0
+        self._claim = xp.zeros_like(background)
+        self._sample, self._xp, self._order, self._partial_volume = sample, xp, order, partial_volume
+        self._occupancy = self._value = None
+        if partial_volume is not None:
+            self._occupancy, self._value = xp.zeros_like(background), xp.zeros_like(background)
+
+    def draw(self, label: int, index: Any, mapped: Any, offset: np.ndarray, crop: RenderCrop, matrix: np.ndarray) -> Any:
+        """Draw one grain over the chunk's voxels `index`.
+
+        Parameters
+        ----------
+        label : int
+            The grain's label (its placement + 1); grains are drawn in placement order.
+        index : array of int, shape (K,)
+            Flat indices into the chunk (no repeats) of the voxels of the grain's box to draw.
+        mapped : array of float64, shape (3, K)
+            `~synthpack.render.poses.mapped` of those voxels (their indices in the box).
+        offset : ndarray of float, shape (3,)
+            Crop index of the box's first voxel (`~synthpack.render.poses.grain_boxes`).
+        crop : RenderCrop
+            The grain's crop, in the canvas's array module.
+        matrix : ndarray of float, shape (3, 3)
+            The grain's `~synthpack.render.poses.PoseMaps` matrix.
+
+        Returns
+        -------
+        array of float32, shape (K,)
+            The grain's resampled mask at the voxels (its claims are where it exceeds 0.5).
+        """
+        weight = self._sample(crop.mask, mapped, offset + 1.0, 1, 0.0)  # the mask is padded by one voxel
+        wins = self._claim_voxels(label, index, weight)
+        if self._partial_volume is None:
+            self.tomogram.reshape(-1)[index[wins]] = self._sample(crop.intensity, mapped[:, wins], offset,
+                                                                  self._order, None)
+        else:
+            self._add(index, mapped, offset + PAD, crop, matrix)
+        return weight
+
+    def finish(self) -> None:
+        """Composite the grains onto the background (the partial volume's ``(1 - O) b + V``, ``V / O`` where ``O > 1``)."""
+        if self._partial_volume is not None:
+            self.tomogram *= 1.0 - self._occupancy.clip(max=1.0)
+            self.tomogram += self._value * (1.0 / self._occupancy.clip(min=1.0))
+
+    def _claim_voxels(self, label: int, index: Any, weight: Any) -> Any:
+        """Give `label` the voxels `index` where `weight` exceeds 0.5 and every earlier claim; which (bool, (K,))."""
+        inside = weight > 0.5
+        held = self._claim.reshape(-1)[index]
+        self.contested += int(self._xp.count_nonzero(inside & (held > 0.5)))
+        wins = inside & (weight > held)
+        won = index[wins]
+        self.labels.reshape(-1)[won] = label
+        self._claim.reshape(-1)[won] = weight[wins]
+        return wins
+
+    def _add(self, index: Any, mapped: Any, shift: np.ndarray, crop: RenderCrop, matrix: np.ndarray) -> None:
+        """Add one grain's occupancy ``o`` and ``o g`` at the voxels `index` (crop coordinates ``mapped + shift``)."""
+        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
+        distance = self._sample(crop.distance, mapped, shift, 1, FAR)
+        occupancy = self._partial_volume.occupancy(distance * float(np.float32(scale)))
+        some = occupancy > 0
+        if not self._xp.count_nonzero(some):
+            return
+        occupancy, index = occupancy[some], index[some]
+        self._occupancy.reshape(-1)[index] += occupancy
+        self._value.reshape(-1)[index] += occupancy * self._sample(crop.intensity, mapped[:, some], shift,
+                                                                   self._order, None)
