@@ -7,7 +7,8 @@ Layout of the output folder ``OUT``::
     annotations/instances_{train,val,test}.json   COCO annotations of each split's images
 
 The images, their names and their splits are those of the YOLO export of the same
-inputs and settings (both are planned by `synthpack.export.slices`), so the two
+inputs and settings (`CocoWriter` adds the annotations to the slice loop of
+`synthpack.export.exporter`, as `YoloWriter` adds its label files), so the two
 formats can be compared on the same slices. Read a split with
 ``pycocotools.coco.COCO("OUT/annotations/instances_train.json")``, its images
 under ``OUT/images/train`` (for Detectron2: ``register_coco_instances(name, {},
@@ -51,9 +52,7 @@ an existing folder is only replaced if it is an earlier COCO export.
 from __future__ import annotations
 
 import importlib
-import logging
-import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import count
 from pathlib import Path
@@ -62,16 +61,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .. import __version__
+from .._shared.schema import default_of
 from .._shared.strict_json import dumps as strict_json
-from ..io.atomic import Output, atomic_directory, check_output
 from ..errors import SynthpackInputError
-from ..scan.core import Scan
-from ..scan.split import SPLITS, VAL_FRACTION
-from .slices import MIN_AREA, ExportSummaryBase, check_slicing, plan_slices, split_counts
+from ..io.atomic import Output
+from ..scan.split import SPLITS
+from .exporter import SliceSettings, SliceWriter, run_export
+from .slices import MIN_AREA, ExportSlice, ExportSummaryBase, PathLike, RealScan, split_counts
 
-logger = logging.getLogger(__name__)
-
-__all__ = ["CATEGORIES", "COCO_OUTPUT", "CocoExportSummary", "instance_annotations", "export_coco"]
+__all__ = ["CATEGORIES", "COCO_OUTPUT", "CocoExportSummary", "CocoWriter", "instance_annotations", "export_coco"]
 
 #: The COCO categories: every instance is a particle.
 CATEGORIES = [{"id": 1, "name": "particle", "supercategory": "particle"}]
@@ -165,26 +163,71 @@ class CocoExportSummary(ExportSummaryBase):
     COUNTS: ClassVar[tuple[str, ...]] = ("images", "annotations", "empty_images", "dropped_instances",
                                          "instance_pixels")
 
-    def _count(self, split: str, annotations: list[dict], dropped: int) -> None:
-        """Add one exported slice of `split` with its `annotations` and `dropped` small instances."""
-        self.images[split] += 1
-        self.annotations[split] += len(annotations)
-        self.empty_images[split] += not annotations
-        self.dropped_instances[split] += dropped
-        self.instance_pixels[split] += sum(a["area"] for a in annotations)
+
+def _per_split() -> dict[str, list]:
+    return {s: [] for s in SPLITS}
+
+
+@dataclass
+class CocoWriter(SliceWriter):
+    """The COCO format's hooks of the slice exporter (`synthpack.export.exporter`): one annotation file per split.
+
+    It keeps each split's image and annotation records until the split's
+    ``annotations/instances_<split>.json`` is written (`dataset_files`).
+    """
+
+    images: dict[str, list] = field(default_factory=_per_split, init=False, repr=False)
+    annotations: dict[str, list] = field(default_factory=_per_split, init=False, repr=False)
+    image_ids: Iterator[int] = field(default_factory=lambda: count(1), init=False, repr=False)
+    annotation_ids: Iterator[int] = field(default_factory=lambda: count(1), init=False, repr=False)
+
+    OUTPUT: ClassVar[Output] = COCO_OUTPUT
+    SUMMARY: ClassVar[type[ExportSummaryBase]] = CocoExportSummary
+
+    def check(self, out: Path) -> None:
+        """Refuse to start without pycocotools (saying how to install it)."""
+        _mask_module()
+
+    def record(self) -> dict:
+        return {"categories": CATEGORIES}
+
+    def write_slice(self, staging: Path, item: ExportSlice, settings: SliceSettings) -> dict[str, int]:
+        """Add the slice's image record and the annotations of its instances to its split's; return its counts."""
+        height, width = item.labels.shape
+        image_id = next(self.image_ids)
+        self.images[item.split].append({"id": image_id, "file_name": f"{item.stem}.png", "height": height,
+                                        "width": width})
+        annotations, dropped = instance_annotations(item.labels, min_area=settings.min_area)
+        self.annotations[item.split] += [{"id": next(self.annotation_ids), "image_id": image_id, **annotation}
+                                         for annotation in annotations]
+        return {"annotations": len(annotations), "empty_images": int(not annotations), "dropped_instances": dropped,
+                "instance_pixels": sum(a["area"] for a in annotations)}
+
+    def dataset_files(self, out: Path, summary: CocoExportSummary) -> Iterator[tuple[str, str]]:
+        """``annotations/instances_<split>.json`` of each split, its ``info`` naming synthpack and the window."""
+        lo, hi = summary.window
+        for split in SPLITS:
+            info = {"description": f"synthpack {__version__} COCO instance-segmentation export, {split} split; "
+                                   "details in coco_export.json",
+                    "version": __version__, "contributor": "synthpack", "split": split,
+                    "intensity_window": [lo, hi], "intensity_window_from": summary.window_from,
+                    "pixel": "round(255 * clip((value - lo) / (hi - lo), 0, 1))"}
+            yield f"annotations/instances_{split}.json", strict_json({
+                "info": info, "licenses": [], "images": self.images[split], "annotations": self.annotations[split],
+                "categories": CATEGORIES})
 
 
 def export_coco(
-    out: str | os.PathLike,
-    packs: Sequence[str | os.PathLike] = (),
-    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]] = (),
+    out: PathLike,
+    packs: Sequence[PathLike] = (),
+    real: Sequence[RealScan] = (),
     *,
-    axis: int = 0,
-    split: str = "paper",
-    val_fraction: float = VAL_FRACTION,
-    postprocess: bool = True,
-    window: tuple[float, float] | None = None,
-    min_area: int = MIN_AREA,
+    axis: int = default_of(SliceSettings, "axis"),
+    split: str = default_of(SliceSettings, "split"),
+    val_fraction: float = default_of(SliceSettings, "val_fraction"),
+    postprocess: bool = default_of(SliceSettings, "postprocess"),
+    window: tuple[float, float] | None = default_of(SliceSettings, "window"),
+    min_area: int = default_of(SliceSettings, "min_area"),
     progress: bool = True,
     overwrite: bool = False,
 ) -> CocoExportSummary:
@@ -210,46 +253,6 @@ def export_coco(
     -------
     CocoExportSummary
     """
-    out = Path(out)
-    check_slicing(axis, split, bool(packs or real), window)
-    if min_area < 1:
-        raise SynthpackInputError(f"min_area must be >= 1, got {min_area}")
-    _mask_module()
-    check_output(out, COCO_OUTPUT, overwrite=overwrite)
-    volumes = plan_slices(packs, real, axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,
-                          window=window)
-    summary = CocoExportSummary(out, volumes.window, volumes.window_from, settings={
-        "axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
-        "min_area": min_area, "categories": CATEGORIES,
-    })
-    datasets = {s: _dataset(s, summary) for s in SPLITS}
-    image_ids, annotation_ids = count(1), count(1)
-    with atomic_directory(out, COCO_OUTPUT, overwrite=overwrite) as staging:
-        for item in volumes.write_images(staging, progress=progress):
-            dataset = datasets[item.split]
-            height, width = item.labels.shape
-            image_id = next(image_ids)
-            dataset["images"].append({"id": image_id, "file_name": f"{item.stem}.png", "height": height,
-                                      "width": width})
-            annotations, dropped = instance_annotations(item.labels, min_area=min_area)
-            dataset["annotations"] += [{"id": next(annotation_ids), "image_id": image_id, **annotation}
-                                       for annotation in annotations]
-            summary._count(item.split, annotations, dropped)
-        summary.sources = volumes.source_records()
-        (staging / "annotations").mkdir()
-        for s, dataset in datasets.items():
-            (staging / "annotations" / f"instances_{s}.json").write_text(strict_json(dataset))
-        (staging / "coco_export.json").write_text(strict_json(summary.to_dict(), indent=1))
-    logger.info("COCO dataset in %s: %s images, %s annotations", out, summary.images, summary.annotations)
-    return summary
-
-
-def _dataset(split: str, summary: CocoExportSummary) -> dict:
-    """An empty COCO annotation file of `split`, its ``info`` naming synthpack and the intensity window."""
-    lo, hi = summary.window
-    info = {"description": f"synthpack {__version__} COCO instance-segmentation export, {split} split; "
-                           "details in coco_export.json",
-            "version": __version__, "contributor": "synthpack", "split": split,
-            "intensity_window": [lo, hi], "intensity_window_from": summary.window_from,
-            "pixel": "round(255 * clip((value - lo) / (hi - lo), 0, 1))"}
-    return {"info": info, "licenses": [], "images": [], "annotations": [], "categories": CATEGORIES}
+    settings = SliceSettings(axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,
+                             window=window, min_area=min_area)
+    return run_export(CocoWriter(), out, packs, real, settings, progress=progress, overwrite=overwrite)

@@ -82,33 +82,31 @@ existing folder is only replaced if it is an earlier nnU-Net export.
 
 from __future__ import annotations
 
-import logging
-import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from scipy import ndimage
 
 from .. import __version__
-from .._shared.strict_json import dumps as strict_json
-from ..io.atomic import Output, atomic_directory, check_output
 from .._shared.console import progress_bar
+from .._shared.schema import default_of
+from .._shared.strict_json import dumps as strict_json
 from ..errors import SynthpackInputError
 from ..io import check_nifti_writer, convert_voxel_size, read_box, write_nifti
-from ..scan.core import Scan
+from ..io.atomic import Output
 from ..scan.split import central_block
-from .slices import Source, check_slicing, open_sources
+from .exporter import ExportWriter, VolumeSettings, run_export
+from .slices import PathLike, RealScan, Source, open_sources
 
-logger = logging.getLogger(__name__)
-
-__all__ = ["DEFAULT_SPLIT", "LABELS", "NNUNET_OUTPUT", "NnUNetExportSummary", "export_nnunet",
+__all__ = ["DEFAULT_SPLIT", "LABELS", "NNUNET_OUTPUT", "NnUNetExportSummary", "NnUNetWriter", "export_nnunet",
            "instances_from_target", "semantic_target"]
 
 #: The export's default split mode: packs train whole, real scans give their central 20% as test cases.
-DEFAULT_SPLIT = "real-test"
+DEFAULT_SPLIT = default_of(VolumeSettings, "split")
 #: The target's classes, as ``dataset.json`` names them.
 LABELS = {"background": 0, "grain": 1, "boundary": 2}
 #: The file ending of every image and target.
@@ -235,6 +233,10 @@ class NnUNetExportSummary:
                 "name": self.name, "unit": self.unit, "labels": LABELS, "sources": self.sources,
                 "cases": self.cases, "settings": self.settings}
 
+    def brief(self) -> str:
+        """One line: ``"3 training and 1 test cases"``."""
+        return f"{self.count('Tr')} training and {self.count('Ts')} test cases"
+
     def table(self) -> str:
         """Markdown table of the cases: one row each."""
         lines = ["| case | set | source | part | block | shape | grains |", "|---|---|---|---|---|---|---|"]
@@ -255,7 +257,7 @@ def _dataset_folder(out: Path) -> tuple[int, str]:
     return int(match["id"]), match["name"]
 
 
-def _common_unit(sources: list[Source]) -> str:
+def _common_unit(sources: list[Source]) -> None:
     """Convert every source's voxel size to the first one's unit (in place); refuse units that do not convert."""
     unit = sources[0].unit
     for source in sources:
@@ -268,7 +270,6 @@ def _common_unit(sources: list[Source]) -> str:
                 "not convert: nnU-Net needs one unit; give real scans whose files record their voxel size (or a "
                 "Scan with voxel_size and unit) in a unit the packs' converts to")
         source.voxel_size, source.unit = converted, unit
-    return unit
 
 
 def _parts(source: Source, axis: int, split: str) -> list[tuple[str, int, int]]:
@@ -298,14 +299,72 @@ def _case_target(source: Source, axis: int, start: int, stop: int) -> np.ndarray
     return target[(slice(None),) * axis + (slice(start - low, stop - low),)]
 
 
+@dataclass
+class NnUNetWriter(ExportWriter):
+    """The nnU-Net format on the exporter's steps (`synthpack.export.exporter`): 3D cases, ``dataset.json``.
+
+    It takes the sources from `synthpack.export.slices.open_sources` (with their voxel
+    sizes, converted to one unit), splits each one into cases (`_parts`) and writes one
+    case at a time.
+    """
+
+    OUTPUT: ClassVar[Output] = NNUNET_OUTPUT
+    SETTINGS = VolumeSettings
+
+    def check(self, out: Path) -> None:
+        """Refuse a folder not named ``DatasetNNN_Name``, or a missing NIfTI writer."""
+        _dataset_folder(out)
+        check_nifti_writer()
+
+    def plan(self, packs: Sequence[PathLike], real: Sequence[RealScan], settings: VolumeSettings) -> list[Source]:
+        """The sources, their voxel sizes in the first one's unit."""
+        sources, _ = open_sources(packs, real, postprocess=settings.postprocess, voxel_size=True)
+        _common_unit(sources)
+        return sources
+
+    def write(self, staging: Path, out: Path, plan: list[Source], settings: VolumeSettings,
+              progress: bool) -> NnUNetExportSummary:
+        """Write every case of every source, training cases first; return the summary."""
+        dataset_id, name = _dataset_folder(out)
+        summary = NnUNetExportSummary(out, dataset_id, name, plan[0].unit, settings={
+            **settings.record(), "labels": LABELS, "file_ending": FILE_ENDING})
+        axis = settings.axis
+        planned = [(source, part) for source in plan for part in _parts(source, axis, settings.split)]
+        planned.sort(key=lambda item: item[1][0] == "test")  # training cases first, in source order
+        width = max(3, len(str(len(planned) - 1)))
+        for number, (source, (part, start, stop)) in enumerate(progress_bar(planned, desc="export", unit="case",
+                                                                            disable=not progress)):
+            summary.cases.append(_write_case(staging, f"{name}_{number:0{width}d}", source, axis, part, start, stop))
+        summary.sources = [{
+            "name": source.name, "kind": source.kind, "path": source.path, "volume": source.volume,
+            "shape": list(source.shape), "voxel_size": list(source.voxel_size),
+            "test_block": next(([start, stop] for part, start, stop in _parts(source, axis, settings.split)
+                                if part == "test"), None),
+        } for source in plan]
+        return summary
+
+    def dataset_files(self, out: Path, summary: NnUNetExportSummary) -> Iterator[tuple[str, str]]:
+        """nnU-Net v2's ``dataset.json``: its four required keys, plus a name and description it ignores."""
+        yield "dataset.json", strict_json({
+            "channel_names": {"0": "CT"},
+            "labels": LABELS,
+            "numTraining": summary.count("Tr"),
+            "file_ending": FILE_ENDING,
+            "name": summary.name,
+            "description": f"synthpack {__version__} export: synthetic particle packs and labelled real scans; "
+                           "target 0 background, 1 grain interior, 2 grain boundary (see nnunet_export.json)",
+            "numTest": summary.count("Ts"),
+        }, indent=1)
+
+
 def export_nnunet(
-    out: str | os.PathLike,
-    packs: Sequence[str | os.PathLike] = (),
-    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]] = (),
+    out: PathLike,
+    packs: Sequence[PathLike] = (),
+    real: Sequence[RealScan] = (),
     *,
-    axis: int = 0,
+    axis: int = default_of(VolumeSettings, "axis"),
     split: str = DEFAULT_SPLIT,
-    postprocess: bool = True,
+    postprocess: bool = default_of(VolumeSettings, "postprocess"),
     progress: bool = True,
     overwrite: bool = False,
 ) -> NnUNetExportSummary:
@@ -345,33 +404,8 @@ def export_nnunet(
         Before anything is written: a bad folder name or setting, no inputs,
         an unreadable pack or scan, or voxel sizes in units that do not convert.
     """
-    out = Path(out)
-    dataset_id, name = _dataset_folder(out)
-    check_slicing(axis, split, bool(packs or real))
-    check_nifti_writer()
-    check_output(out, NNUNET_OUTPUT, overwrite=overwrite)
-    sources, _ = open_sources(packs, real, postprocess=postprocess, voxel_size=True)
-    unit = _common_unit(sources)
-    summary = NnUNetExportSummary(out, dataset_id, name, unit, settings={
-        "axis": axis, "split": split, "postprocess": postprocess, "labels": LABELS, "file_ending": FILE_ENDING,
-    })
-    planned = [(source, part) for source in sources for part in _parts(source, axis, split)]
-    planned.sort(key=lambda item: item[1][0] == "test")  # training cases first, in source order
-    width = max(3, len(str(len(planned) - 1)))
-    with atomic_directory(out, NNUNET_OUTPUT, overwrite=overwrite) as staging:
-        for number, (source, (part, start, stop)) in enumerate(progress_bar(planned, desc="export", unit="case",
-                                                                      disable=not progress)):
-            summary.cases.append(_write_case(staging, f"{name}_{number:0{width}d}", source, axis, part, start, stop))
-        summary.sources = [{
-            "name": source.name, "kind": source.kind, "path": source.path, "volume": source.volume,
-            "shape": list(source.shape), "voxel_size": list(source.voxel_size),
-            "test_block": next(([start, stop] for part, start, stop in _parts(source, axis, split)
-                                if part == "test"), None),
-        } for source in sources]
-        (staging / "dataset.json").write_text(strict_json(_dataset_json(summary), indent=1))
-        (staging / "nnunet_export.json").write_text(strict_json(summary.to_dict(), indent=1))
-    logger.info("nnU-Net dataset %s: %d training and %d test cases", out, summary.count("Tr"), summary.count("Ts"))
-    return summary
+    return run_export(NnUNetWriter(), out, packs, real, VolumeSettings(axis=axis, split=split, postprocess=postprocess),
+                      progress=progress, overwrite=overwrite)
 
 
 def _write_case(root: Path, case: str, source: Source, axis: int, part: str, start: int, stop: int) -> dict:
@@ -392,16 +426,3 @@ def _write_case(root: Path, case: str, source: Source, axis: int, part: str, sta
             "grains": int(np.count_nonzero(np.unique(labels))),
             "voxels": {label: int(counts[value]) for label, value in LABELS.items()}}
 
-
-def _dataset_json(summary: NnUNetExportSummary) -> dict:
-    """nnU-Net v2's ``dataset.json``: its four required keys, plus a name and description it ignores."""
-    return {
-        "channel_names": {"0": "CT"},
-        "labels": LABELS,
-        "numTraining": summary.count("Tr"),
-        "file_ending": FILE_ENDING,
-        "name": summary.name,
-        "description": f"synthpack {__version__} export: synthetic particle packs and labelled real scans; "
-                       "target 0 background, 1 grain interior, 2 grain boundary (see nnunet_export.json)",
-        "numTest": summary.count("Ts"),
-    }

@@ -4,9 +4,10 @@ A 2D export (`synthpack.export.yolo`, `synthpack.export.coco`) turns synthetic p
 labelled real scans into 2D slices along one axis: `plan_slices` opens the sources and
 chooses the split of each one's slices and the intensity window, and
 `SlicedVolumes.write_images` writes the 8-bit images and hands each slice's labels to the
-format's own writer. So two exports of the same inputs with the same settings hold the
-same images under the same names in the same splits, whatever their format. A 3D
-export (`synthpack.export.nnunet`) opens the same sources with `open_sources`.
+format's own writer (the slice loop of `synthpack.export.exporter.SliceWriter`). So two
+exports of the same inputs with the same settings hold the same images under the same
+names in the same splits, whatever their format. A 3D export (`synthpack.export.nnunet`)
+opens the same sources with `open_sources`.
 
 Names
     Images are ``images/<split>/<source>_a<axis>_s<slice:04d>.png`` where ``<source>``
@@ -32,7 +33,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -50,9 +51,8 @@ from ..scan.core import Scan
 from ..scan.split import SPLITS, slice_splits
 
 __all__ = [
-    "SPLIT_MODES", "MIN_AREA", "to_uint8", "check_slicing", "Source", "open_sources", "ExportSlice", "SlicedVolumes",
-    "plan_slices",
-    "ExportSummaryBase", "split_counts",
+    "SPLIT_MODES", "MIN_AREA", "PathLike", "RealScan", "to_uint8", "Source", "open_sources", "ExportSlice",
+    "SlicedVolumes", "plan_slices", "ExportSummaryBase", "split_counts",
 ]
 
 #: ``"paper"``: every volume split train/val/test; ``"real-test"``: synthetic packs train only.
@@ -60,32 +60,17 @@ SPLIT_MODES = ("paper", "real-test")
 #: Default of the exports' `min_area`: smaller sections (YOLO: parts, COCO: instances) get no label, pixels.
 MIN_AREA = 10
 
+#: A path an export takes (a pack folder, a folder of packs, a scan file).
+PathLike = str | os.PathLike
+#: A labelled real scan an export takes: a `Scan`, or the paths of its tomogram and label volume.
+RealScan = Scan | tuple[PathLike, PathLike]
+
 
 def to_uint8(image: np.ndarray, window: tuple[float, float]) -> np.ndarray:
     """``round(255 * clip((image - lo) / (hi - lo), 0, 1))`` as uint8, same shape."""
     lo, hi = window
     scaled = (np.asarray(image, dtype=np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
     return np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
-
-
-def check_slicing(axis: int, split: str, anything: bool, window: tuple[float, float] | None = None) -> None:
-    """Check the slicing settings before anything is read; `anything`: packs or real scans were given.
-
-    `window`, when given, must be two finite grey values ``lo < hi``.
-    """
-    if axis not in (0, 1, 2):
-        raise SynthpackInputError(f"axis must be 0, 1 or 2, got {axis}")
-    if split not in SPLIT_MODES:
-        raise SynthpackInputError(f"split must be one of {', '.join(SPLIT_MODES)}, got {split!r}")
-    if not anything:
-        raise SynthpackInputError("nothing to export: give pack folders (--packs) and/or real scans (--real T L)")
-    if window is not None:
-        lo, hi = (float(v) for v in window)
-        if not np.isfinite([lo, hi, hi - lo]).all():
-            raise SynthpackInputError(f"the window must be finite, got ({lo:g}, {hi:g}): give two grey values "
-                                      "of the tomograms, lo < hi")
-        if not hi > lo:
-            raise SynthpackInputError(f"the window needs lo < hi, got ({lo:g}, {hi:g})")
 
 
 # --------------------------------------------------------------------------- #
@@ -155,8 +140,8 @@ def _unique_names(sources: list[Source]) -> None:
 
 
 def open_sources(
-    packs: Sequence[str | os.PathLike],
-    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]],
+    packs: Sequence[PathLike],
+    real: Sequence[RealScan],
     *,
     postprocess: bool,
     voxel_size: bool = False,
@@ -198,7 +183,7 @@ def _choose_window(window: tuple[float, float] | None, reals: list[Source],
                    packs: list[Pack]) -> tuple[tuple[float, float], str]:
     """The intensity window ``(lo, hi)`` and where it came from (see "Intensity window" in the module docstring)."""
     if window is not None:
-        lo, hi = (float(v) for v in window)  # checked by `check_slicing`
+        lo, hi = (float(v) for v in window)  # checked by `SliceSettings.check`
         return (lo, hi), "given"
     if reals:
         return intensity_window([s.tomogram for s in reals]), "0.5/99.5 percentiles of the real tomograms"
@@ -327,8 +312,8 @@ class SlicedVolumes:
 
 
 def plan_slices(
-    packs: Sequence[str | os.PathLike],
-    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]],
+    packs: Sequence[PathLike],
+    real: Sequence[RealScan],
     *,
     axis: int,
     split: str,
@@ -338,8 +323,8 @@ def plan_slices(
 ) -> SlicedVolumes:
     """Open the sources and choose their slices' splits and the intensity window (see the module docstring).
 
-    Parameters are those of `synthpack.export.export_yolo` of the same names; call
-    `check_slicing` first. Raises `SynthpackInputError` when a pack or scan cannot be
+    Parameters are those of `synthpack.export.export_yolo` of the same names, checked
+    (`synthpack.export.exporter.SliceSettings.check`). Raises `SynthpackInputError` when a pack or scan cannot be
     read, the window is empty, or a split would get no slices.
     """
     sources, opened = open_sources(packs, real, postprocess=postprocess)
@@ -391,6 +376,16 @@ class ExportSummaryBase:
     #: ``format`` in the manifest, and the names of the per-split count fields (``images`` first).
     FORMAT: ClassVar[str] = ""
     COUNTS: ClassVar[tuple[str, ...]] = ("images",)
+
+    def add(self, split: str, counts: Mapping[str, int]) -> None:
+        """Count one exported image of `split` and add its `counts` (count field name -> number) to that split's."""
+        self.images[split] += 1
+        for name, number in counts.items():
+            getattr(self, name)[split] += number
+
+    def brief(self) -> str:
+        """One line of the totals over the splits: ``"120 images, 950 instances, ..."``."""
+        return ", ".join(f"{sum(getattr(self, name).values())} {name.replace('_', ' ')}" for name in self.COUNTS)
 
     def to_dict(self) -> dict:
         """JSON-able form (as in the export's manifest)."""

@@ -8,9 +8,10 @@ Layout of the output folder ``OUT``::
     labels/{train,val,test}/   one .txt per image: ``0 x1 y1 x2 y2 ...`` per polygon
     truth/test/                16-bit PNG instance images of the test slices, for `synthpack evaluate`
 
-File names, splits and images are those of every export (`synthpack.export.slices`:
-the sources, the split of their slices and the intensity window are planned there), so
-a YOLO and a COCO export of the same inputs hold the same images in the same splits.
+File names, splits and images are those of every 2D export: `YoloWriter` adds the
+label files to the slice loop of `synthpack.export.exporter` (the sources, the split of
+their slices and the intensity window are planned by `synthpack.export.slices`), so a
+YOLO and a COCO export of the same inputs hold the same images in the same splits.
 
 Format decisions
 ----------------
@@ -64,9 +65,7 @@ an existing folder is only replaced if it is an earlier export.
 from __future__ import annotations
 
 import json
-import logging
-import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -78,15 +77,13 @@ from skimage.measure import approximate_polygon, find_contours
 from skimage.measure import label as connected_parts
 
 from .. import __version__
-from .._shared.strict_json import dumps as strict_json
-from ..io.atomic import Output, atomic_directory, check_output
+from .._shared.schema import default_of, non_negative, setting
 from ..errors import SynthpackInputError
 from ..io import write_label_image
-from ..scan.core import Scan
-from ..scan.split import SPLITS, VAL_FRACTION
-from .slices import MIN_AREA, ExportSlice, ExportSummaryBase, check_slicing, plan_slices, split_counts
-
-logger = logging.getLogger(__name__)
+from ..io.atomic import Output
+from ..scan.split import SPLITS
+from .exporter import SliceSettings, SliceWriter, run_export
+from .slices import MIN_AREA, ExportSlice, ExportSummaryBase, PathLike, RealScan, split_counts
 
 __all__ = [
     "ExportSummary",
@@ -94,6 +91,8 @@ __all__ = [
     "slice_polygons",
     "yolo_label_text",
     "rasterize_yolo_labels",
+    "YOLO_OUTPUT",
+    "YoloWriter",
     "export_yolo",
 ]
 
@@ -299,46 +298,81 @@ class ExportSummary(ExportSummaryBase):
     COUNTS: ClassVar[tuple[str, ...]] = ("images", "instances", "empty_images", "dropped_fragments",
                                          "instance_pixels", "hole_pixels")
 
-    def _count(self, split: str, result: SlicePolygons) -> None:
-        """Add one exported slice of `split`, with its polygons `result`, to the counts."""
-        self.images[split] += 1
-        self.instances[split] += len(result.polygons)
-        self.empty_images[split] += not result.polygons
-        self.dropped_fragments[split] += result.dropped_fragments
-        self.instance_pixels[split] += result.instance_pixels
-        self.hole_pixels[split] += result.hole_pixels
-
 
 #: A YOLO dataset folder: an earlier export (``export.json``) is replaced, anything else is refused.
 YOLO_OUTPUT = Output("YOLO dataset", marker="export.json")
 
 
-def _data_yaml(out: Path, summary: ExportSummary) -> str:
-    lo, hi = summary.window
-    return (
-        f"# synthpack {__version__} YOLO instance-segmentation export; details in export.json\n"
-        f"# intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from}):\n"
-        "#   pixel = round(255 * clip((value - lo) / (hi - lo), 0, 1))\n"
-        "# moved the folder? edit `path`, or delete it (Ultralytics then uses this file's folder)\n"
-        f"path: {json.dumps(str(out.resolve()))}\n"
-        "train: images/train\nval: images/val\ntest: images/test\n"
-        "names:\n" + "".join(f"  {k}: {v}\n" for k, v in CLASS_NAMES.items())
-    )
+def _known_splits(splits: Sequence[str]) -> bool:
+    """splits among train, val and test"""
+    return set(splits) <= set(SPLITS)
+
+
+@dataclass
+class YoloWriter(SliceWriter):
+    """The YOLO format's hooks of the slice exporter (`synthpack.export.exporter`): label files and ``data.yaml``.
+
+    Attributes
+    ----------
+    tolerance : float
+        Polygon simplification tolerance, pixels; 0 = exact outlines (see the module docstring).
+    truth_splits : sequence of str
+        Splits for which ``truth/<split>/`` instance images are written.
+    """
+
+    tolerance: float = setting(0.0, non_negative, "polygon simplification in pixels (0: exact outlines)")
+    truth_splits: Sequence[str] = setting(("test",), _known_splits,
+                                          "splits that also get truth/ instance images for `evaluate`")
+
+    OUTPUT: ClassVar[Output] = YOLO_OUTPUT
+    SUMMARY: ClassVar[type[ExportSummaryBase]] = ExportSummary
+
+    def record(self) -> dict:
+        return {"tolerance": self.tolerance, "truth_splits": list(self.truth_splits), "class_names": CLASS_NAMES}
+
+    def start(self, staging: Path) -> None:
+        for sub, splits in (("labels", SPLITS), ("truth", self.truth_splits)):
+            for s in splits:
+                (staging / sub / s).mkdir(parents=True)
+
+    def write_slice(self, staging: Path, item: ExportSlice, settings: SliceSettings) -> dict[str, int]:
+        """Write the label lines of one slice and, for a truth split, its truth image; return its counts."""
+        result = slice_polygons(item.labels, min_area=settings.min_area, tolerance=self.tolerance)
+        (staging / "labels" / item.split / f"{item.stem}.txt").write_text(yolo_label_text(result.polygons,
+                                                                                          item.labels.shape))
+        if item.split in self.truth_splits:
+            write_label_image(staging / "truth" / item.split / item.stem, result.parts)
+        return {"instances": len(result.polygons), "empty_images": int(not result.polygons),
+                "dropped_fragments": result.dropped_fragments, "instance_pixels": result.instance_pixels,
+                "hole_pixels": result.hole_pixels}
+
+    def dataset_files(self, out: Path, summary: ExportSummary) -> Iterator[tuple[str, str]]:
+        """``data.yaml``: the dataset's folder, splits and class names; the window in a comment."""
+        lo, hi = summary.window
+        yield "data.yaml", (
+            f"# synthpack {__version__} YOLO instance-segmentation export; details in export.json\n"
+            f"# intensity window [{lo:.6g}, {hi:.6g}] ({summary.window_from}):\n"
+            "#   pixel = round(255 * clip((value - lo) / (hi - lo), 0, 1))\n"
+            "# moved the folder? edit `path`, or delete it (Ultralytics then uses this file's folder)\n"
+            f"path: {json.dumps(str(out.resolve()))}\n"
+            "train: images/train\nval: images/val\ntest: images/test\n"
+            "names:\n" + "".join(f"  {k}: {v}\n" for k, v in CLASS_NAMES.items())
+        )
 
 
 def export_yolo(
-    out: str | os.PathLike,
-    packs: Sequence[str | os.PathLike] = (),
-    real: Sequence[Scan | tuple[str | os.PathLike, str | os.PathLike]] = (),
+    out: PathLike,
+    packs: Sequence[PathLike] = (),
+    real: Sequence[RealScan] = (),
     *,
-    axis: int = 0,
-    split: str = "paper",
-    val_fraction: float = VAL_FRACTION,
-    postprocess: bool = True,
-    window: tuple[float, float] | None = None,
-    min_area: int = MIN_AREA,
-    tolerance: float = 0.0,
-    truth_splits: Sequence[str] = ("test",),
+    axis: int = default_of(SliceSettings, "axis"),
+    split: str = default_of(SliceSettings, "split"),
+    val_fraction: float = default_of(SliceSettings, "val_fraction"),
+    postprocess: bool = default_of(SliceSettings, "postprocess"),
+    window: tuple[float, float] | None = default_of(SliceSettings, "window"),
+    min_area: int = default_of(SliceSettings, "min_area"),
+    tolerance: float = default_of(YoloWriter, "tolerance"),
+    truth_splits: Sequence[str] = default_of(YoloWriter, "truth_splits"),
     progress: bool = True,
     overwrite: bool = False,
 ) -> ExportSummary:
@@ -354,20 +388,14 @@ def export_yolo(
         Pack folders, or folders holding pack folders (``pack_0000``, ...).
     real : sequence of Scan or (tomogram, labels) path pairs
         Labelled real scans (read with `synthpack.io.read_scan`).
-    axis : {0, 1, 2}
-        Slicing axis of every volume.
-    split : {"paper", "real-test"}
-        ``"paper"``: every volume gives train, val and test slices;
-        ``"real-test"``: synthetic packs give training slices only.
-    val_fraction : float
-        Fraction of each split volume's slices for validation, next to the test
-        block (`synthpack.scan.split.slice_splits`).
-    postprocess : bool
-        Synthetic images from the post-processed ``tomogram`` (True) or the
-        ``clean`` volume (False).
-    window : (lo, hi), optional
-        Intensity window; default: 0.5/99.5 percentiles of the real tomograms,
-        else of the first pack's clean volume.
+    axis, split, val_fraction, postprocess, window
+        The slicing settings (`synthpack.export.exporter.SliceSettings`): slicing
+        axis; ``"paper"`` (every volume gives train, val and test slices) or
+        ``"real-test"`` (synthetic packs give training slices only); validation
+        fraction of each split volume's slices, next to the test block; synthetic
+        images from the post-processed ``tomogram`` (True) or the ``clean`` volume;
+        intensity window (default: 0.5/99.5 percentiles of the real tomograms, else
+        of the first pack's clean volume).
     min_area : int
         Parts of fewer pixels get no label line.
     tolerance : float
@@ -383,44 +411,7 @@ def export_yolo(
     -------
     ExportSummary
     """
-    out = Path(out)
-    check_slicing(axis, split, bool(packs or real), window)
-    _check_arguments(truth_splits, min_area, tolerance)
-    check_output(out, YOLO_OUTPUT, overwrite=overwrite)
-    volumes = plan_slices(packs, real, axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,
-                          window=window)
-    summary = ExportSummary(out, volumes.window, volumes.window_from, settings={
-        "axis": axis, "split": split, "val_fraction": val_fraction, "postprocess": postprocess,
-        "min_area": min_area, "tolerance": tolerance, "truth_splits": list(truth_splits), "class_names": CLASS_NAMES,
-    })
-    with atomic_directory(out, YOLO_OUTPUT, overwrite=overwrite) as staging:
-        for sub, splits in (("labels", SPLITS), ("truth", truth_splits)):
-            for s in splits:
-                (staging / sub / s).mkdir(parents=True)
-        for item in volumes.write_images(staging, progress=progress):
-            summary._count(item.split, _write_labels(staging, item, min_area, tolerance, truth_splits))
-        summary.sources = volumes.source_records()
-        (staging / "data.yaml").write_text(_data_yaml(out, summary))
-        (staging / "export.json").write_text(strict_json(summary.to_dict(), indent=1))
-    logger.info("YOLO dataset in %s: %s images, %s instances", out, summary.images, summary.instances)
-    return summary
-
-
-def _check_arguments(truth_splits: Sequence[str], min_area: int, tolerance: float) -> None:
-    """Check `export_yolo`'s own settings (after `check_slicing`) before anything is read."""
-    unknown = sorted(set(truth_splits) - set(SPLITS))
-    if unknown:
-        raise SynthpackInputError(f"unknown truth split(s) {', '.join(unknown)}: use {', '.join(SPLITS)}")
-    if min_area < 1 or tolerance < 0:
-        raise SynthpackInputError(f"min_area must be >= 1 and tolerance >= 0, got {min_area} and {tolerance}")
-
-
-def _write_labels(staging: Path, item: ExportSlice, min_area: int, tolerance: float,
-                  truth_splits: Sequence[str]) -> SlicePolygons:
-    """Write the label lines of one slice and, for a truth split, its truth image; return its polygons."""
-    result = slice_polygons(item.labels, min_area=min_area, tolerance=tolerance)
-    (staging / "labels" / item.split / f"{item.stem}.txt").write_text(yolo_label_text(result.polygons,
-                                                                                      item.labels.shape))
-    if item.split in truth_splits:
-        write_label_image(staging / "truth" / item.split / item.stem, result.parts)
-    return result
+    settings = SliceSettings(axis=axis, split=split, val_fraction=val_fraction, postprocess=postprocess,
+                             window=window, min_area=min_area)
+    return run_export(YoloWriter(tolerance=tolerance, truth_splits=truth_splits), out, packs, real, settings,
+                      progress=progress, overwrite=overwrite)
