@@ -209,7 +209,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         from .render.torch_render import resolve_device
 
         get_engine(config.pour.engine).check_available()
-        resolve_device(config.reconstruct.device, config.reconstruct.order)
+        resolve_device(config.run.device, config.reconstruct.order)
     if args.library:
         library = ParticleLibrary.load(args.library)
         source = library.source

@@ -104,9 +104,9 @@ def test_config_naming_a_folder_is_refused(scans):
 
 def test_generate_refuses_a_cuda_device_torch_does_not_see_before_the_library(scans):
     pytest.importorskip("torch")
-    (scans / "device.yaml").write_text("reconstruct:\n  device: cuda:99\n")
+    (scans / "device.yaml").write_text("run:\n  device: cuda:99\n")
     line = _refused(scans, "generate", "--sample", "small", "--config", "device.yaml", "--out", "o")
-    assert "reconstruct.device cuda:99: torch sees" in line
+    assert "run.device cuda:99: torch sees" in line
 
 
 def test_a_file_recording_an_invalid_voxel_size_shows_plain_numbers(tmp_path):

@@ -51,12 +51,12 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
          "unknown config key 'pour.engine_options.convex_decomposition'"),
         ({"pour": {"engine_options": None}}, "'pour.engine_options' has the wrong type"),
         ({"pour": {"restitution": 1.5}}, "'pour.restitution' is out of range"),
-        ({"reconstruct": {"chunks": [64, 0, 64]}}, "'reconstruct.chunks' is out of range"),
+        ({"run": {"chunks": [64, 0, 64]}}, "'run.chunks' is out of range"),
         ({"reconstruct": {"pore_texture": {"sigma": -0.5}}}, "'reconstruct.pore_texture.sigma' is out of range"),
         ({"reconstruct": {"pore_texture": {"tile": 6.5}}}, "'reconstruct.pore_texture.tile' has the wrong type"),
         ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
         ({"reconstruct": {"pore_texture": {"model": "fractal"}}}, "'reconstruct.pore_texture.model'"),
-        ({"reconstruct": {"device": "gpu"}}, "'reconstruct.device' is out of range"),
+        ({"run": {"device": "gpu"}}, "'run.device' is out of range"),
         ({"pour": 3}, "must be a mapping"),
     ],
 )
@@ -115,3 +115,20 @@ def test_engine_names_come_from_the_registry():
 
     assert cli._ENGINE_CHOICES == tuple(ENGINES) == ("pybullet", "blender")
     assert PackConfig.from_dict({"pour": {"engine": "blender"}}).pour.engine == "blender"
+
+
+def test_chunks_and_device_are_run_settings_and_their_old_keys_still_read(tmp_path, caplog):
+    path = tmp_path / "old.yaml"
+    path.write_text("reconstruct:\n  order: 3\n  chunks: [16, 32, 32]\n  device: cpu\n")
+    config_module._warn_moved.cache_clear()
+    with caplog.at_level(logging.WARNING, logger="synthpack.pipeline.config"):
+        old = load_config(path)
+    assert old == PackConfig.from_dict({"reconstruct": {"order": 3}, "run": {"chunks": [16, 32, 32], "device": "cpu"}})
+    assert sorted(r.getMessage() for r in caplog.records) == [
+        "config key reconstruct.chunks is now run.chunks (read as run.chunks); rename it",
+        "config key reconstruct.device is now run.device (read as run.device); rename it"]
+    assert "chunks" not in old.to_dict()["reconstruct"] and old.run.threads is None
+    with pytest.raises(SynthpackInputError, match="'reconstruct.chunks' and 'run.chunks' both given"):
+        PackConfig.from_dict({"reconstruct": {"chunks": [8, 8, 8]}, "run": {"chunks": [8, 8, 8]}})
+    with pytest.raises(SynthpackInputError, match="'run.threads' is out of range"):
+        PackConfig.from_dict({"run": {"threads": 0}})

@@ -17,7 +17,7 @@ from synthpack.pipeline.generate import build_pack
 from synthpack.physics import PourConfig, pour
 from synthpack.physics.placements import Placements
 
-CONFIG = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12}, reconstruct={"chunks": [32, 64, 64]},
+CONFIG = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12}, run={"chunks": [32, 64, 64]},
                               postprocess="none")
 DEFORMED = CONFIG.replace(grains={"deform": {"strength": 0.3}})
 

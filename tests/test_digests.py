@@ -64,7 +64,7 @@ RTOL, ATOL = 1e-5, 1e-12
 #: checksums) are derived from the files hashed here and from placements.json's timing.
 _RUN_KEYS = {"timings", "seconds", "versions", "files", "devices"}
 
-CONFIG = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12}, reconstruct={"chunks": [32, 64, 64]})
+CONFIG = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12}, run={"chunks": [32, 64, 64]})
 MODES = ("generic", "none", "match_source", "calibrated")
 #: The run's outputs, by folder: the library, then those that follow a pour.
 POURED = ("placements", *(f"packs-{m}" for m in MODES), "packs-zarr", "yolo")

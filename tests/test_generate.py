@@ -83,7 +83,7 @@ def test_generate_writes_complete_packs_and_skips_them_on_rerun(large_library, t
     assert manifest["config"]["pour"]["n_particles"] == 10
     assert {"pour", "reconstruct", "postprocess"} <= set(manifest["timings"])
     assert "numpy" in manifest["versions"] and "contested_voxels" in manifest
-    on = resolve_device(config.reconstruct.device) or "cpu"  # "cpu": NumPy
+    on = resolve_device(config.run.device) or "cpu"  # "cpu": NumPy
     assert manifest["devices"] == {"render": on, "postprocess": on}
     pack = open_pack(path)
     assert isinstance(pack.labels, np.memmap)

@@ -39,8 +39,8 @@ def packs(large_library, tmp_path_factory):
 def test_chunked_zarr_build_equals_in_memory_build_voxel_for_voxel(large_library, tmp_path):
     sigma = 0.8
     config = CONFIG.replace(postprocess=[{"name": "gaussian_blur", "sigma": sigma}])
-    whole = build_pack(large_library, config.replace(reconstruct={"chunks": [512, 512, 512]}), seed=4, progress=False)
-    small = config.replace(reconstruct={"chunks": [8, 24, 20]})
+    whole = build_pack(large_library, config.replace(run={"chunks": [512, 512, 512]}), seed=4, progress=False)
+    small = config.replace(run={"chunks": [8, 24, 20]})
     group = zarr.open_group(str(tmp_path / "volumes.zarr"), mode="w")
     chunked = build_pack(large_library, small, seed=4, progress=False, threads=2,
                          allocate=lambda name, shape, dtype, chunks: group.create_array(
@@ -65,7 +65,7 @@ def test_zarr_and_tiff_packs_hold_the_same_voxels(packs):
     for name in ("tomogram", "clean", "labels"):
         np.testing.assert_array_equal(getattr(zarr_pack, name)[:], getattr(tiff, name))
     # one compressed chunk per slice of a block: a z slice is read without its neighbours
-    assert zarr_pack.labels.chunks[0] == 1 and zarr_pack.labels.shards[0] == CONFIG.reconstruct.chunks[0]
+    assert zarr_pack.labels.chunks[0] == 1 and zarr_pack.labels.shards[0] == CONFIG.run.chunks[0]
     # an OME-Zarr image (level 0 only: the pack is smaller than 2 x MIN_LEVEL_SIZE), no scratch store left
     assert sorted(p.name for p in (zarr_pack.path / "pack.zarr").iterdir() if p.is_dir()) == ["0", "clean", "labels"]
     assert sorted(p.name for p in zarr_pack.path.iterdir()) == [".synthpack-files", "manifest.json", "pack.zarr",

@@ -8,14 +8,17 @@ optional and falls back to the default shown by ``synthpack generate
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     grains: {deform: {strength: 0.0, lattice: 3}}
     pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
-    reconstruct: {order: 1, wall: true, margin: 4, chunks: [64, 256, 256], pore_texture: {model: measured, ...}}
+    reconstruct: {order: 1, wall: true, margin: 4, partial_volume: true, pore_texture: {model: measured, ...}}
+    run: {chunks: [64, 256, 256], device: auto, threads: null}
     postprocess: calibrated       # or match_source, generic, randomised, none, or a list of artefact transforms
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.core.LibraryConfig`, :class:`GrainsConfig` (with
 :class:`~synthpack.library.deform.Deform`), :class:`~synthpack.physics.PourConfig` and
 :class:`~synthpack.render.config.ReconstructConfig` (with its sub-section
-:class:`~synthpack.render.pore_texture.PoreTexture`). What each ``postprocess`` value
+:class:`~synthpack.render.pore_texture.PoreTexture`); :class:`RunConfig` says how a pack is
+computed (chunk shape, device, threads). ``reconstruct.chunks`` and ``reconstruct.device``
+(before synthpack 0.7.0) are still read, with a warning, as ``run.chunks`` and ``run.device``. What each ``postprocess`` value
 means is resolved by :func:`~synthpack.artefacts.recipes.resolve_postprocessing`; the
 default, ``calibrated``, fits the post-processing to the source scan of the
 particle library, which every pack has. ``postprocess: default`` (the name of
@@ -36,7 +39,7 @@ from typing import Any
 
 import yaml
 
-from .._shared.schema import build, default_of, non_negative, setting
+from .._shared.schema import build, default_of, non_negative, positive, setting
 from ..artefacts import from_config
 from ..library.deform import Deform
 from ..errors import SynthpackInputError
@@ -53,6 +56,7 @@ __all__ = [
     "LibraryConfig",
     "PourConfig",
     "ReconstructConfig",
+    "RunConfig",
     "load_config",
 ]
 
@@ -76,6 +80,39 @@ def _warn_deprecated_postprocess(default: str) -> None:
                    "scan); the recipe it named before synthpack 0.3.0 is postprocess: generic", default)
 
 
+def _chunk_shape(value: list) -> bool:
+    """three positive whole numbers (z, y, x)"""
+    return len(value) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in value)
+
+
+def _device(value: str) -> bool:
+    """auto, cpu, cuda or cuda:N"""
+    return isinstance(value, str) and (value in ("auto", "cpu", "cuda") or (
+        value.startswith("cuda:") and value[5:].isdigit()))
+
+
+#: Keys of ``run`` that were keys of ``reconstruct`` before synthpack 0.7.0 (read with a warning).
+_MOVED_TO_RUN = ("chunks", "device")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """How a pack is computed: the ``run`` section (the render, the post-processing and the store read it).
+
+    The chunk shape is part of the result (post-processing noise is drawn per chunk, and a Zarr
+    pack's shards are its chunks); the device and the threads are not: a pack is the same
+    voxel for voxel on the CPU with any number of threads, and within float rounding on a GPU.
+    """
+
+    chunks: list = setting([64, 256, 256], _chunk_shape,
+                           "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
+                           "(and the shards of Zarr packs)")
+    device: str = setting("auto", _device, "where the render and the post-processing run: auto (the first CUDA "
+                          "GPU torch sees, else the CPU), cpu, or cuda / cuda:N; only order 1 renders on a GPU")
+    threads: int | None = setting(None, positive, "threads of one pack's chunked stages (default: the CPUs "
+                                  "this process may use)")
+
+
 @dataclass(frozen=True)
 class GrainsConfig:
     """How the grains of a pack are made from the library's: the ``grains`` section.
@@ -96,6 +133,7 @@ class PackConfig:
     grains: GrainsConfig = field(default_factory=GrainsConfig)
     pour: PourConfig = field(default_factory=PourConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
+    run: RunConfig = field(default_factory=RunConfig)
     postprocess: str | list = setting(
         "calibrated", _valid_postprocess,
         "'calibrated' (blur and noise fitted to the source scan's edge width and noise level; where that "
@@ -128,7 +166,32 @@ class PackConfig:
     @classmethod
     def from_dict(cls, data: dict | None) -> PackConfig:
         """Validate a (possibly partial) dict against the schema."""
-        return build(cls, data or {})
+        return build(cls, _moved_keys(data or {}))
+
+
+def _moved_keys(data: Any) -> Any:
+    """`data` with ``reconstruct.chunks`` / ``reconstruct.device`` moved to ``run`` (with a warning)."""
+    if not isinstance(data, dict) or not isinstance(data.get("reconstruct"), dict):
+        return data
+    moved = {key: data["reconstruct"][key] for key in _MOVED_TO_RUN if key in data["reconstruct"]}
+    if not moved:
+        return data
+    run = data.get("run") or {}
+    if not isinstance(run, dict):
+        return data  # build names the bad section
+    both = sorted(set(moved) & set(run))
+    if both:
+        raise SynthpackInputError(f"config keys 'reconstruct.{both[0]}' and 'run.{both[0]}' both given: "
+                                  f"keep run.{both[0]} only")
+    for key in moved:
+        _warn_moved(key)
+    reconstruct = {key: value for key, value in data["reconstruct"].items() if key not in moved}
+    return {**data, "reconstruct": reconstruct, "run": {**run, **moved}}
+
+
+@functools.cache
+def _warn_moved(key: str) -> None:
+    logger.warning("config key reconstruct.%s is now run.%s (read as run.%s); rename it", key, key, key)
 
 
 def load_config(path: str | os.PathLike | None) -> PackConfig:

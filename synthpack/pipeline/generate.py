@@ -114,7 +114,7 @@ def build_pack(
     """Pour, reconstruct and post-process one pack.
 
     Reconstruction and post-processing go chunk by chunk (chunks
-    ``config.reconstruct.chunks``) from one volume to the next, so with Zarr
+    ``config.run.chunks``) from one volume to the next, so with Zarr
     arrays from `allocate` no whole volume is ever held in memory. The volumes
     depend only on `library`, `config` and `seed`: not on `threads`, nor on where
     they are stored.
@@ -134,7 +134,7 @@ def build_pack(
     progress : bool
         Show progress bars.
     threads : int, optional
-        Threads for the chunks; default: the number of CPU cores.
+        Threads for the chunks; default ``config.run.threads`` (default: the CPUs this process may use).
     allocate : callable, optional
         ``allocate(name, shape, dtype, chunks) -> array`` gives the arrays to fill:
         ``"clean"`` (float32), ``"labels"`` (int32), ``"tomogram"`` (float32) and,
@@ -143,9 +143,10 @@ def build_pack(
         Default: NumPy arrays.
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
-    device = resolve_device(config.reconstruct.device, config.reconstruct.order)
+    device = resolve_device(config.run.device, config.reconstruct.order)
     allocate = allocate or _numpy_volume
-    chunks = tuple(config.reconstruct.chunks)
+    chunks = tuple(config.run.chunks)
+    threads = config.run.threads if threads is None else threads
     timings: dict[str, float] = {}
     grains = None
     if config.grains.deform.strength > 0:
@@ -155,7 +156,7 @@ def build_pack(
         placements = _pour(library, config, seed, progress, grains)
     timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
     with _timed(timings, "reconstruct"):
-        render = _render(library, placements, config.reconstruct, seed, threads, allocate, grains, device)
+        render = _render(library, placements, config.reconstruct, seed, chunks, threads, allocate, grains, device)
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
@@ -163,7 +164,7 @@ def build_pack(
             pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
         )
         # any render order post-processes on the device, if every transform has a torch version
-        postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.reconstruct.device))
+        postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.run.device))
         tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
     grid = render.grid
     manifest = dict(
@@ -219,7 +220,8 @@ def _pour(
 
 def _render(
     library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
-    threads: int | None, allocate: Allocate, grains: PackGrains | None, device: str | None,
+    chunks: tuple[int, int, int], threads: int | None, allocate: Allocate, grains: PackGrains | None,
+    device: str | None,
 ) -> _Render:
     """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
 
@@ -229,7 +231,6 @@ def _render(
     particles, placed = (library, placements.indices) if grains is None else (
         grains.particles, np.arange(len(placements)))
     tube = placements.tube
-    chunks = tuple(config.chunks)
     background = Background.from_source(library.statistics, config)
     wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
     grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
@@ -329,7 +330,7 @@ def generate_pack(
     source : str
         Description of the source scan, for the manifest.
     threads : int, optional
-        Threads for the chunks of this pack; default: the number of CPU cores.
+        Threads for the chunks of this pack; default ``config.run.threads``.
     progress : bool
         Show the pour's progress bar.
 
@@ -340,6 +341,7 @@ def generate_pack(
     """
     path = Path(out) / pack_name(index)
     seed = pack_seed(config.seed, index)
+    threads = config.run.threads if threads is None else threads
     with stage_pack(path, voxel_size=library.voxel_size, unit=library.unit, format=format) as staged:
         pack = build_pack(library, config, seed, progress=progress, threads=threads,
                           allocate=staged.zarr_array if staged.format == "zarr" else None)
@@ -409,7 +411,7 @@ def generate_packs(
         failed pack with its error. Calling again builds only the missing packs.
     SynthpackInputError
         Before any work: for an output path that cannot be used, an unknown
-        post-processing, or an engine or ``reconstruct.device`` that cannot run here
+        post-processing, or an engine or ``run.device`` that cannot run here
         (checked when the packs are built on this machine). After the other packs were built: when every
         failed pack failed on its input (a `~synthpack.errors.PackInputError`,
         which is both a `PackBuildError` and a `SynthpackInputError`).
@@ -423,7 +425,7 @@ def generate_packs(
     check_postprocess(config.postprocess, library.statistics)
     if scheduler is None:  # a remote cluster's workers may have what this machine lacks
         get_engine(config.pour.engine).check_available()
-        resolve_device(config.reconstruct.device, config.reconstruct.order)
+        resolve_device(config.run.device, config.reconstruct.order)
     paths = [out / pack_name(index) for index in range(n_packs)]
     missing = [index for index, path in enumerate(paths) if not is_complete_pack(path)]
     if len(missing) < n_packs:

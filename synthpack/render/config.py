@@ -12,17 +12,6 @@ from .pore_texture import PoreTexture
 __all__ = ["ReconstructConfig"]
 
 
-def _chunk_shape(value: list) -> bool:
-    """three positive whole numbers (z, y, x)"""
-    return len(value) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in value)
-
-
-def _device(value: str) -> bool:
-    """auto, cpu, cuda or cuda:N"""
-    return isinstance(value, str) and (value in ("auto", "cpu", "cuda") or (
-        value.startswith("cuda:") and value[5:].isdigit()))
-
-
 @dataclass(frozen=True)
 class ReconstructConfig:
     """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults.
@@ -34,17 +23,12 @@ class ReconstructConfig:
     wall: bool = setting(True, None, "draw the tube wall")
     wall_intensity: float | None = setting(None, finite, "wall intensity; default between pores and grains")
     margin: int = setting(4, non_negative, "voxels of margin around the tube")
-    chunks: list = setting([64, 256, 256], _chunk_shape,
-                           "chunk shape (z, y, x) of the chunk-by-chunk rendering and post-processing "
-                           "(and the shards of Zarr packs)")
     partial_volume: bool = setting(True, None, "composite each grain by the fraction of every voxel it fills "
                                    "(false: paste whole voxels, a hard step)")
     edge_shift: float | None = setting(None, finite, "partial volume: the grain's intensity edge relative to its "
                                        "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
     rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
                                 "replaced by its interior; default: from the source's fitted edge")
-    device: str = setting("auto", _device, "where the render and the post-processing run: auto (the first CUDA "
-                          "GPU torch sees, else the CPU), cpu, or cuda / cuda:N; only order 1 renders on a GPU")
     pore_texture: PoreTexture = field(default_factory=PoreTexture)
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:

@@ -12,7 +12,7 @@ a voxel's interpolated mask value lies within float rounding of the 0.5 threshol
 float32 rounding. Only linear interpolation of the intensities (``order: 1``, the
 default) is offered on the device: `resolve_device` keeps other orders on the CPU.
 
-The device is chosen by ``reconstruct.device`` (`resolve_device`): ``auto`` (the
+The device is chosen by ``run.device`` (`resolve_device`): ``auto`` (the
 default) renders on the first CUDA GPU when torch sees one, else with NumPy on the
 CPU, as before. The post-processing runs on the same device
 (`synthpack.artefacts.torch_blocks`, whatever the render's order) where every transform
@@ -65,13 +65,13 @@ def resolve_device(device: str, order: int = 1) -> str | None:
     if device == "auto":
         return "cuda" if available and order == 1 else None
     if not available:
-        raise SynthpackInputError(f"reconstruct.device {device}: torch sees no CUDA GPU here; use auto or cpu")
+        raise SynthpackInputError(f"run.device {device}: torch sees no CUDA GPU here; use auto or cpu")
     count = torch.cuda.device_count()
     if device.startswith("cuda:") and int(device[5:]) >= count:
-        raise SynthpackInputError(f"reconstruct.device {device}: torch sees {count} CUDA GPU(s) here, cuda:0 to "
+        raise SynthpackInputError(f"run.device {device}: torch sees {count} CUDA GPU(s) here, cuda:0 to "
                                   f"cuda:{count - 1}; use one of them, cuda, auto or cpu")
     if order != 1:
-        raise SynthpackInputError(f"reconstruct.device {device} renders with order 1 only; use order: 1 "
+        raise SynthpackInputError(f"run.device {device} renders with order 1 only; use order: 1 "
                                   "or device: cpu")
     return device
 
