@@ -9,13 +9,12 @@ one stage leaves every other stage's numbers as they were.
 
 `PURPOSES` is append-only: a purpose's position is part of every output drawn from it, so
 renaming is free but reordering or removing one changes bytes (and the pack format's version).
-A pack's manifest records its seed and the spawn key of each stream (`record`), as TorchIO
-records its transforms' draws, so that any draw can be redone alone.
+A pack's manifest records its seed and the spawn key of each stream (`record`, under
+``random_streams``), as TorchIO records its transforms' draws, so that any draw can be
+redone alone.
 """
 
 from __future__ import annotations
-
-from typing import Any
 
 import numpy as np
 
@@ -33,8 +32,7 @@ PURPOSES: tuple[str, ...] = (
     "transform_volume",   # a step's per-volume draws, alike in every block (key: step)
     "transform_blocks",   # a step's per-block noise (keys: step, the block's first voxel)
     "patch_origins",      # a patch dataset's patch corners (keys: epoch, item, draw)
-    "patch_artefacts",    # a patch dataset's artefacts (keys: epoch, item, corner)
-    "augment",            # a dataset transform's draws (keys: the item's seed key)
+    "augment",            # a dataset's artefact transforms (keys: epoch, item, and its slice or corner)
     "plots",              # subsamples drawn for figures
 )
 
@@ -71,6 +69,6 @@ def derived_seed(seed: int, purpose: str, *key: int) -> int:
     return int(stream(seed, purpose, *key).generate_state(1, np.uint32)[0])
 
 
-def record(seed: int) -> dict[str, Any]:
-    """The manifest's record of a seed's streams: the seed and each purpose's spawn key."""
-    return {"seed": int(seed), "streams": {purpose: [index] for index, purpose in enumerate(PURPOSES)}}
+def record() -> dict[str, list[int]]:
+    """The manifest's record of the streams: each purpose's spawn key below the recorded seed."""
+    return {purpose: [index] for index, purpose in enumerate(PURPOSES)}

@@ -32,9 +32,10 @@ same as on the CPU, so the result is the NumPy path's within float32 rounding. A
 pipeline holding any transform without a torch step (`Transform.has_torch_step`) runs
 on the CPU as a whole (logged at INFO), so a result never mixes the two.
 
-Random draws, all from `seed`: the ``p`` test and the parameters of step ``k``
-from ``[seed, k, 0]``, per-volume draws from ``[seed, k, 1]``, and block noise
-from ``[seed, k, 2, z0, y0, x0]`` (the block's first voxel). The result is a
+Random draws, all from `seed`'s named streams (`synthpack._shared.seeds`): the ``p`` test
+and the parameters of step ``k`` from ``"transform_params", k``, per-volume draws from
+``"transform_volume", k``, and block noise from ``"transform_blocks", k, z0, y0, x0`` (the
+block's first voxel). The result is a
 function of the seed, the pipeline, the volume and the block shape only: not of
 the thread count or the order in which blocks are done. Noise realisations
 differ from `Transform.apply` on the whole volume (one generator drawn in
@@ -54,15 +55,13 @@ import numpy as np
 
 from .._shared.chunks import bounded_map, chunk_boxes, thread_count
 from .._shared.arrays import as_image
+from .._shared.seeds import generator, stream
 from ..errors import SynthpackInputError
 from ._base import BlockContext, Compose, Transform
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["apply_blockwise", "device_for", "steps"]
-
-_PARAMS, _CALL, _BLOCK = 0, 1, 2
-
 
 @dataclass(frozen=True)
 class _Step:
@@ -83,7 +82,7 @@ def steps(pipeline: Transform | Compose) -> list[Transform]:
 def _draw(pipeline: Transform | Compose, seed: int) -> list[_Step]:
     drawn = []
     for k, transform in enumerate(steps(pipeline)):
-        rng = np.random.default_rng([seed, k, _PARAMS])
+        rng = generator(seed, "transform_params", k)
         if transform.p < 1.0 and rng.random() >= transform.p:
             logger.debug("%s skipped (p=%g)", transform.name, transform.p)
             continue
@@ -196,8 +195,8 @@ def _run_pass(
         out = where.put(_read_with_halo(source, lo, hi, halo))
         origin = tuple(int(v) for v in lo - halo)
         for step, function in zip(passed, functions):
-            context = BlockContext(np.random.default_rng([seed, step.index, _BLOCK, *map(int, lo)]),
-                                   np.random.SeedSequence([seed, step.index, _CALL]), origin, shape)
+            context = BlockContext(generator(seed, "transform_blocks", step.index, *lo),
+                                   stream(seed, "transform_volume", step.index), origin, shape)
             out = function(out, context, **step.params)
             if step is head and halo.any():
                 out = out[tuple(slice(int(h), int(h) + int(n)) for h, n in zip(halo, hi - lo))]

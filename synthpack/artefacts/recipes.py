@@ -80,6 +80,7 @@ from . import (
     measured_slices,
     noise_to_add,
 )
+from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from ..render.grid import Grid
 from ..source.noise_estimate import estimate_noise
@@ -334,7 +335,7 @@ def _randomised(statistics: SourceStatistics, calibration: Calibration | None, m
                 seed: int) -> Postprocessing:
     """``randomised``: a pipeline drawn with `seed` about `calibration` (or, without it, `matched` noise)."""
     ranges = RANDOMISED_RANGES
-    drawn = _draw_randomised(np.random.default_rng(seed))
+    drawn = _draw_randomised(generator(seed, "recipe"))
     levels = {"pore_level": float(statistics.pore_mean), "grain_level": float(statistics.grain_mean)}
     rings = statistics.ring_amplitudes
     centre = {

@@ -144,8 +144,8 @@ class SliceDataset(Dataset, EpochSeeded, ABC):
     def __getitem__(self, index: int) -> Item:
         k, s = self._locate(index)
         images, labels = self._volumes(k)
-        image = self._transforms.apply_artefacts(read_slice(images, self.axis, s),
-                                                 seed=(self.seed, self.epoch, k, self.axis, s))
+        image = self._transforms.apply_artefacts(read_slice(images, self.axis, s), self.seed, self.epoch, k,
+                                                 self.axis, s)
         target = instance_target(read_slice(labels, self.axis, s), dense_masks=self.dense_masks)
         target["pack"], target["slice"] = k, s
         return self._transforms(image_tensor(image), target)

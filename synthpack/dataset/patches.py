@@ -69,6 +69,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from ..io import read_box
 from ..scan.core import Scan
@@ -86,8 +87,6 @@ PAD_VALUE = 0.0
 
 _SAMPLINGS = ("random", "grid")
 _SPLITS = ("train", "val", "test", "all")
-# first entropy word after (seed, epoch): keeps the origin draws and the noise draws apart
-_ORIGIN_STREAM, _NOISE_STREAM = 0, 1
 
 
 class PatchDataset(Dataset, EpochSeeded):
@@ -222,7 +221,7 @@ class PatchDataset(Dataset, EpochSeeded):
         if self._grid is not None:
             return int(self._grid[index, 0]), self._grid[index, 1:].copy()
         k, j = divmod(index, self.patches_per_volume)
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, _ORIGIN_STREAM, k, j]))
+        rng = generator(self.seed, "patch_origins", self.epoch, k, j)
         shape, blocks, size = self._shapes[k], self._blocks[k], self.patch_size  # type: ignore[index]
         origin = np.zeros(3, dtype=np.int64)
         for axis in range(3):
@@ -249,7 +248,7 @@ class PatchDataset(Dataset, EpochSeeded):
         extent = self._extent(k, origin)
         images, labels = self.volumes.open_volumes(k)
         image = read_box(images, origin, extent).astype(np.float32)
-        image = self._transforms.apply_artefacts(image, seed=(self.seed, self.epoch, _NOISE_STREAM, k, *origin))
+        image = self._transforms.apply_artefacts(image, self.seed, self.epoch, k, *origin)
         label = read_box(labels, origin, extent).astype(np.int64)
         item: dict[str, Any] = {
             "image": torch.from_numpy(_pad(image, self.patch_size, PAD_VALUE))[None],

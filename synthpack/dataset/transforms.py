@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from ..artefacts import Compose as ArtefactCompose
 from ..artefacts import Transform as ArtefactTransform
+from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from .targets import Item
 
@@ -63,16 +63,16 @@ class SliceTransforms:
                     f"{form}: pass one of those, or a list of them"
                 )
 
-    def apply_artefacts(self, image: np.ndarray, seed: Sequence[int]) -> np.ndarray:
+    def apply_artefacts(self, image: np.ndarray, seed: int, *key: int) -> np.ndarray:
         """The artefact transforms applied in order to the (H, W) slice or (D, H, W) patch `image`.
 
-        Their random draws come from one generator seeded by `seed` (the item's
-        ``(seed, epoch, volume, axis, slice)`` for a slice), so an item is the
-        same in any process.
+        Their random draws come from one generator on the dataset seed's ``"augment"``
+        stream below `key` (the item's ``epoch, volume, axis, slice`` for a slice), so
+        an item is the same in any process.
         """
         if not self.artefacts:
             return image
-        rng = np.random.default_rng(np.random.SeedSequence(list(seed)))
+        rng = generator(seed, "augment", *key)
         for artefact in self.artefacts:
             image = artefact(image, rng)
         return image

@@ -47,6 +47,7 @@ import trimesh
 from scipy import ndimage
 
 from .._shared.schema import in_range, setting
+from .._shared.seeds import stream
 from .core import ParticleLibrary
 from .particles import Particle
 
@@ -70,8 +71,6 @@ _COARSE = 2
 _MARGIN = 3
 #: Points per axis of the grid on which a deformation's Jacobian is checked.
 _CHECK_POINTS = 9
-#: Stream of a pack seed that the deformations are drawn from (other streams: pour, post-processing).
-_STREAM = 0xFFD
 
 
 @dataclass(frozen=True)
@@ -373,8 +372,8 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: Deform, seed
     The source grain of each placement is drawn uniformly from `library` with
     replacement (as the pour draws them without deformation), then deformed with its
     own seed (:func:`draw_ffd`, :func:`deform_particle`). Every draw comes from
-    ``numpy.random.SeedSequence([seed, 0xFFD])``, a stream of the pack seed that no
-    other stage uses, so the same seed gives the same grains.
+    the pack seed's ``"grains"`` stream (`synthpack._shared.seeds`), which no other stage
+    uses, so the same seed gives the same grains.
 
     Parameters
     ----------
@@ -393,7 +392,7 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: Deform, seed
     """
     if deform.strength == 0:
         return None
-    sequence = np.random.SeedSequence([int(seed), _STREAM])
+    sequence = stream(seed, "grains")
     sources = np.random.default_rng(sequence).integers(0, len(library), n_particles).astype(np.int64)
     seeds = [int(s) for s in sequence.spawn(1)[0].generate_state(n_particles, np.uint32)]
     particles, factors = _deformed(library, sources, seeds, deform)

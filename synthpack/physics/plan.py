@@ -14,6 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from .container import LibraryLike, Tube
 
@@ -189,7 +190,7 @@ def make_plan(
         For an empty size class, a tube too narrow for the largest grain, or `indices`
         that are not `n_particles` library indices (or come with `size_classes`).
     """
-    rng = np.random.default_rng(seed)
+    rng = generator(seed, "plan")
     low, high = parse_scale(scale)
     classes = parse_size_classes(size_classes)
     if indices is None:

@@ -20,6 +20,7 @@ import numpy as np
 from .. import __version__
 from ..io.atomic import check_output
 from .._shared.chunks import bounded_map, chunk_boxes, thread_count
+from .._shared.seeds import derived_seed, record as random_streams
 from ..artefacts.blockwise import apply_blockwise, device_for
 from .._shared.budget import check_pack_grid
 from .config import PackConfig, ReconstructConfig
@@ -44,8 +45,8 @@ Allocate = Callable[[str, tuple[int, int, int], Any, tuple[int, int, int]], Any]
 
 
 def pack_seed(run_seed: int, index: int) -> int:
-    """Seed of pack `index` of a run: a pure function of the run seed and the index."""
-    return _derived_seed(run_seed, index)
+    """Seed of pack `index` of a run: from the run seed's ``"pack"`` stream (`synthpack._shared.seeds`)."""
+    return derived_seed(run_seed, "pack", index)
 
 
 def pack_name(index: int) -> str:
@@ -91,11 +92,6 @@ def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> No
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
                          margin=config.reconstruct.margin)
     check_pack_grid(grid.shape, format)
-
-
-def _derived_seed(seed: int, stream: int) -> int:
-    """A 32-bit seed for stream `stream` of `seed` (pack `stream` of a run, or a pack's post-processing)."""
-    return int(np.random.SeedSequence([int(seed), int(stream)]).generate_state(1, np.uint32)[0])
 
 
 def _numpy_volume(name: str, shape: tuple[int, int, int], dtype, chunks: tuple[int, int, int]) -> np.ndarray:
@@ -161,14 +157,15 @@ def build_pack(
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
             grid=render.grid, packing_region=placements.checks.packing_region,
-            pore_texture=render.background.texture_density(), seed=_derived_seed(seed, 2),
+            pore_texture=render.background.texture_density(), seed=seed,
         )
         # any render order post-processes on the device, if every transform has a torch version
         postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.run.device))
         tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
     grid = render.grid
     manifest = dict(
-        seed=seed, config=config.to_dict(), library_source=library.source, n_particles=len(placements),
+        seed=seed, random_streams=random_streams(), config=config.to_dict(), library_source=library.source,
+        n_particles=len(placements),
         n_labels=_grains_present(render.labels, len(placements), chunks, threads),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
@@ -264,7 +261,7 @@ def _postprocess(
     shape = render.grid.shape
     tomogram = allocate("tomogram", shape, np.float32, chunks)
     applied = apply_blockwise(
-        postprocessing.pipeline, render.clean, tomogram, _derived_seed(seed, 1), chunks, threads=threads,
+        postprocessing.pipeline, render.clean, tomogram, derived_seed(seed, "artefacts"), chunks, threads=threads,
         scratch=lambda: allocate("scratch", shape, np.float32, chunks), device=device,
     )
     return tomogram, applied

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..io.atomic import atomic_file
 from .._shared.plotting import pyplot
+from .._shared.seeds import generator
 from .discriminator import ClassifierTest
 from .report import Measurements
 
@@ -162,7 +163,7 @@ def save_cnn_patches_plot(
         Seed of the draw of the real patches.
     """
     plt = pyplot()
-    rng = np.random.default_rng(seed)
+    rng = generator(seed, "plots")
     fig, axes = plt.subplots(len(packs), 2, figsize=(8, 4.2 * len(packs)), layout="constrained", squeeze=False)
     cmap = plt.get_cmap("gray").with_extremes(bad="tab:blue")
     for (left, right), measured, test in zip(axes, packs, tests):

@@ -58,6 +58,7 @@ from scipy import fft
 
 from .._shared.arrays import periodic_window
 from .._shared.schema import non_negative, one_of, positive, setting
+from .._shared.seeds import generator
 from .._shared.text import sig
 from ..source.pore_histogram import map_to_quantiles
 from ..source.pore_spectrum import frequency_radius, spectrum_on_grid
@@ -65,10 +66,6 @@ from ..source.pore_spectrum import frequency_radius, spectrum_on_grid
 __all__ = ["PoreTexture"]
 
 logger = logging.getLogger(__name__)
-
-#: Stream of the render's seed that the texture's white noise is drawn from.
-_STREAM = 0x7E47
-
 
 @dataclass(frozen=True)
 class PoreTexture:
@@ -199,7 +196,7 @@ def _periodic_field(
                        sig(texture.sigma))
     shape = (texture.tile,) * 3
     density = texture.density(pore_std, pore_spectrum)
-    white = np.random.default_rng([seed, _STREAM]).standard_normal(shape)
+    white = generator(seed, "pore_texture").standard_normal(shape)
     field = fft.irfftn(fft.rfftn(white) * np.sqrt(density[..., : texture.tile // 2 + 1]), s=shape)
     expected = np.sqrt(density.mean())
     realised = field.std()
