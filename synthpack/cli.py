@@ -27,7 +27,7 @@ from ._shared.console import show_logs
 from .store.formats import PACK_FORMATS
 from ._shared.schema import build, default_of, help_of, option_name
 from .pipeline.config import LibraryConfig, PackConfig, PourConfig
-from .library.deform import Deform
+from .library.deform import DeformConfig
 from .physics.engine import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
 from .errors import ContainmentError, PackBuildError, SynthpackInputError
@@ -73,7 +73,7 @@ DEMO_OUTPUT = Output("demo folder", marker="library/library.json")
 #: The `label` command's TIFF: never replaced without --overwrite (it may have been corrected by hand since).
 LABELS_OUTPUT = Output("label volume", folder=False)
 
-#: The `label` command's options that are `LabelSettings` (validated by it), with their types.
+#: The `label` command's options that are `LabelConfig` (validated by it), with their types.
 _LABEL_OPTIONS = (("threshold", float), ("contrast", str), ("sigma", float), ("smoothing", float),
                   ("min_distance", int), ("min_voxels", int))
 
@@ -398,9 +398,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
 
 def _cmd_label(args: argparse.Namespace) -> None:
     from .io import read_tomogram, write_tiff
-    from .scan.labelling import STARTING_POINT, LabelSettings, label_scan
+    from .scan.labelling import STARTING_POINT, LabelConfig, label_scan
 
-    settings = build(LabelSettings, {name: getattr(args, name) for name, _ in _LABEL_OPTIONS}, name=option_name)
+    settings = build(LabelConfig, {name: getattr(args, name) for name, _ in _LABEL_OPTIONS}, name=option_name)
     if args.out.suffix.lower() not in (".tif", ".tiff"):
         raise SynthpackInputError(f"--out {args.out}: the labels are written as a TIFF file; give a name ending in .tif")
     preview = args.out.with_suffix(".png") if args.preview else None
@@ -483,7 +483,7 @@ def _add_generate_command(commands: Any) -> None:
     _add_pour_arguments(generate, in_config=True)
     generate.add_argument("--seed", type=int, help="run seed (config seed)")
     generate.add_argument("--deform-strength", type=float, metavar="S",
-                          help=help_of(Deform, "strength") + " (config grains.deform.strength)")
+                          help=help_of(DeformConfig, "strength") + " (config grains.deform.strength)")
     generate.add_argument("--config", type=Path, help="YAML pack config; options above override it")
     generate.add_argument("--format", choices=PACK_FORMATS, default="tiff",
                           help="volume format (default tiff); zarr (also called ome-zarr) writes each pack as "
@@ -629,7 +629,7 @@ def _add_evaluate_command(commands: Any) -> None:
 
 
 def _add_label_command(commands: Any) -> None:
-    from .scan.labelling import CONTRASTS, LabelSettings
+    from .scan.labelling import CONTRASTS, LabelConfig
 
     label = commands.add_parser(
         "label", help="starting instance labels for a scan that has none (threshold + distance-transform "
@@ -642,8 +642,8 @@ def _add_label_command(commands: Any) -> None:
                        help="also write a PNG of the middle slices with the label outlines, next to --out (.png)")
     group = label.add_argument_group("segmentation (see synthpack.scan.labelling)")
     for name, kind in _LABEL_OPTIONS:
-        group.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(LabelSettings, name),
-                           help=help_of(LabelSettings, name), **({"choices": CONTRASTS} if name == "contrast" else {}))
+        group.add_argument("--" + name.replace("_", "-"), type=kind, default=default_of(LabelConfig, name),
+                           help=help_of(LabelConfig, name), **({"choices": CONTRASTS} if name == "contrast" else {}))
     _add_overwrite_argument(label)
     label.set_defaults(run=_cmd_label)
 

@@ -11,7 +11,7 @@ from scipy import ndimage
 
 from synthpack.cli import main
 from synthpack.pipeline.config import PackConfig
-from synthpack.library.deform import MIN_JACOBIAN, Deform, LatticeFFD, deform_particle, draw_ffd, pack_grains, redo_grains
+from synthpack.library.deform import MIN_JACOBIAN, DeformConfig, LatticeFFD, deform_particle, draw_ffd, pack_grains, redo_grains
 from synthpack.errors import SynthpackInputError
 from synthpack.pipeline.generate import build_pack
 from synthpack.physics import PourConfig, pour
@@ -43,7 +43,7 @@ def test_zero_displacements_are_the_identity(large_library):
     assert np.array_equal(same.mask, particle.mask)
     assert np.array_equal(same.tomogram, particle.tomogram)
     np.testing.assert_allclose(same.mesh.vertices, particle.mesh.vertices, atol=1e-9)
-    assert pack_grains(large_library, 10, Deform(strength=0.0), seed=1) is None
+    assert pack_grains(large_library, 10, DeformConfig(strength=0.0), seed=1) is None
 
 
 def test_strength_zero_pack_is_the_undeformed_pack(large_library):
@@ -108,7 +108,7 @@ def test_placements_record_the_deformation_and_redo_it(large_library, deformed_p
     assert saved["version"] == 2 and saved["grains"] == record
     loaded = Placements.load(tmp_path / "placements.json")
     assert loaded.grains == record and np.array_equal(loaded.indices, placements.indices)
-    made = pack_grains(large_library, len(placements), Deform(strength=0.3), seed=7)
+    made = pack_grains(large_library, len(placements), DeformConfig(strength=0.3), seed=7)
     again = redo_grains(large_library, loaded.indices, loaded.grains)
     for a, b in zip(made.particles, again):
         assert np.array_equal(a.mask, b.mask) and np.array_equal(a.tomogram, b.tomogram)
@@ -119,7 +119,7 @@ def test_same_seed_same_placements_with_deformation(large_library, deformed_pack
     again = build_pack(large_library, DEFORMED, 7, progress=False, threads=2)
     assert again.placements.to_dict() == deformed_pack.placements.to_dict()
     assert np.array_equal(again.labels, deformed_pack.labels)
-    other = pack_grains(large_library, 24, Deform(strength=0.3), seed=8)
+    other = pack_grains(large_library, 24, DeformConfig(strength=0.3), seed=8)
     assert other.record["seeds"] != deformed_pack.placements.grains["seeds"]
 
 

@@ -9,7 +9,7 @@ from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError
 from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed
 from synthpack.store.pack import is_complete_pack, open_pack
-from synthpack.render.pore_texture import PoreTexture
+from synthpack.render.pore_texture import PoreTextureConfig
 from synthpack.render.torch_render import resolve_device
 
 SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
@@ -52,11 +52,11 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
 
 
 def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
-    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == dataclasses.asdict(PoreTexture())
+    assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == dataclasses.asdict(PoreTextureConfig())
     statistics = large_library.statistics
     assert small_pack.manifest["pore_texture"] == {
         "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "histogram": True, "seed": 11,
-        "amplitude": pytest.approx(float(np.sqrt(PoreTexture().density(statistics.pore_std,
+        "amplitude": pytest.approx(float(np.sqrt(PoreTextureConfig().density(statistics.pore_std,
                                                                        statistics.pore_spectrum).mean())))}
     smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"cutoff": 0.05}}), seed=11,
                           progress=False)

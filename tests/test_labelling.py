@@ -8,7 +8,7 @@ import pytest
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.io import read_volume, write_tiff
-from synthpack.scan.labelling import STARTING_POINT, LabelSettings, label_scan
+from synthpack.scan.labelling import STARTING_POINT, LabelConfig, label_scan
 from synthpack.metrics import dice_stats
 
 
@@ -32,27 +32,27 @@ def test_large_sample_reaches_matched_instance_dice_0_8(large_scan, large_labell
 
 @pytest.mark.parametrize("contrast", ["auto", "dark"])
 def test_inverted_contrast_finds_the_grains(large_scan, large_labelling, contrast):
-    result = label_scan(_inverted(large_scan.tomogram), LabelSettings(contrast=contrast))
+    result = label_scan(_inverted(large_scan.tomogram), LabelConfig(contrast=contrast))
     assert result.contrast == "dark"
     assert dice_stats(result.labels, large_scan.labels).instance_dice_micro >= 0.8
     assert abs(result.n_grains - large_labelling.n_grains) <= 0.05 * large_labelling.n_grains
 
 
 def test_wrong_contrast_labels_the_pores_instead(large_scan):
-    result = label_scan(large_scan.tomogram, LabelSettings(contrast="dark"))
+    result = label_scan(large_scan.tomogram, LabelConfig(contrast="dark"))
     assert dice_stats(result.labels, large_scan.labels).dice < 0.1  # the pore phase, not the grains
 
 
 def test_every_labelling_warns_it_is_a_starting_point(blob_scan, caplog):
     with caplog.at_level(logging.WARNING, logger="synthpack"):
-        result = label_scan(blob_scan.tomogram, LabelSettings(threshold=0.5, contrast="bright"))
+        result = label_scan(blob_scan.tomogram, LabelConfig(threshold=0.5, contrast="bright"))
     assert STARTING_POINT in caplog.text
     assert result.threshold == 0.5 and result.n_grains >= 1
 
 
 def test_a_threshold_outside_the_grey_values_is_refused(blob_scan):
     with pytest.raises(SynthpackInputError, match="give a --threshold between them"):
-        label_scan(blob_scan.tomogram, LabelSettings(threshold=float(blob_scan.tomogram.max()) + 1))
+        label_scan(blob_scan.tomogram, LabelConfig(threshold=float(blob_scan.tomogram.max()) + 1))
 
 
 def test_cli_writes_labels_and_preview_and_refuses_to_overwrite(tmp_path, large_scan, large_labelling, capsys):

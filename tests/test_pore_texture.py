@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.render import Background, Grid, PoreTexture, pose_maps, reconstruct
+from synthpack.render import Background, Grid, PoreTextureConfig, pose_maps, reconstruct
 from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.source.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
@@ -78,7 +78,7 @@ def _shells(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def test_texture_has_the_spectrum_it_is_drawn_from():
     f = shell_frequencies(29)
     spectrum = tuple(_gaussian_density(f) + 1.0)  # a smooth texture on a white floor
-    texture = PoreTexture(cutoff=0.15, rolloff=0.1, tile=128)
+    texture = PoreTextureConfig(cutoff=0.15, rolloff=0.1, tile=128)
     field = texture.sample(np.zeros(3, int), np.full(3, 128), 7, pore_std=1.0, pore_spectrum=spectrum)
     expected = texture.density(1.0, spectrum)
     assert field.std() == pytest.approx(np.sqrt(expected.mean()), rel=1e-5)  # the expected variance, exactly
@@ -94,7 +94,7 @@ def test_texture_has_the_spectrum_it_is_drawn_from():
     assert measured[beyond].max() < 1e-6 * measured.max()
 
 
-def _empty_render(texture: PoreTexture, spectrum, seed: int, chunks, quantiles=None) -> np.ndarray:
+def _empty_render(texture: PoreTextureConfig, spectrum, seed: int, chunks, quantiles=None) -> np.ndarray:
     grid = Grid((40, 48, 56), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
     background = Background(5.0, 1.0, texture=texture, pore_spectrum=spectrum, pore_quantiles=quantiles)
@@ -103,7 +103,7 @@ def _empty_render(texture: PoreTexture, spectrum, seed: int, chunks, quantiles=N
 
 def test_measured_texture_is_chunking_independent_and_seeded():
     spectrum = tuple(_gaussian_density(shell_frequencies(29)))
-    texture = PoreTexture(tile=32)
+    texture = PoreTextureConfig(tile=32)
     whole = _empty_render(texture, spectrum, 3, (40, 48, 56))
     np.testing.assert_array_equal(whole, _empty_render(texture, spectrum, 3, (7, 11, 13)))
     assert whole.tobytes() == _empty_render(texture, spectrum, 3, (40, 48, 56)).tobytes()
@@ -113,11 +113,11 @@ def test_measured_texture_is_chunking_independent_and_seeded():
 
 
 def test_without_a_measured_spectrum_the_texture_is_gaussian(caplog):
-    texture = PoreTexture(tile=32)
+    texture = PoreTextureConfig(tile=32)
     with caplog.at_level(logging.WARNING, logger="synthpack.render.pore_texture"):
         drawn = _empty_render(texture, None, 3, (40, 48, 56))
     assert "no measured pore spectrum" in caplog.text
-    gaussian = _empty_render(PoreTexture(model="gaussian", tile=32), None, 3, (40, 48, 56))
+    gaussian = _empty_render(PoreTextureConfig(model="gaussian", tile=32), None, 3, (40, 48, 56))
     np.testing.assert_array_equal(drawn, gaussian)
     assert texture.record(1.0, None, 3)["model"] == "gaussian"
     assert texture.record(1.0, (1.0, 0.5), 3)["model"] == "measured"
@@ -137,7 +137,7 @@ def test_quantile_mapping_recovers_a_non_gaussian_marginal():
     quantiles = _lognormal_quantiles()
     assert quantiles[len(quantiles) // 2] == 0.0 and np.all(np.diff(quantiles) >= 0)
     spectrum = tuple(np.ones(29))  # white below the cutoff: many independent values in one tile
-    texture = PoreTexture(cutoff=0.3, rolloff=0.1, tile=64)
+    texture = PoreTextureConfig(cutoff=0.3, rolloff=0.1, tile=64)
     box = (np.zeros(3, int), np.full(3, 64))
     mapped = texture.sample(*box, 7, 1.0, spectrum, quantiles).astype(np.float64)
     gaussian = texture.sample(*box, 7, 1.0, spectrum).astype(np.float64)
@@ -151,21 +151,21 @@ def test_quantile_mapping_recovers_a_non_gaussian_marginal():
     # the map is monotonic: the field's order, and so its correlations, are kept
     assert np.all(np.diff(mapped.ravel()[np.lexsort((mapped.ravel(), gaussian.ravel()))]) >= 0)
     assert texture.record(1.0, spectrum, 7, quantiles)["histogram"] is True
-    assert PoreTexture(histogram=False).record(1.0, spectrum, 7, quantiles)["histogram"] is False
-    assert PoreTexture(model="gaussian").record(1.0, spectrum, 7, quantiles)["histogram"] is False
+    assert PoreTextureConfig(histogram=False).record(1.0, spectrum, 7, quantiles)["histogram"] is False
+    assert PoreTextureConfig(model="gaussian").record(1.0, spectrum, 7, quantiles)["histogram"] is False
 
 
 def test_mapped_texture_is_chunking_independent_and_seeded():
     spectrum = tuple(_gaussian_density(shell_frequencies(29)))
     quantiles = _lognormal_quantiles()
-    texture = PoreTexture(tile=32)
+    texture = PoreTextureConfig(tile=32)
     whole = _empty_render(texture, spectrum, 3, (40, 48, 56), quantiles)
     np.testing.assert_array_equal(whole, _empty_render(texture, spectrum, 3, (7, 11, 13), quantiles))
     assert whole.tobytes() == _empty_render(texture, spectrum, 3, (40, 48, 56), quantiles).tobytes()
     assert not np.array_equal(whole, _empty_render(texture, spectrum, 4, (40, 48, 56), quantiles))
     assert not np.array_equal(whole, _empty_render(texture, spectrum, 3, (40, 48, 56)))
     # histogram: false draws the Gaussian values
-    np.testing.assert_array_equal(_empty_render(PoreTexture(tile=32, histogram=False), spectrum, 3, (40, 48, 56),
+    np.testing.assert_array_equal(_empty_render(PoreTextureConfig(tile=32, histogram=False), spectrum, 3, (40, 48, 56),
                                                 quantiles), _empty_render(texture, spectrum, 3, (40, 48, 56)))
 
 

@@ -11,7 +11,7 @@ from synthpack.render import (
     Background,
     Grid,
     PartialVolume,
-    PoreTexture,
+    PoreTextureConfig,
     ReconstructConfig,
     TorchRenderer,
     pose_maps,
@@ -154,7 +154,7 @@ def test_bad_settings_are_rejected(particle):
         _render([particle], [0], [np.eye(3)], [[15, 12, 10]], chunks=(0, 4, 4))
 
 
-def _pore_texture_autocorrelation(texture: PoreTexture) -> tuple[np.ndarray, float]:
+def _pore_texture_autocorrelation(texture: PoreTextureConfig) -> tuple[np.ndarray, float]:
     """The texture of an empty 64^3 grid (seed 3), and its correlation between neighbouring voxels along x."""
     grid = Grid((64, 64, 64), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     maps = pose_maps([], np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0), grid)
@@ -163,22 +163,22 @@ def _pore_texture_autocorrelation(texture: PoreTexture) -> tuple[np.ndarray, flo
 
 
 def test_pore_texture_settings_shape_the_texture():
-    gaussian = PoreTexture(model="gaussian", tile=64)
+    gaussian = PoreTextureConfig(model="gaussian", tile=64)
     default, correlation = _pore_texture_autocorrelation(gaussian)
     assert default.std() == pytest.approx(1.0, rel=1e-3)  # unit variance times the amplitude
     assert correlation == pytest.approx(np.exp(-1 / (4 * 0.8**2)), abs=0.05)  # Gaussian smoothing, sigma 0.8
-    _, white = _pore_texture_autocorrelation(PoreTexture(model="gaussian", sigma=0.0, tile=64))
+    _, white = _pore_texture_autocorrelation(PoreTextureConfig(model="gaussian", sigma=0.0, tile=64))
     assert abs(white) < 0.02
-    _, smoother = _pore_texture_autocorrelation(PoreTexture(model="gaussian", sigma=2.0, tile=64))
+    _, smoother = _pore_texture_autocorrelation(PoreTextureConfig(model="gaussian", sigma=2.0, tile=64))
     assert smoother > correlation
-    short, _ = _pore_texture_autocorrelation(PoreTexture(model="gaussian", tile=16))
+    short, _ = _pore_texture_autocorrelation(PoreTextureConfig(model="gaussian", tile=16))
     np.testing.assert_array_equal(short[:16, :16, :16], short[16:32, 32:48, 48:64])  # period 16
     assert not np.array_equal(default[:16, :16, :16], default[16:32, 32:48, 48:64])
 
 
 def test_background_from_source_statistics():
     statistics = SourceStatistics(pore_mean=0.2, pore_std=0.03, grain_mean=0.7, noise_std=0.05)
-    texture = PoreTexture(sigma=1.2, tile=32)
+    texture = PoreTextureConfig(sigma=1.2, tile=32)
     background = Background.from_source(statistics, ReconstructConfig(pore_texture=texture))
     assert background == Background(0.2, 0.03, 0.2 + 0.4 * 0.5, texture)  # no pore spectrum measured
     assert Background.from_source(statistics, ReconstructConfig(wall_intensity=0.9)).wall == 0.9

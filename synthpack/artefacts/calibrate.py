@@ -28,7 +28,7 @@ its cost is fixed and vanishes per voxel on big packs.
    phase too thin for a patch (small grains, narrow pores) the clean spectrum is
    that of white noise at the phase's clean noise level, plus, in the pores, the
    expected spectrum of the render's pore texture after the blur (computed from
-   its density, `~synthpack.render.pore_texture.PoreTexture.density`). The
+   its density, `~synthpack.render.pore_texture.PoreTextureConfig.density`). The
    same is done for the noise level `~synthpack.source.noise_estimate.estimate_noise`
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
@@ -364,7 +364,7 @@ def calibrate(
         The source's phase levels, intensity units.
     pore_texture : ndarray of float64, shape (T, T, T), optional
         Power spectral density of the render's pore texture on the FFT grid of its
-        tile (`~synthpack.render.pore_texture.PoreTexture.density`): the clean pores'
+        tile (`~synthpack.render.pore_texture.PoreTextureConfig.density`): the clean pores'
         spectrum where no patch fits in the pack's pore interior.
     cupping_strength : float, optional
         The source's cupping (`~synthpack.source.SourceStatistics.cupping_strength`),

@@ -15,7 +15,7 @@ from __future__ import annotations
 from .._shared.exports import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "Deform": ".deform",
+    "DeformConfig": ".deform",
     "LibraryConfig": ".core",
     "PackGrains": ".deform",
     "Particle": ".particles",

@@ -53,7 +53,7 @@ from .particles import Particle
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Deform", "LatticeFFD", "PackGrains", "deform_particle", "draw_ffd", "pack_grains", "redo_grains"]
+__all__ = ["DeformConfig", "LatticeFFD", "PackGrains", "deform_particle", "draw_ffd", "pack_grains", "redo_grains"]
 
 #: The smallest Jacobian determinant a deformation may have anywhere in the grain's box.
 MIN_JACOBIAN = 0.3
@@ -74,7 +74,7 @@ _CHECK_POINTS = 9
 
 
 @dataclass(frozen=True)
-class Deform:
+class DeformConfig:
     """Free-form deformation of the grains: the ``grains.deform`` section of a pack config.
 
     ``strength: 0`` (the default) leaves the library's grains as they are: volumes,
@@ -366,7 +366,7 @@ class PackGrains:
     record: dict
 
 
-def pack_grains(library: ParticleLibrary, n_particles: int, deform: Deform, seed: int) -> PackGrains | None:
+def pack_grains(library: ParticleLibrary, n_particles: int, deform: DeformConfig, seed: int) -> PackGrains | None:
     """The deformed grains of a pack, one per placement; None when ``deform.strength`` is 0.
 
     The source grain of each placement is drawn uniformly from `library` with
@@ -381,7 +381,7 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: Deform, seed
         The source grains.
     n_particles : int
         Placements of the pack.
-    deform : Deform
+    deform : DeformConfig
         Strength and lattice.
     seed : int
         The pack seed.
@@ -406,7 +406,7 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: Deform, seed
 
 
 def _deformed(
-    library: ParticleLibrary, sources: Sequence[int], seeds: Sequence[int], deform: Deform,
+    library: ParticleLibrary, sources: Sequence[int], seeds: Sequence[int], deform: DeformConfig,
 ) -> tuple[ParticleLibrary, list[float]]:
     """Grain ``library[sources[k]]`` deformed with seed ``seeds[k]``, for every k; and the damping factors."""
     background = float(library.statistics.pore_mean)
@@ -437,5 +437,5 @@ def redo_grains(library: ParticleLibrary, sources: Sequence[int], record: dict) 
     ParticleLibrary
         One grain per placement, identical to the pack's.
     """
-    deform = Deform(strength=record["strength"], lattice=record["lattice"])
+    deform = DeformConfig(strength=record["strength"], lattice=record["lattice"])
     return _deformed(library, sources, record["seeds"], deform)[0]

@@ -14,9 +14,9 @@ optional and falls back to the default shown by ``synthpack generate
 
 Each section is the settings dataclass of its stage, where its defaults and checks
 are written once: :class:`~synthpack.library.core.LibraryConfig`, :class:`GrainsConfig` (with
-:class:`~synthpack.library.deform.Deform`), :class:`~synthpack.physics.PourConfig` and
+:class:`~synthpack.library.deform.DeformConfig`), :class:`~synthpack.physics.PourConfig` and
 :class:`~synthpack.render.config.ReconstructConfig` (with its sub-section
-:class:`~synthpack.render.pore_texture.PoreTexture`); :class:`RunConfig` says how a pack is
+:class:`~synthpack.render.pore_texture.PoreTextureConfig`); :class:`RunConfig` says how a pack is
 computed (chunk shape, device, threads). ``reconstruct.chunks`` and ``reconstruct.device``
 (before synthpack 0.7.0) are still read, with a warning, as ``run.chunks`` and ``run.device``. What each ``postprocess`` value
 means is resolved by :func:`~synthpack.artefacts.recipes.resolve_postprocessing`; the
@@ -41,7 +41,7 @@ import yaml
 
 from .._shared.schema import build, default_of, non_negative, positive, setting
 from ..artefacts import from_config
-from ..library.deform import Deform
+from ..library.deform import DeformConfig
 from ..errors import SynthpackInputError
 from ..library.core import LibraryConfig
 from ..physics.config import PourConfig
@@ -118,10 +118,10 @@ class GrainsConfig:
     """How the grains of a pack are made from the library's: the ``grains`` section.
 
     ``deform`` is a sub-section: the free-form deformation of each placed grain
-    (:class:`~synthpack.library.deform.Deform`; off by default).
+    (:class:`~synthpack.library.deform.DeformConfig`; off by default).
     """
 
-    deform: Deform = field(default_factory=Deform)
+    deform: DeformConfig = field(default_factory=DeformConfig)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ Modules, one job each, from the whole render down:
 ``config``          `ReconstructConfig`: the render's settings
 ``grid``            `Grid`: the output voxel grid
 ``partial_volume``  `PartialVolume`: each grain's occupancy from its crop, prepared once per grain
-``pore_texture``    `PoreTexture`: the pore phase's seeded, correlated texture
+``pore_texture``    `PoreTextureConfig`: the pore phase's seeded, correlated texture
 ==================  ================================================================================
 """
 
@@ -27,7 +27,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "Canvas": ".canvas",
     "Grid": ".grid",
     "PartialVolume": ".partial_volume",
-    "PoreTexture": ".pore_texture",
+    "PoreTextureConfig": ".pore_texture",
     "PoseMaps": ".poses",
     "ReconstructConfig": ".config",
     "RenderCrop": ".crops",

@@ -14,7 +14,7 @@ import numpy as np
 from ..source.statistics import SourceStatistics
 from .config import ReconstructConfig
 from .grid import Grid
-from .pore_texture import PoreTexture
+from .pore_texture import PoreTextureConfig
 
 __all__ = ["WALL_FRACTION", "Background", "background_values"]
 
@@ -36,20 +36,20 @@ class Background:
         Intensity of the tube wall; None draws no wall.
     wall_thickness : float or None
         Thickness of the drawn wall, voxels (the source's measured wall); None: the tube's own.
-    texture : PoreTexture
+    texture : PoreTextureConfig
         The pore texture's settings.
     pore_spectrum : tuple of float or None
         The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`), which the
         measured texture is drawn from; None: the Gaussian texture.
     pore_quantiles : tuple of float or None
         The source's pore histogram shape (`~synthpack.source.SourceStatistics.pore_quantiles`), which
-        the measured texture's values are mapped onto (`PoreTexture.histogram`); None: Gaussian values.
+        the measured texture's values are mapped onto (`PoreTextureConfig.histogram`); None: Gaussian values.
     """
 
     pore_mean: float
     pore_std: float = 0.0
     wall: float | None = None
-    texture: PoreTexture = PoreTexture()
+    texture: PoreTextureConfig = PoreTextureConfig()
     pore_spectrum: tuple[float, ...] | None = None
     pore_quantiles: tuple[float, ...] | None = None
     wall_thickness: float | None = None
@@ -90,11 +90,11 @@ class Background:
                 "measured": self.wall_thickness is not None}
 
     def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
-        """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTexture.sample`)."""
+        """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTextureConfig.sample`)."""
         return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum, self.pore_quantiles)
 
     def texture_density(self) -> np.ndarray:
-        """The pore texture's power spectral density on its tile's FFT grid (see `PoreTexture.density`).
+        """The pore texture's power spectral density on its tile's FFT grid (see `PoreTextureConfig.density`).
 
         Float64, shape ``(tile,) * 3``, intensity units squared times voxels cubed; zeros for flat pores.
         """
@@ -102,7 +102,7 @@ class Background:
         return density if self.pore_std > 0 else np.zeros_like(density)
 
     def texture_record(self, seed: int) -> dict:
-        """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTexture.record`)."""
+        """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTextureConfig.record`)."""
         return self.texture.record(self.pore_std, self.pore_spectrum, seed, self.pore_quantiles)
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from .._shared.schema import finite, non_negative, one_of, setting
 from ..source.statistics import SourceStatistics
 from .partial_volume import PartialVolume
-from .pore_texture import PoreTexture
+from .pore_texture import PoreTextureConfig
 
 __all__ = ["ReconstructConfig"]
 
@@ -16,7 +16,7 @@ __all__ = ["ReconstructConfig"]
 class ReconstructConfig:
     """Rebuilding the tomogram from the placements (paper 3.4): settings and their defaults.
 
-    ``pore_texture`` is a sub-section: the settings of the pore texture (`PoreTexture`).
+    ``pore_texture`` is a sub-section: the settings of the pore texture (`PoreTextureConfig`).
     """
 
     order: int = setting(1, one_of((0, 1, 3)), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
@@ -29,7 +29,7 @@ class ReconstructConfig:
                                        "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
     rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
                                 "replaced by its interior; default: from the source's fitted edge")
-    pore_texture: PoreTexture = field(default_factory=PoreTexture)
+    pore_texture: PoreTextureConfig = field(default_factory=PoreTextureConfig)
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:
         """The partial volume to render grains of a source scan with; None for whole voxels."""

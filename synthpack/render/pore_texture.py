@@ -5,18 +5,18 @@ brine its own density variations, and every scan adds its noise. The render
 draws the pore phase as the source's pore level plus a zero-mean texture, a
 Gaussian random field with a given power spectral density ``D(f)``, synthesized
 by filtering white noise in Fourier space by ``sqrt(D)`` on a periodic cube of
-`PoreTexture.tile` voxels (copies of it tile space seamlessly). The cube's white
+`PoreTextureConfig.tile` voxels (copies of it tile space seamlessly). The cube's white
 noise is drawn from the render's seed, its realised standard deviation is set
 to the expected one, and the value of a voxel depends only on its global index:
 the texture does not depend on how the volume is cut into chunks.
 
-Two models (`PoreTexture.model`):
+Two models (`PoreTextureConfig.model`):
 
 ``measured`` (the default)
     ``D`` is the source's pore spectrum
     (`~synthpack.source.SourceStatistics.pore_spectrum`, measured on every scale up
-    to 32 voxels), kept below `PoreTexture.cutoff` cycles per voxel and rolled off
-    to 0 by a raised cosine over the next `PoreTexture.rolloff`. The split is the
+    to 32 voxels), kept below `PoreTextureConfig.cutoff` cycles per voxel and rolled off
+    to 0 by a raised cosine over the next `PoreTextureConfig.rolloff`. The split is the
     image-formation model's: the texture carries the pore phase's structure on
     scales of 5 voxels and more (at 0.1 cycles/voxel a Gaussian PSF of 1 voxel
     keeps 82 % of the amplitude, so the calibrated blur applied later barely
@@ -27,13 +27,13 @@ Two models (`PoreTexture.model`):
     clean pack, where the blur would take part of it away and the noise step,
     which only adds, could not give it back in the right shape.
 ``gaussian``
-    White noise smoothed by a Gaussian of `PoreTexture.sigma` voxels (``D`` =
+    White noise smoothed by a Gaussian of `PoreTextureConfig.sigma` voxels (``D`` =
     ``exp(-4 pi^2 sigma^2 |f|^2)``), with the source's pore spread
     (`~synthpack.source.SourceStatistics.pore_std`) as its standard deviation.
     The ``measured`` model falls back to it, with a warning, for a source whose
     pore spectrum could not be measured (too little pore interior).
 
-**Histogram shape** (`PoreTexture.histogram`, on by default; the ``measured`` model
+**Histogram shape** (`PoreTextureConfig.histogram`, on by default; the ``measured`` model
 only). A Gaussian field has Gaussian values, and a real pore phase need not: a
 cement paste's histogram is heavy-tailed. The measured texture's values are
 mapped, voxel by voxel, through the Gaussian CDF and then the source's pore
@@ -43,7 +43,7 @@ deviation set to the expected one again: the texture gets the source's histogram
 shape with the same variance and median 0. The map is monotonic and smooth, so the
 spectrum moves little (for the heavy-tailed concrete paste, 1 % of the power moves
 from below the cutoff to above the roll-off; docs/realism-concrete.md), and
-`PoreTexture.density` stays the Gaussian field's. A source without measured
+`PoreTextureConfig.density` stays the Gaussian field's. A source without measured
 quantiles gets Gaussian values.
 """
 
@@ -63,12 +63,12 @@ from .._shared.text import sig
 from ..source.pore_histogram import map_to_quantiles
 from ..source.pore_spectrum import frequency_radius, spectrum_on_grid
 
-__all__ = ["PoreTexture"]
+__all__ = ["PoreTextureConfig"]
 
 logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
-class PoreTexture:
+class PoreTextureConfig:
     """Settings of the pore texture (config ``reconstruct.pore_texture``), and the texture itself.
 
     Attributes
@@ -166,8 +166,8 @@ class PoreTexture:
 
 
 @functools.lru_cache(maxsize=4)
-def _density(texture: PoreTexture, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
-    """`PoreTexture.density`, computed once per argument and read-only."""
+def _density(texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
+    """`PoreTextureConfig.density`, computed once per argument and read-only."""
     radius = frequency_radius((texture.tile,) * 3)
     if texture.model_for(pore_spectrum) == "measured":
         ramp = np.clip((radius - texture.cutoff) / max(texture.rolloff, np.finfo(float).tiny), 0.0, 1.0)
@@ -183,11 +183,11 @@ def _density(texture: PoreTexture, pore_std: float, pore_spectrum: tuple[float, 
 
 @functools.lru_cache(maxsize=8)
 def _periodic_field(
-    texture: PoreTexture, pore_std: float, pore_spectrum: tuple[float, ...] | None,
+    texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None,
     pore_quantiles: tuple[float, ...] | None, seed: int,
 ) -> np.ndarray:
-    """A periodic cube of the texture (`PoreTexture.density`) from the white noise of `seed`, its values
-    mapped onto `pore_quantiles` where `PoreTexture.maps_histogram`.
+    """A periodic cube of the texture (`PoreTextureConfig.density`) from the white noise of `seed`, its values
+    mapped onto `pore_quantiles` where `PoreTextureConfig.maps_histogram`.
 
     Read-only float32, shape ``(tile,) * 3``; its standard deviation is exactly the expected one.
     """

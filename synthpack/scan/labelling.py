@@ -6,7 +6,7 @@ napari, ...). The labels are a STARTING POINT TO CHECK AND CORRECT, NOT GROUND T
 touching grains may be merged or a grain split in two, and every such error is copied
 into the particle library built from them.
 
-The steps (scikit-image and SciPy, settings in `LabelSettings`):
+The steps (scikit-image and SciPy, settings in `LabelConfig`):
 
 1. **Denoise.** A Gaussian filter of `sigma` voxels (0: none). It is kept light by
    default (0.5 voxel): a heavier blur fills the thin dark gaps at grain contacts that
@@ -54,7 +54,7 @@ from .core import validate_tomogram
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CONTRASTS", "STARTING_POINT", "LabelSettings", "Labelling", "label_scan"]
+__all__ = ["CONTRASTS", "STARTING_POINT", "LabelConfig", "Labelling", "label_scan"]
 
 #: The sides of the threshold the grains can be on (``auto``: the thicker phase).
 CONTRASTS = ("auto", "bright", "dark")
@@ -68,7 +68,7 @@ STARTING_POINT = ("these labels are a starting point made by a threshold and a w
 
 
 @dataclass(frozen=True)
-class LabelSettings:
+class LabelConfig:
     """Settings of `label_scan` (see the module docstring for the steps).
 
     Attributes
@@ -129,14 +129,14 @@ class Labelling:
         return int(self.labels.max())
 
 
-def label_scan(tomogram: np.ndarray, settings: LabelSettings | None = None) -> Labelling:
+def label_scan(tomogram: np.ndarray, settings: LabelConfig | None = None) -> Labelling:
     """Label the grains of a tomogram by threshold and distance-transform watershed.
 
     Parameters
     ----------
     tomogram : ndarray, shape (Z, Y, X)
         Reconstructed intensities (any real dtype).
-    settings : LabelSettings, optional
+    settings : LabelConfig, optional
         Denoising, threshold, contrast and marker settings; the defaults when None.
 
     Returns
@@ -157,7 +157,7 @@ def label_scan(tomogram: np.ndarray, settings: LabelSettings | None = None) -> L
     """
     from skimage.filters import threshold_otsu
 
-    settings = settings or LabelSettings()
+    settings = settings or LabelConfig()
     check_volume(np.shape(tomogram), LABEL_BYTES_PER_VOXEL, "labelling", "crop the volume first")
     volume = validate_tomogram(tomogram).astype(np.float32, copy=False)
     low, high = float(volume.min()), float(volume.max())
@@ -206,7 +206,7 @@ def _choose_contrast(bright: np.ndarray) -> str:
     return grains
 
 
-def _watershed(grains: np.ndarray, settings: LabelSettings) -> tuple[np.ndarray, int]:
+def _watershed(grains: np.ndarray, settings: LabelConfig) -> tuple[np.ndarray, int]:
     """Labels (int32) of the grain mask by the distance-transform watershed, and the marker distance used."""
     from skimage.feature import peak_local_max
     from skimage.segmentation import relabel_sequential, watershed
