@@ -30,8 +30,8 @@ from synthpack.artefacts import (
 )
 from synthpack.artefacts.blockwise import apply_blockwise
 from synthpack.errors import SynthpackInputError
-from synthpack.source import noise_power_spectrum
-from synthpack.source import estimate_noise
+from synthpack.measure import noise_power_spectrum
+from synthpack.measure import estimate_noise
 
 SHAPE = (16, 64, 64)
 

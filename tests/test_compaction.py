@@ -15,7 +15,7 @@ from synthpack.physics import PourConfig, Tube, get_engine, pour
 from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
                                           resolve_target)
 from synthpack.scan.samples import sample_scan
-from synthpack.source.specimen import solid_fraction, specimen_mask
+from synthpack.measure.specimen import solid_fraction, specimen_mask
 
 
 @pytest.fixture(scope="module")

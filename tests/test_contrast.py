@@ -25,7 +25,7 @@ from synthpack.realism import Specimen
 from synthpack.realism.appearance import noise_levels
 from synthpack.render import Background
 from synthpack.scan.core import Scan
-from synthpack.source import estimate_noise
+from synthpack.measure import estimate_noise
 
 #: A pack narrow and deep enough to have a bulk region to calibrate in; post-processing left at its default.
 PACK = PackConfig().replace(seed=1, pour={"n_particles": 60, "batch_size": 30, "tube_radius": 400.0})

@@ -5,7 +5,7 @@ from scipy import ndimage
 from synthpack.errors import SynthpackInputError
 from synthpack.library.particles import extract_particles
 from synthpack.scan.core import Scan
-from synthpack.source import estimate_phases
+from synthpack.measure import estimate_phases
 
 
 def _brute_force(labels):

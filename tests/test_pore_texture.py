@@ -1,4 +1,4 @@
-"""The pore phase's measured spectrum (synthpack.source.pore_spectrum) and the texture drawn from it."""
+"""The pore phase's measured spectrum (synthpack.measure.pore_spectrum) and the texture drawn from it."""
 
 import logging
 
@@ -7,8 +7,8 @@ import pytest
 from scipy import ndimage
 
 from synthpack.render import Background, Grid, PoreTextureConfig, pose_maps, reconstruct
-from synthpack.source.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
-from synthpack.source.pore_spectrum import (
+from synthpack.measure.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
+from synthpack.measure.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
     frequency_radius,
     measure_pore_spectrum,

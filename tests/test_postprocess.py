@@ -14,9 +14,10 @@ from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, me
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.render import Grid
-from synthpack.source import SourceStatistics, estimate_noise, fit_edge_spread, phase_spectra
-from synthpack.source.edges import edge_profile, signed_distance
-from synthpack.source.spectrum import white_ring_powers
+from synthpack.measure import estimate_noise, fit_edge_spread, phase_spectra
+from synthpack.source import SourceStatistics
+from synthpack.measure.edges import edge_profile, signed_distance
+from synthpack.measure.spectrum import white_ring_powers
 
 STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0,
                               edge_shift=0.0, edge_sigma=1.2, nps_grains=(1e-4,) * 6, nps_pores=(1e-4,) * 6)

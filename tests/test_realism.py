@@ -16,9 +16,9 @@ from synthpack.library.core import ParticleLibrary
 from synthpack.realism import CnnConfig, RealismReport, Specimen, compare
 from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
 from synthpack.realism.discriminator import classifier_test
-from synthpack.source.lattice import patch_corners, take_patches
+from synthpack.measure.lattice import patch_corners, take_patches
 from synthpack.realism.structure import coordination_numbers, grain_table, ks_distance
-from synthpack.source.specimen import solid_fraction
+from synthpack.measure.specimen import solid_fraction
 
 # A pack narrow and deep enough to have a bulk region (radius ~17, height ~130 voxels).
 PACK = PackConfig().replace(seed=1, pour={"n_particles": 60, "batch_size": 30, "tube_radius": 400.0})

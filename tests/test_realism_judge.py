@@ -21,7 +21,7 @@ from synthpack.realism import CnnConfig, Specimen
 from synthpack.realism.appearance import noise_power_spectrum, nps_ratio
 from synthpack.realism.discriminator import classifier_test, specimen_patches
 from synthpack.realism.floor import floor_test, slab_parity
-from synthpack.source.edges import EdgeProfile, edge_profile, half_height, signed_distance
+from synthpack.measure.edges import EdgeProfile, edge_profile, half_height, signed_distance
 
 # Tiny CNN for tests: a second or two per cross-validation on 2 cores.
 TINY = CnnConfig(epochs=8, width=8)

@@ -19,8 +19,9 @@ from synthpack.render import (
     resolve_device,
 )
 from synthpack.render.partial_volume import FAR, PAD
-from synthpack.source import SourceStatistics, fit_edge_spread
-from synthpack.source.edges import edge_profile, signed_distance
+from synthpack.measure import fit_edge_spread
+from synthpack.source import SourceStatistics
+from synthpack.measure.edges import edge_profile, signed_distance
 
 
 def _tight(volume):

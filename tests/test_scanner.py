@@ -1,4 +1,4 @@
-"""Tests of synthpack.source.scanner: cupping, rings and the container wall, measured about the rotation axis."""
+"""Tests of synthpack.measure.scanner: cupping, rings and the container wall, measured about the rotation axis."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from synthpack.artefacts import BeamHardening, RingArtefacts
 from synthpack.errors import SynthpackInputError
 from synthpack.scan.core import Scan
 from synthpack.source import measure_source
-from synthpack.source.edges import signed_distance
-from synthpack.source.scanner import measure_scanner
-from synthpack.source.specimen import specimen_mask
+from synthpack.measure.edges import signed_distance
+from synthpack.measure.scanner import measure_scanner
+from synthpack.measure.specimen import specimen_mask
 
 CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
 PORE, GRAIN, NOISE = 0.2, 0.75, 0.03

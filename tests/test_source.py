@@ -12,11 +12,11 @@ from synthpack.artefacts import GaussianNoise
 from synthpack.artefacts.coloured_noise import ring_powers_of_spectrum
 from synthpack.errors import SynthpackInputError
 from synthpack.scan.core import Scan
-from synthpack.source import (SourceStatistics, estimate_noise, estimate_phases, fit_edge_spread, measure_source,
-                              noise_power_spectrum, volume_edge_width)
-from synthpack.source.edges import edge_profile, signed_distance
-from synthpack.source.specimen import specimen_mask
-from synthpack.source.spectrum import ring_of
+from synthpack.measure import estimate_noise, estimate_phases, fit_edge_spread, noise_power_spectrum, volume_edge_width
+from synthpack.source import SourceStatistics, measure_source
+from synthpack.measure.edges import edge_profile, signed_distance
+from synthpack.measure.specimen import specimen_mask
+from synthpack.measure.spectrum import ring_of
 
 
 def test_pore_statistics_leave_out_the_blurred_rim_along_grains():

@@ -3,7 +3,7 @@
 import numpy as np
 
 from synthpack.scan.samples import sample_scan
-from synthpack.source.specimen import specimen_mask
+from synthpack.measure.specimen import specimen_mask
 
 
 def test_a_cylinder_of_grains_leaves_out_the_air_around_it():

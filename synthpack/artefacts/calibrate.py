@@ -11,8 +11,8 @@ a region too wide for `MIN_CALIBRATION_SLICES` slices, a central square of them)
 its cost is fixed and vanishes per voxel on big packs.
 
 1. **Point-spread function.** The width of the clean volume's edge-spread function
-   is fitted (`~synthpack.source.psf.fit_edge_spread`, on the mean edge profile
-   of `synthpack.source.edges`), and the Gaussian PSF that brings it to the
+   is fitted (`~synthpack.measure.psf.fit_edge_spread`, on the mean edge profile
+   of `synthpack.measure.edges`), and the Gaussian PSF that brings it to the
    source's ``edge_sigma`` found by `PSF_STEPS` fixed-point steps on the law
    that Gaussian widths add in quadrature, ``sigma_psf^2 <- sigma_psf^2 +
    target^2 - fitted(sigma_psf)^2`` from ``sigma_psf = 0`` (each step blurs with
@@ -21,7 +21,7 @@ its cost is fixed and vanishes per voxel on big packs.
    and interpolation already blur. The edge's position (the render's occupancy
    shift) is not changed by a symmetric blur.
 2. **Noise.** The noise power spectrum of the grain and pore interiors of the
-   blurred volume (`~synthpack.source.spectrum`) is measured, and
+   blurred volume (`~synthpack.measure.spectrum`) is measured, and
    `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
    power the source has beyond it (the deficit; none where the pack already has
    as much): the noise the crops and the pore texture carry is accounted for. In a
@@ -29,12 +29,12 @@ its cost is fixed and vanishes per voxel on big packs.
    that of white noise at the phase's clean noise level, plus, in the pores, the
    expected spectrum of the render's pore texture after the blur (computed from
    its density, `~synthpack.render.pore_texture.PoreTextureConfig.density`). The
-   same is done for the noise level `~synthpack.source.noise_estimate.estimate_noise`
+   same is done for the noise level `~synthpack.measure.noise_estimate.estimate_noise`
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
 
 3. **Scanner artefacts**, where the source shows them
-   (`~synthpack.source.scanner.measure_scanner`), applied last with the source's
+   (`~synthpack.measure.scanner.measure_scanner`), applied last with the source's
    measured values, fixed: `~synthpack.artefacts.BeamHardening` of the source's
    cupping strength (relative to the field of view, which for a pack's tube sized
    from the source's lateral extent is about the source's), keeping the mean level
@@ -60,10 +60,10 @@ import numpy as np
 
 from .._shared.text import sig
 from ..errors import SynthpackInputError
-from ..source.edges import EdgeProfile, edge_profile, edge_width, signed_distance
-from ..source.noise_estimate import estimate_noise
-from ..source.psf import EdgeSpread, fit_edge_spread
-from ..source.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
+from ..measure.edges import EdgeProfile, edge_profile, edge_width, signed_distance
+from ..measure.noise_estimate import estimate_noise
+from ..measure.psf import EdgeSpread, fit_edge_spread
+from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
@@ -92,7 +92,7 @@ def noise_to_add(source: float, clean: float) -> GaussianNoise:
     Parameters
     ----------
     source, clean : float
-        Noise standard deviations (as `~synthpack.source.noise_estimate.estimate_noise`
+        Noise standard deviations (as `~synthpack.measure.noise_estimate.estimate_noise`
         measures them) of the real scan and of the clean synthetic volume, in
         intensity units.
 
@@ -130,7 +130,7 @@ class Calibration:
         blurred clean volume's, and the noise added (their clipped difference),
         intensity units squared; rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel.
     target_phase_noise, clean_phase_noise, added_phase_noise : dict of str to float or None
-        The same for the noise level (`~synthpack.source.noise_estimate.estimate_noise`), intensity
+        The same for the noise level (`~synthpack.measure.noise_estimate.estimate_noise`), intensity
         units (``added = sqrt(max(target^2 - clean^2, 0))``); None where not measured.
     target_edge_width, edge_width : float
         The source's 10-90 edge width and that of the blurred clean volume, voxels (a check).

@@ -3,7 +3,7 @@
 A reconstructed CT scan's noise is not white: the reconstruction filter and the
 detector shape its noise power spectrum (NPS), and grains and pores may differ.
 `ColouredNoise` adds noise whose in-slice NPS, measured as
-`synthpack.source.spectrum.noise_power_spectrum` measures it (rings ``k = 1, 2,
+`synthpack.measure.spectrum.noise_power_spectrum` measures it (rings ``k = 1, 2,
 ...`` at ``k / NPS_PATCH`` cycles per voxel), is ``pore_power`` in the pores and
 ``grain_power`` in the grains.
 
@@ -40,7 +40,7 @@ from scipy import optimize
 
 from .._shared.arrays import float32_value as _f32
 from .._shared.arrays import periodic_indices, periodic_window
-from ..source.spectrum import NPS_PATCH, ring_of
+from ..measure.spectrum import NPS_PATCH, ring_of
 from ._base import BlockContext, Transform
 from ._param import Param
 
@@ -79,7 +79,7 @@ def ring_powers_of_spectrum(spectrum: np.ndarray, n_rings: int) -> np.ndarray:
     Returns
     -------
     ndarray of float64, shape (n_rings,)
-        Intensity units squared, as `~synthpack.source.spectrum.noise_power_spectrum` measures them.
+        Intensity units squared, as `~synthpack.measure.spectrum.noise_power_spectrum` measures them.
     """
     size = NPS_PATCH
     covariance = np.fft.ifft2(spectrum.mean(axis=0)).real  # in-slice autocovariance, lag (0, 0) = variance
@@ -95,7 +95,7 @@ def ring_powers_of_spectrum(spectrum: np.ndarray, n_rings: int) -> np.ndarray:
 
 
 def highpass_variance_of_spectrum(spectrum: np.ndarray) -> float:
-    """Variance that `~synthpack.source.estimate_noise`'s 3D second difference sees in noise of `spectrum`.
+    """Variance that `~synthpack.measure.estimate_noise`'s 3D second difference sees in noise of `spectrum`.
 
     The filter ``[1, -2, 1]`` along every axis, divided by ``6^(3/2)``, has the gain
     ``prod_a (2 - 2 cos 2 pi f_a)^2 / 6^3`` (1 on average, so white noise keeps its variance).
@@ -169,7 +169,7 @@ class ColouredNoise(Transform):
     pore_level, grain_level : float
         Intensities of the two phases (either order): a voxel's phase fraction.
     pore_std, grain_std : float or None
-        Also the noise level as `~synthpack.source.estimate_noise` measures it (3D second
+        Also the noise level as `~synthpack.measure.estimate_noise` measures it (3D second
         differences), intensity units, in each phase: it pins the spectrum's 3D high
         frequencies (`spectrum_for_rings`). Default None.
     p : float

@@ -83,8 +83,8 @@ from . import (
 from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from ..render.grid import Grid
-from ..source.noise_estimate import estimate_noise
-from ..source.spectrum import NPS_PATCH, white_ring_powers
+from ..measure.noise_estimate import estimate_noise
+from ..measure.spectrum import NPS_PATCH, white_ring_powers
 from ..source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)

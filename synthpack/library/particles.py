@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from ..errors import SynthpackInputError
 from ..scan.core import Scan
-from ..source.phases import estimate_phases
+from ..measure.phases import estimate_phases
 
 logger = logging.getLogger(__name__)
 
@@ -148,7 +148,7 @@ def extract_particles(
         cut by the field of view; excluded by default).
     background : float, optional
         Value written outside each particle's mask in its clean crop. Default: the
-        pore level of :func:`~synthpack.source.phases.estimate_phases`.
+        pore level of :func:`~synthpack.measure.phases.estimate_phases`.
 
     Returns
     -------

@@ -2,9 +2,9 @@
 
 Measured in the specimen's bulk region (`synthpack.realism.region`), with the
 phases defined by the signed distance from the grain-pore boundary
-(`synthpack.source.edges`):
+(`synthpack.measure.edges`):
 
-* **grains**: voxels at least `~synthpack.source.edges.INTERIOR` voxels inside a grain;
+* **grains**: voxels at least `~synthpack.measure.edges.INTERIOR` voxels inside a grain;
 * **pores**: voxels at least as far inside the pore space;
 * **edges**: the voxels within one voxel of the boundary, on either side.
 
@@ -12,7 +12,7 @@ Figures:
 
 * intensity samples of each phase (their histograms, compared by Wasserstein distance);
 * noise standard deviation in grains and pores, by
-  `synthpack.source.estimate_noise` (second differences inside each label, away from
+  `synthpack.measure.estimate_noise` (second differences inside each label, away from
   boundaries, robust spread);
 * noise power spectrum (NPS) of grains and pores: the radially averaged power of
   ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a phase's interior,
@@ -24,7 +24,7 @@ Figures:
   (`nps_ratio`; 1 = the same power at that frequency, 2 = twice as much);
 * the edge profile, its 10-90 width and its half-height position (where it
   crosses half-way from the pore to the grain level, voxels of signed distance
-  from the label boundary; `synthpack.source.edges`).
+  from the label boundary; `synthpack.measure.edges`).
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SynthpackInputError
-from ..source.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
-from ..source.noise_estimate import NoiseEstimate, estimate_noise
-from ..source.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
+from ..measure.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
+from ..measure.noise_estimate import NoiseEstimate, estimate_noise
+from ..measure.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
@@ -88,7 +88,7 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
     Parameters
     ----------
     distance : ndarray of float32, shape (Z, Y, X)
-        From `~synthpack.source.edges.signed_distance`.
+        From `~synthpack.measure.edges.signed_distance`.
     region : ndarray of bool, same shape
 
     Returns
@@ -100,7 +100,7 @@ def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarra
 
 
 def noise_levels(specimen: Specimen) -> NoiseEstimate:
-    """`~synthpack.source.estimate_noise` of the specimen's region (voxels outside it are ignored).
+    """`~synthpack.measure.estimate_noise` of the specimen's region (voxels outside it are ignored).
 
     Returns
     -------

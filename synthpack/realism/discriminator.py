@@ -1,7 +1,7 @@
 """Classifier two-sample tests: can a model tell one set of patches from another?
 
 Square in-slice patches of the same size are cut from both volumes' bulk regions
-(`synthpack.source.lattice`) and mapped through the same intensity window (the
+(`synthpack.measure.lattice`) and mapped through the same intensity window (the
 source's 0.5 and 99.5 percentiles, as the YOLO export does) to [0, 1]. The larger
 set is cut to an even subset of the smaller one's size, so the classes are balanced,
 and the patches are split into stratified, shuffled folds (scikit-learn). Two
@@ -34,7 +34,7 @@ import numpy as np
 
 from .._shared.schema import non_negative, positive, setting
 from ..errors import SynthpackInputError
-from ..source.lattice import patch_corners, take_patches
+from ..measure.lattice import patch_corners, take_patches
 from .region import Specimen
 
 logger = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ the pack's and the
 source's distributions (0 = the same, 1 = disjoint). W is the Wasserstein distance
 between intensity histograms, as a fraction of the source's grain-pore contrast. Noise
 is the standard deviation of the white noise with the same high-frequency content
-(`synthpack.source.estimate_noise`); the NPS centroid is the power-weighted mean
+(`synthpack.measure.estimate_noise`); the NPS centroid is the power-weighted mean
 frequency of the noise power spectrum in 8x8 in-slice patches (cycles/voxel: lower =
 smoother noise and texture). The edge width is the 10-90 % rise distance of the mean
 profile across grain-pore boundaries (voxels); its half height is the signed distance

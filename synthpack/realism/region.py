@@ -3,7 +3,7 @@
 A `Specimen` is a labelled tomogram together with the boolean mask of the part of
 it that is measured, its *bulk region*:
 
-* a source scan: the specimen (`synthpack.source.specimen.specimen_mask`: in each
+* a source scan: the specimen (`synthpack.measure.specimen.specimen_mask`: in each
   slice, the convex hull of the labelled voxels), so the container, the air
   around it and the corners outside the reconstructed field of view are left
   out, as in the source statistics the packs are built from;
@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import SynthpackInputError
 from ..artefacts.recipes import bulk_region
 from ..scan.core import Scan
-from ..source.specimen import specimen_mask
+from ..measure.specimen import specimen_mask
 
 __all__ = ["Specimen"]
 
@@ -64,7 +64,7 @@ class Specimen:
 
     @classmethod
     def from_scan(cls, scan: Scan, name: str = "source") -> Specimen:
-        """A source scan, measured in the specimen (`~synthpack.source.specimen.specimen_mask`)."""
+        """A source scan, measured in the specimen (`~synthpack.measure.specimen.specimen_mask`)."""
         labels = np.asarray(scan.labels, dtype=np.int32)
         return cls(name, np.asarray(scan.tomogram, dtype=np.float32), labels, specimen_mask(labels),
                    tuple(scan.voxel_size), scan.unit)

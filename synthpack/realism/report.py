@@ -45,7 +45,7 @@ from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfi
                             specimen_patches)
 from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
-from ..source.specimen import solid_fraction
+from ..measure.specimen import solid_fraction
 from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance
 
 logger = logging.getLogger(__name__)
@@ -261,7 +261,7 @@ def compare(
     Parameters
     ----------
     source : Scan
-        The real (source) scan, measured inside its specimen (`synthpack.source.specimen.specimen_mask`).
+        The real (source) scan, measured inside its specimen (`synthpack.measure.specimen.specimen_mask`).
     packs : sequence of path-like
         Pack folders, or folders holding pack folders; every pack gets its own column.
         Empty: the source and its floor only.

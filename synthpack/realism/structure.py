@@ -23,7 +23,7 @@ view those are the grains not cut by the border, as in the particle library.
 * **Coordination number**: the number of other grains a grain shares at least
   one voxel face with.
 * **Solid fraction**: the fraction of the region's voxels that belong to a grain
-  (porosity = 1 - solid fraction; `synthpack.source.specimen.solid_fraction`, the
+  (porosity = 1 - solid fraction; `synthpack.measure.specimen.solid_fraction`, the
   one the source statistics measure too).
 """
 

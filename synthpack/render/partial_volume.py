@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import ndimage
 
-from ..source.edges import signed_distance
+from ..measure.edges import signed_distance
 from ..source.statistics import SourceStatistics
 
 __all__ = ["CACHE_BYTES", "FAR", "PAD", "PartialVolume", "PreparedCrop", "RIM_QUANTILE"]

@@ -38,7 +38,7 @@ only). A Gaussian field has Gaussian values, and a real pore phase need not: a
 cement paste's histogram is heavy-tailed. The measured texture's values are
 mapped, voxel by voxel, through the Gaussian CDF and then the source's pore
 quantile function (`~synthpack.source.SourceStatistics.pore_quantiles`,
-`~synthpack.source.pore_histogram.map_to_quantiles`), and its realised standard
+`~synthpack.measure.pore_histogram.map_to_quantiles`), and its realised standard
 deviation set to the expected one again: the texture gets the source's histogram
 shape with the same variance and median 0. The map is monotonic and smooth, so the
 spectrum moves little (for the heavy-tailed concrete paste, 1 % of the power moves
@@ -60,8 +60,8 @@ from .._shared.arrays import periodic_window
 from .._shared.schema import non_negative, one_of, positive, setting
 from .._shared.seeds import generator
 from .._shared.text import sig
-from ..source.pore_histogram import map_to_quantiles
-from ..source.pore_spectrum import frequency_radius, spectrum_on_grid
+from ..measure.pore_histogram import map_to_quantiles
+from ..measure.pore_spectrum import frequency_radius, spectrum_on_grid
 
 __all__ = ["PoreTextureConfig"]
 

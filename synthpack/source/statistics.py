@@ -9,15 +9,15 @@ from dataclasses import asdict, dataclass
 from .._shared.text import fraction, sig
 from ..errors import SynthpackInputError
 from ..scan.core import Scan
-from .edges import edge_profile, edge_width, signed_distance
-from .noise_estimate import estimate_noise
-from .phases import estimate_phases
-from .psf import fit_edge_spread
-from .pore_histogram import measure_pore_quantiles
-from .pore_spectrum import measure_pore_spectrum
-from .scanner import measure_scanner
-from .specimen import solid_fraction, specimen_mask
-from .spectrum import phase_interiors, phase_spectra
+from ..measure.edges import edge_profile, edge_width, signed_distance
+from ..measure.noise_estimate import estimate_noise
+from ..measure.phases import estimate_phases
+from ..measure.psf import fit_edge_spread
+from ..measure.pore_histogram import measure_pore_quantiles
+from ..measure.pore_spectrum import measure_pore_spectrum
+from ..measure.scanner import measure_scanner
+from ..measure.specimen import solid_fraction, specimen_mask
+from ..measure.spectrum import phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ class SourceStatistics:
     ----------
     pore_mean : float
         Pore level: median intensity of the pore interior (voxels of label 0 at
-        least `~synthpack.source.phases.PORE_INTERIOR_DEPTH` voxels from a grain).
+        least `~synthpack.measure.phases.PORE_INTERIOR_DEPTH` voxels from a grain).
         The value outside each particle's mask in its clean crop, and the level of
         the space between grains in a pack.
     pore_std : float
@@ -52,45 +52,45 @@ class SourceStatistics:
         pore level: grains are darker than the phase around them in neutron CT,
         with doped brine, or for aggregates in cement paste (see `contrast`).
     noise_std : float
-        Noise level, pooled over grains and pores (`~synthpack.source.noise_estimate.estimate_noise`).
+        Noise level, pooled over grains and pores (`~synthpack.measure.noise_estimate.estimate_noise`).
     edge_width : float or None
         10-90 % rise distance (voxels) of the mean intensity profile across the
-        grain-pore boundaries (`~synthpack.source.edges.volume_edge_width`), the
+        grain-pore boundaries (`~synthpack.measure.edges.volume_edge_width`), the
         same for grains brighter or darker than pores; None when it cannot be
         measured (no grain or pore interior, or grains and pores of one level).
     edge_shift, edge_sigma : float or None
         The scanner's edge: half-height position relative to the label boundary
         (voxels, > 0 inside the grains) and Gaussian width (voxels) of the
         edge-spread function fitted to the same profile
-        (`~synthpack.source.psf.fit_edge_spread`); None with `edge_width`.
+        (`~synthpack.measure.psf.fit_edge_spread`); None with `edge_width`.
     noise_grain_std, noise_pore_std : float or None
-        The noise level of each phase (`~synthpack.source.noise_estimate.estimate_noise`), intensity
+        The noise level of each phase (`~synthpack.measure.noise_estimate.estimate_noise`), intensity
         units; None where the phase has too few interior voxels.
     nps_grains, nps_pores : tuple of float or None
         Noise power spectrum of the grain and of the pore interior
-        (`~synthpack.source.spectrum.noise_power_spectrum`): the power in rings
+        (`~synthpack.measure.spectrum.noise_power_spectrum`): the power in rings
         ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel, intensity units
         squared (their sum is the variance within an in-slice patch of
-        `~synthpack.source.spectrum.NPS_PATCH` voxels); None where no patch fits
+        `~synthpack.measure.spectrum.NPS_PATCH` voxels); None where no patch fits
         in that phase.
     pore_spectrum : tuple of float or None
         Power spectral density of the pore interior's intensity fluctuations on
-        every scale up to `~synthpack.source.pore_spectrum.PORE_SPECTRUM_SIZE`
-        voxels (`~synthpack.source.pore_spectrum.measure_pore_spectrum`), radially
+        every scale up to `~synthpack.measure.pore_spectrum.PORE_SPECTRUM_SIZE`
+        voxels (`~synthpack.measure.pore_spectrum.measure_pore_spectrum`), radially
         averaged over 3D shells ``k = 0, 1, ...`` at ``k / PORE_SPECTRUM_SIZE``
         cycles per voxel, intensity units squared times voxels cubed; the pack's
         pore texture is drawn from it. None where the pore interior is too small.
     pore_quantiles : tuple of float or None
         Shape of the pore interior's intensity histogram: quantiles of ``(I - median) / std``
-        at the probabilities of `~synthpack.source.pore_histogram.QUANTILE_SCORES`
-        (`~synthpack.source.pore_histogram.measure_pore_quantiles`), dimensionless; the
+        at the probabilities of `~synthpack.measure.pore_histogram.QUANTILE_SCORES`
+        (`~synthpack.measure.pore_histogram.measure_pore_quantiles`), dimensionless; the
         measured pore texture's values are mapped onto it. None where the pore interior is too small.
     scan_axis : (float, float) or None
         ``(y, x)`` of the scan's rotation axis in every slice, voxels
-        (`~synthpack.source.scanner.rotation_axis`); None for an empty specimen.
+        (`~synthpack.measure.scanner.rotation_axis`); None for an empty specimen.
     cupping_strength : float or None
         `~synthpack.artefacts.BeamHardening` strength of the scan's cupping (dimensionless,
-        < 0 for a brighter centre), `~synthpack.source.scanner.measure_scanner`; None where
+        < 0 for a brighter centre), `~synthpack.measure.scanner.measure_scanner`; None where
         not significant.
     cupping_error : float or None
         Its standard error (also when not significant); None where not measured.
@@ -104,8 +104,8 @@ class SourceStatistics:
         and gap between the specimen and its inner face (voxels); None where there is none.
     solid_fraction : float or None
         Bulk solid fraction: the fraction of the specimen's voxels
-        (`~synthpack.source.specimen.specimen_mask`) that are grain
-        (`~synthpack.source.specimen.solid_fraction`), dimensionless; the default
+        (`~synthpack.measure.specimen.specimen_mask`) that are grain
+        (`~synthpack.measure.specimen.solid_fraction`), dimensionless; the default
         target of a pour (``pour.target_solid_fraction: source``). None for a
         library of an older synthpack.
     """
@@ -192,7 +192,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     Raises
     ------
     SynthpackInputError
-        If the scan has no contrast (`~synthpack.source.phases.PhaseLevels.check_contrast`), or
+        If the scan has no contrast (`~synthpack.measure.phases.PhaseLevels.check_contrast`), or
         the noise cannot be estimated (no grain or pore interior to measure it in).
     """
     whole = specimen_mask(scan.labels)

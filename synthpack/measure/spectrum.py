@@ -1,7 +1,7 @@
 """The noise power spectrum (NPS) of a phase: how the noise's power spreads over spatial frequency.
 
 The NPS is measured on ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a
-phase's interior (`~synthpack.source.lattice`), each minus its own mean, and
+phase's interior (`~synthpack.measure.lattice`), each minus its own mean, and
 averaged radially in the slice plane: ring ``k`` holds the frequencies whose
 magnitude rounds to ``k / NPS_PATCH`` cycles per voxel. The powers of all rings add
 up to the mean variance within a patch (ring 0, the patch mean, is 0), so the
@@ -86,7 +86,7 @@ def noise_power_spectrum(
     size : int
         Patch side, voxels.
     max_patches : int
-        At most this many patches, evenly spread (`~synthpack.source.lattice.patch_corners`).
+        At most this many patches, evenly spread (`~synthpack.measure.lattice.patch_corners`).
 
     Returns
     -------
@@ -104,12 +104,12 @@ def noise_power_spectrum(
 
 
 def phase_interiors(distance: np.ndarray, region: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The grain and pore interiors: voxels at least `~synthpack.source.edges.INTERIOR` voxels from an edge.
+    """The grain and pore interiors: voxels at least `~synthpack.measure.edges.INTERIOR` voxels from an edge.
 
     Parameters
     ----------
     distance : ndarray of float32, shape (Z, Y, X)
-        From `~synthpack.source.edges.signed_distance`.
+        From `~synthpack.measure.edges.signed_distance`.
     region : ndarray of bool, same shape, optional
         Voxels to keep (default all).
 

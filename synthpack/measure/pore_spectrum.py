@@ -1,6 +1,6 @@
 """The pore phase's power spectrum over scales from a voxel to the pore bodies: what the pore texture reproduces.
 
-The noise power spectrum (`~synthpack.source.spectrum`) sees an ``8 x 8`` in-slice
+The noise power spectrum (`~synthpack.measure.spectrum`) sees an ``8 x 8`` in-slice
 patch, minus its mean: nothing of a pore phase's variation on larger scales, which
 in a real scan is most of its spread (a cement paste's spread is ten times its
 noise: sand, voids and moisture in it). This module measures the whole 3D
@@ -8,7 +8,7 @@ spectrum of the pore interior's intensity fluctuations, on every scale up to
 `PORE_SPECTRUM_SIZE` voxels.
 
 **Method: a masked autocovariance (gaps allowed).** The pore interior ``m`` (a
-mask: voxels of the specimen at least `~synthpack.source.edges.INTERIOR` voxels
+mask: voxels of the specimen at least `~synthpack.measure.edges.INTERIOR` voxels
 from a grain) is not a box, so no window of it can be Fourier transformed
 directly. Its autocovariance can: with ``x = (I - mean) m`` (the mean over the
 interior),

@@ -1,6 +1,6 @@
 """The shape of the pore phase's intensity histogram: its quantiles, and a map that gives a Gaussian field that shape.
 
-The pore spectrum (`~synthpack.source.pore_spectrum`) is a second-order
+The pore spectrum (`~synthpack.measure.pore_spectrum`) is a second-order
 description: a Gaussian texture drawn from it has the right variance and
 correlations, but Gaussian values. A real pore phase need not be Gaussian: a
 cement paste, with sand grains and voids in it, has a heavy-tailed histogram (its

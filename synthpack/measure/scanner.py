@@ -3,7 +3,7 @@
 All three are functions of the distance ``r`` (voxels) from the scan's rotation
 axis, the same in every slice. The axis is taken parallel to axis 0 (z) through
 the centre of the specimen (`rotation_axis`: per slice, the centroid of the
-specimen mask, `~synthpack.source.specimen.specimen_mask`; their median over the
+specimen mask, `~synthpack.measure.specimen.specimen_mask`; their median over the
 slices): a scanner's specimen is mounted on its rotation axis. An error of the
 axis of a voxel or two smears rings over that range of radii (the wall is
 measured about its own centre, searched within `WALL_SEARCH` voxels of the axis).
@@ -16,7 +16,7 @@ pore texture) gives each estimate its standard error, so correlated structure
 does not pass for an artefact.
 
 **Cupping.** In the grain and the pore interiors
-(`~synthpack.source.spectrum.phase_interiors`, less the voxels that stand out of
+(`~synthpack.measure.spectrum.phase_interiors`, less the voxels that stand out of
 their neighbourhood: voids, inclusions) within the field of view, the level is
 fitted as ``a + b r^2`` by least squares, after taking off the rings found
 (below): the form `~synthpack.artefacts.BeamHardening` applies,
@@ -266,7 +266,7 @@ def rotation_axis(specimen: np.ndarray) -> tuple[float, float] | None:
     Parameters
     ----------
     specimen : ndarray of bool, shape (Z, Y, X)
-        `~synthpack.source.specimen.specimen_mask`.
+        `~synthpack.measure.specimen.specimen_mask`.
 
     Returns
     -------
@@ -620,11 +620,11 @@ def measure_scanner(
     labels : ndarray of int, shape (Z, Y, X)
         0 = pore, > 0 = grain.
     specimen : ndarray of bool, shape (Z, Y, X)
-        `~synthpack.source.specimen.specimen_mask` of `labels`.
+        `~synthpack.measure.specimen.specimen_mask` of `labels`.
     distance : ndarray of float32, shape (Z, Y, X)
-        `~synthpack.source.edges.signed_distance` of `labels`.
+        `~synthpack.measure.edges.signed_distance` of `labels`.
     pore_level, grain_level : float
-        The phase levels (`~synthpack.source.phases.estimate_phases`), intensity units.
+        The phase levels (`~synthpack.measure.phases.estimate_phases`), intensity units.
     region : ndarray of bool, shape (Z, Y, X), optional
         The part of the specimen the phase interiors are sampled from, and whose
         slices are read (a held-out test block taken out); default all of

@@ -72,7 +72,7 @@ def estimate_phases(scan: Scan, max_samples: int = 2_000_000, region: np.ndarray
         The volume is subsampled with a regular stride so that at most about this
         many voxels are read.
     region : ndarray of bool, shape (Z, Y, X), optional
-        Voxels to measure in (e.g. `~synthpack.source.specimen.specimen_mask`, which
+        Voxels to measure in (e.g. `~synthpack.measure.specimen.specimen_mask`, which
         leaves out the container and the air around the specimen); default all.
 
     Returns

@@ -2,7 +2,7 @@
 
 A scanner images a grain-pore boundary as a step blurred by its point-spread
 function (PSF). For a Gaussian PSF of ``sigma`` voxels the mean intensity at
-signed distance ``x`` (voxels, positive in grains, `synthpack.source.edges`) from
+signed distance ``x`` (voxels, positive in grains, `synthpack.measure.edges`) from
 the label boundary is
 
     I(x) = pore + contrast * Phi((x - shift) / sigma)
@@ -14,7 +14,7 @@ little too large), ``sigma`` the total width: the scanner's PSF and the
 partial-volume spread of voxels whose centres sit anywhere between the boundary
 and the next voxel. `fit_edge_spread` fits all four numbers by least squares,
 each profile point weighted by its number of voxels, so the fit is the
-least-squares fit over every voxel within `~synthpack.source.edges.REACH` of a
+least-squares fit over every voxel within `~synthpack.measure.edges.REACH` of a
 boundary. Levels are fitted rather than taken from the interiors, so a scan whose
 grains are too thin to have an interior still gets its edge.
 """
@@ -70,7 +70,7 @@ def fit_edge_spread(profile: EdgeProfile) -> EdgeSpread:
     Parameters
     ----------
     profile : EdgeProfile
-        From `~synthpack.source.edges.edge_profile`; each point weighs as many voxels as it averages.
+        From `~synthpack.measure.edges.edge_profile`; each point weighs as many voxels as it averages.
 
     Returns
     -------
@@ -83,7 +83,7 @@ def fit_edge_spread(profile: EdgeProfile) -> EdgeSpread:
 
     Examples
     --------
-    >>> from synthpack.source.edges import EdgeProfile
+    >>> from synthpack.measure.edges import EdgeProfile
     >>> x = np.linspace(-4, 4, 33)
     >>> truth = EdgeSpread(shift=0.3, sigma=0.8, pore=0.2, grain=0.7)
     >>> fit = fit_edge_spread(EdgeProfile(x, truth(x), 0.2, 0.7, np.ones(33, dtype=np.int64)))

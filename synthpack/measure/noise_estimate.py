@@ -133,7 +133,7 @@ def estimate_noise(
         Use at most about this many voxels (every k-th interior voxel) to keep
         memory bounded on big volumes. Default 4 million.
     region : ndarray of bool, same shape, optional
-        Voxels to measure in (e.g. `~synthpack.source.specimen.specimen_mask`);
+        Voxels to measure in (e.g. `~synthpack.measure.specimen.specimen_mask`);
         the others are left out, as with a negative label.
 
     Returns
