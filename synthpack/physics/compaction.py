@@ -169,7 +169,8 @@ def _prior_knob(fraction: float) -> float:
 class PackingController:
     """Steers each batch's knob toward a target bulk packing fraction (simulation units).
 
-    The engine asks :meth:`next_batch` before a batch falls and calls :meth:`observe`
+    The batch driver (:func:`synthpack.physics.driver.drive`, the same for every engine)
+    asks :meth:`next_batch` before a batch falls and calls :meth:`observe`
     once it is locked; :meth:`record` is what the checks and the manifest keep.
 
     Parameters
@@ -302,7 +303,7 @@ def resolve_target(target: Any, library: Any, engine: Any) -> float | None:
             return None
         raise SynthpackInputError(
             f"The {engine.name} engine cannot pack to target_solid_fraction {target:g}; "
-            "use the pybullet engine, or target_solid_fraction: none."
+            "use another engine, or target_solid_fraction: none."
         )
     if target == TARGET_SOURCE:
         statistics = getattr(library, "statistics", None)

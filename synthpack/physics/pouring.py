@@ -37,7 +37,9 @@ from .checks import PourChecks, compute_checks
 from .compaction import PackingController, expected_fraction, report_target, resolve_target
 from .config import PourConfig
 from .container import DEFAULT_PACKING_FRACTION, Tube
-from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
+from .driver import EngineResult
+from .engine import Engine
+from .scene import Body, EngineOptions, Material, Scene, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
@@ -89,7 +91,7 @@ def pour(
         Target size distribution by number fraction over equivalent-diameter
         classes (physical units), as by sifting.
     material : Material, optional
-        Friction, restitution, damping; default ``Material()``.
+        Friction, restitution, damping; default ``PourConfig().material()``.
     settle : SettleCriteria, optional
         Time step and settle detection; default ``SettleCriteria()``.
     progress : bool
@@ -130,7 +132,7 @@ def pour(
     n_particles, batch_size, seed = _check_request(library, n_particles, batch_size, seed)
     chosen = get_engine(engine)
     options = chosen.options(engine_options)
-    material = Material() if material is None else material
+    material = PourConfig().material() if material is None else material
     settle = SettleCriteria() if settle is None else settle
     chosen.check(material, settle, options)
     target = resolve_target(target_solid_fraction, library, chosen)
@@ -261,7 +263,7 @@ def _run(
     bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)
     start = time.perf_counter()
     try:
-        result = engine.simulate(bodies, tube, material, settle, options,
+        result = engine.simulate(Scene(bodies, tube, material, settle, options),
                                  progress=lambda done, total: bar.update(1), compaction=compaction)
     finally:
         bar.close()
