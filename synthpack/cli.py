@@ -28,7 +28,7 @@ from .store.formats import PACK_FORMATS
 from ._shared.schema import build, default_of, help_of, option_name
 from .pipeline.config import LibraryConfig, PackConfig, PourConfig
 from .library.deform import DeformConfig
-from .physics.engine import COLLISION_SHAPES
+from .physics.scene import COLLISION_SHAPES
 from .physics.registry import ENGINES, get_engine
 from .errors import ContainmentError, PackBuildError, SynthpackInputError
 from .io._registry import tomogram_help

@@ -11,17 +11,21 @@ import ast
 import importlib.util
 import sys
 import types
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import trimesh
 
+from synthpack import physics
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import ENGINES, blender_engine, burial
-from synthpack.physics.engine import Body, Material, SettleCriteria, TubeSpec
+from synthpack.physics import ENGINES, PourConfig, Tube, blender_engine
+from synthpack.physics.compaction import TARGET_TOLERANCE
+from synthpack.physics.hulls import MAX_HULL_VERTICES
+from synthpack.physics.scene import Body, Scene, SettleCriteria, TubeSpec
 
 TUBE = TubeSpec(inner_radius=2.0, height=12.0, wall_thickness=0.2, base_thickness=0.2)
-MATERIAL = Material()
+MATERIAL = PourConfig().material()
 SETTLE = SettleCriteria()
 N_BATCHES, PER_BATCH = 3, 6
 BLENDER = ENGINES["blender"]
@@ -31,6 +35,12 @@ requires_blender = pytest.mark.skipif(
     reason="no Blender found: set SYNTHPACK_BLENDER to a Python with bpy or to a blender "
     "executable (`bash .ci/make-blender-venv` makes .venv-blender)",
 )
+
+
+def scene(bodies: list[Body], tube: TubeSpec = TUBE, material=MATERIAL, settle: SettleCriteria = SETTLE,
+          options: dict | None = None) -> Scene:
+    """A Blender scene of `bodies`, with the Blender engine's `options` (its defaults when None)."""
+    return Scene(bodies, tube, material, settle, BLENDER.options(options))
 
 
 def rotation_matrix(q: np.ndarray) -> np.ndarray:
@@ -101,14 +111,8 @@ def pour(tmp_path_factory: pytest.TempPathFactory):
     bodies = make_bodies()
     calls: list[tuple[int, int]] = []
     blend = tmp_path_factory.mktemp("blend") / "pack.blend"
-    result = BLENDER.simulate(
-        bodies,
-        TUBE,
-        MATERIAL,
-        SETTLE,
-        BLENDER.options({"record_snapshots": True, "blend_file": blend}),
-        progress=lambda i, n: calls.append((i, n)),
-    )
+    result = BLENDER.simulate(scene(bodies, options={"record_snapshots": True, "blend_file": blend}),
+                              progress=lambda i, n: calls.append((i, n)))
     return bodies, result, calls, blend
 
 
@@ -183,8 +187,8 @@ def test_off_centre_centre_of_mass_rolls_to_the_bottom():
     center_mass = offset + np.array([0.25, 0.0, 0.0])  # weighted towards +x
     upright, above_floor = np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.0])
     body = Body(vertices, ball.faces, 1.0, center_mass, upright, above_floor, 0)
-    damped = Material(angular_damping=0.5)  # a weighted ball rocks long with little damping
-    result = BLENDER.simulate([body], TUBE, damped, SETTLE, BLENDER.options({"max_hull_vertices": None}))
+    damped = replace(MATERIAL, angular_damping=0.5)  # a weighted ball rocks long with little damping
+    result = BLENDER.simulate(scene([body], material=damped, options={"max_hull_vertices": None}))
     assert result.settled_per_batch == [True]
     p, q = result.positions[0], result.quaternions[0]
     rotation = rotation_matrix(q)
@@ -204,14 +208,14 @@ def test_missing_blender_gives_setup_hint(monkeypatch, tmp_path):
     assert blender_engine.find_blender() is None
     assert not BLENDER.available()
     with pytest.raises(SynthpackInputError, match="make-blender-venv"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate(scene(make_bodies()[:1]))
 
 
 def test_python_without_bpy_gives_setup_hint(monkeypatch):
     monkeypatch.setenv(blender_engine.BLENDER_ENV_VAR, sys.executable)
     assert blender_engine.find_blender() == [sys.executable]
     with pytest.raises(SynthpackInputError, match="cannot import bpy"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate(scene(make_bodies()[:1]))
 
 
 @pytest.mark.blender
@@ -234,7 +238,7 @@ def test_runs_a_blender_executable_with_fixed_steps(monkeypatch, tmp_path):
     assert prefix[0] == str(blender) and "--background" in prefix and prefix[-1] == "--python"
     bodies = make_bodies()[:2]
     low_tube = TubeSpec(TUBE.inner_radius, 1.0, TUBE.wall_thickness, TUBE.base_thickness)
-    result = BLENDER.simulate(bodies, low_tube, MATERIAL, SETTLE, BLENDER.options({"fixed_steps": 90}))
+    result = BLENDER.simulate(scene(bodies, low_tube, options={"fixed_steps": 90}))
     assert result.steps_per_batch == [90]
     spawn_heights = np.array([b.spawn_offset[2] for b in bodies])
     assert np.all(result.positions[:, 2] < spawn_heights)  # both grains fell ...
@@ -246,47 +250,84 @@ def test_runs_a_blender_executable_with_fixed_steps(monkeypatch, tmp_path):
 
 def test_bad_input_is_rejected():
     with pytest.raises(SynthpackInputError, match="no bodies"):
-        BLENDER.simulate([], TUBE, MATERIAL, SETTLE)
+        BLENDER.simulate(scene([]))
     with pytest.raises(SynthpackInputError, match="linear_damping"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, Material(linear_damping=2.0), SETTLE)
+        BLENDER.simulate(scene(make_bodies()[:1], material=replace(MATERIAL, linear_damping=2.0)))
     with pytest.raises(SynthpackInputError, match="collision_margin must be within"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, Material(collision_margin=2.0), SETTLE)
+        BLENDER.simulate(scene(make_bodies()[:1], material=replace(MATERIAL, collision_margin=2.0)))
     with pytest.raises(SynthpackInputError, match="Blender's last frame"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SettleCriteria(max_steps=2_000_000))
+        BLENDER.simulate(scene(make_bodies()[:1], settle=SettleCriteria(max_steps=2_000_000)))
     with pytest.raises(SynthpackInputError, match="'engine_options.fixed_steps' is out of range"):
         BLENDER.options({"fixed_steps": 2_000_000})
     with pytest.raises(SynthpackInputError, match="takes BlenderOptions options"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, ENGINES["pybullet"].options())
+        BLENDER.simulate(Scene(make_bodies()[:1], TUBE, MATERIAL, SETTLE, ENGINES["pybullet"].options()))
 
 
 def test_blender_failure_shows_its_output(monkeypatch, tmp_path):
+    """A script that fails mid-pour: the error holds its exit status and the end of its output."""
     failing = tmp_path / "failing_script.py"
-    failing.write_text("print('BATCH 1/2 frames=7 settled=1')\nraise RuntimeError('boom')\n")
+    failing.write_text("import sys\nsys.stdin.readline()\n"  # the open call: answered, then the first batch fails
+                       f"print({blender_engine.REPLY!r} + '{{\"blender_version\": \"0\"}}', flush=True)\n"
+                       "print('opened')\nsys.stdin.readline()\nraise RuntimeError('boom')\n")
     monkeypatch.setattr(blender_engine, "SCRIPT", failing)
     monkeypatch.setenv(blender_engine.BLENDER_ENV_VAR, sys.executable)
-    calls = []
-    with pytest.raises(blender_engine.BlenderError, match="(?s)exit status 1.*RuntimeError: boom"):
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, progress=lambda *a: calls.append(a))
-    assert calls == [(0, 2)]
+    with pytest.raises(blender_engine.BlenderError, match="(?s)exit status 1.*opened.*RuntimeError: boom"):
+        BLENDER.simulate(scene(make_bodies()[:1]))
 
 
 def test_unwritable_blend_file_is_rejected_before_simulating(tmp_path):
     with pytest.raises(SynthpackInputError, match="missing-folder"):
         blend = tmp_path / "missing-folder" / "a.blend"
-        BLENDER.simulate(make_bodies()[:1], TUBE, MATERIAL, SETTLE, BLENDER.options({"blend_file": blend}))
+        BLENDER.simulate(scene(make_bodies()[:1], options={"blend_file": blend}))
 
 
-def test_the_script_uses_synthpacks_burial_rule_without_importing_synthpack(monkeypatch):
-    """blender_script.py loads physics/burial.py by path: the rule the pybullet engine uses."""
-    tree = ast.parse(blender_engine.SCRIPT.read_text())
-    imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
-    imported += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
-    assert not [name for name in imported if name.split(".")[0] == "synthpack"]
+def load_script(monkeypatch: pytest.MonkeyPatch) -> types.ModuleType:
+    """blender_script.py as a module, outside Blender (with an empty stand-in for bpy)."""
     monkeypatch.setitem(sys.modules, "bpy", types.ModuleType("bpy"))  # the script needs it to load
     spec = importlib.util.spec_from_file_location("blender_script_under_test", blender_engine.SCRIPT)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
-    assert script.burial.__file__ == burial.__file__
-    corners = np.array([[x, y, 0.0] for x in (-0.5, 0.5) for y in (-0.5, 0.5)])
-    hulls = [corners + [0, 0, 0.5], corners + [0, 0, 9.0]]  # a deep grain under a covering one
-    assert script.burial.buried(hulls, 1.5, 1.0).tolist() == [True, False]
+    return script
+
+
+def test_the_script_reads_the_saved_scene_without_importing_synthpack(monkeypatch, tmp_path):
+    """Blender is fed the scene Scene.save writes, read back bit for bit with NumPy alone."""
+    tree = ast.parse(blender_engine.SCRIPT.read_text())
+    imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    imported += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert sorted({name.split(".")[0] for name in imported}) == ["bpy", "json", "math", "numpy", "os", "sys", "time"]
+    script = load_script(monkeypatch)
+    assert script.REPLY == blender_engine.REPLY and script.NO_BPY_EXIT_CODE == blender_engine.NO_BPY_EXIT_CODE
+    bodies = make_bodies()
+    saved = blender_engine._save_scene(tmp_path, scene(bodies, options={"fixed_steps": 7}))
+    spec, read = script.read_scene(str(saved))
+    assert spec["options"]["fixed_steps"] == 7 and spec["settle"]["max_steps"] == SETTLE.max_steps
+    assert spec["material"]["friction"] == MATERIAL.friction and spec["tube"]["inner_radius"] == TUBE.inner_radius
+    for body, got in zip(bodies, read, strict=True):
+        for name in ("vertices", "faces", "center_mass", "orientation", "spawn_offset"):
+            np.testing.assert_array_equal(got[name], getattr(body, name))
+        assert got["mass"] == body.mass and got["batch"] == body.batch
+    hulls = script.read_hulls(str(tmp_path / blender_engine.HULLS_FILE), len(bodies))
+    for body, (vertices, faces) in zip(bodies, hulls):
+        assert len(vertices) <= MAX_HULL_VERTICES and faces.max() == len(vertices) - 1
+        assert trimesh.Trimesh(vertices, faces).is_convex
+
+
+@pytest.mark.blender
+@requires_blender
+@pytest.mark.parametrize("target", [0.57, 0.30])
+def test_the_driver_packs_a_blender_pour_to_a_target(large_library, target):
+    """Compaction attaches to the driver, so Blender gets it: denser by a friction schedule, looser by spacing.
+
+    A free Blender pour of these 150 grains packs at 0.527 (measured).
+    """
+    assert PourConfig(engine="blender", target_solid_fraction=target).target_solid_fraction == target
+    tube = Tube.for_library(large_library, 150, packing_fraction=0.3,
+                            inner_radius=2.5 * float(np.median(large_library.equivalent_diameters)))
+    packed = physics.pour(large_library, 150, 30, seed=1, container=tube, engine="blender", progress=False,
+                          target_solid_fraction=target)
+    checks = packed.checks
+    assert checks.target_reached is True and abs(checks.packing_fraction - target) <= TARGET_TOLERANCE
+    knobs = checks.compaction["knobs"]
+    assert max(knobs) > 0 if target > 0.527 else max(knobs) < 0  # compacted, or spaced
+    assert checks.n_outside == 0 and checks.max_grain_penetration_voxels < 0.5

@@ -82,18 +82,6 @@ def test_the_source_target_is_the_source_scans_bulk_solid_fraction(large_scan, l
     assert resolve_target("source", large_library, get_engine("pybullet")) == pytest.approx(measured)
 
 
-def test_an_engine_without_compaction_pours_freely_for_source_and_refuses_a_number(large_library, caplog):
-    blender = get_engine("blender")
-    with caplog.at_level(logging.INFO, logger="synthpack.physics.compaction"):
-        assert resolve_target("source", large_library, blender) is None
-    assert "free pour" in caplog.text
-    with pytest.raises(SynthpackInputError, match="cannot pack"):
-        resolve_target(0.5, large_library, blender)
-    with pytest.raises(SynthpackInputError, match="pour.target_solid_fraction"):
-        PourConfig(engine="blender", target_solid_fraction=0.5)
-    assert PourConfig(engine="blender").target_solid_fraction == "source"
-
-
 @pytest.mark.parametrize("value, expected", [("source", "source"), (None, None), ("none", None), (0.55, 0.55)])
 def test_the_config_takes_source_a_number_or_none(value, expected):
     config = PackConfig.from_dict({"pour": {"target_solid_fraction": value}})

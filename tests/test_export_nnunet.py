@@ -9,7 +9,7 @@ import pytest
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.export import export_nnunet
-from synthpack.export.nnunet import LABELS, instances_from_target, semantic_target
+from synthpack.export.nnunet import instances_from_target, semantic_target
 from synthpack.io import read_volume, write_tiff
 from synthpack.metrics import match_instances
 from synthpack.store.pack import open_pack

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,11 +14,12 @@ from scipy.spatial.transform import Rotation
 from synthpack.pipeline import generate
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import ENGINES, Material, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
-from synthpack.physics import blender_engine, burial, hulls, pybullet_engine
+from synthpack.physics import ENGINES, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
+from synthpack.physics import blender_engine, burial, driver, hulls, pybullet_engine
 from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.container import MAX_FILL_ASPECT
-from synthpack.physics.engine import Body, Engine, EngineOptions, TubeSpec
+from synthpack.physics.engine import Engine
+from synthpack.physics.scene import Body, EngineOptions, Scene, TubeSpec
 from synthpack.physics.plan import make_plan
 
 TOLERANCE_VOXELS = 0.5  # largest penetration into the tube wall or floor accepted
@@ -180,9 +182,11 @@ def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
         ({"engine_options": {"fixed_steps": 0}}, "'pour.engine_options.fixed_steps' is out of range"),
         ({"engine_options": {"blend_file": "a.blend"}}, "unknown config key 'pour.engine_options.blend_file'"),
         ({"container": Tube(50.0, 1000.0, 10.0, 10.0)}, "too narrow for the largest grain"),
-        ({"restitution": 1.5}, r"restitution must be a number in \[0, 1\]"),
-        ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps must be"),
-        ({"settle": SettleCriteria(min_steps=10, max_steps=5)}, "min_steps must be"),
+        ({"material": replace(PourConfig().material(), restitution=1.5)},
+         r"Material.restitution is out of range: got 1.5, expected between 0.0 and 1.0"),
+        ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps is out of range"),
+        ({"settle": SettleCriteria(quiet_steps=2.5)}, "SettleCriteria.quiet_steps has the wrong type"),
+        ({"settle": SettleCriteria(min_steps=10, max_steps=5)}, "min_steps must be at most max_steps"),
     ],
 )
 def test_bad_arguments_raise_clear_errors(large_library, kwargs, match):
@@ -323,8 +327,7 @@ def test_winding_number_separates_inside_from_outside():
 
 def test_convex_decomposition_pours_a_concave_aware_pack(large_library):
     one = large_library[:1]  # one distinct grain: a single V-HACD run
-    config = PourConfig(n_particles=3, batch_size=3, collision_shape="decomposition")
-    placements = pour(one, config, 2, progress=False)
+    placements = pour(one, 3, 3, seed=2, progress=False, material=PourConfig(collision_shape="decomposition").material())
     assert placements.checks.n_outside == 0 and all(placements.checks.settled_per_batch)
     assert placements.parameters["material"]["collision_shape"] == "decomposition"
     with pytest.raises(SynthpackInputError, match="now the collision shape: set pour.collision_shape"):
@@ -382,9 +385,9 @@ def test_bad_engine_option_values_raise():
 
 def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow_tube, caplog):
     tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)
-    with caplog.at_level("DEBUG", logger="synthpack.physics.pybullet_engine"):
-        config = PourConfig(n_particles=140, batch_size=20, engine_options={"record_snapshots": True})
-        placements = pour(large_library, config, 4, container=tall, progress=False)
+    with caplog.at_level("DEBUG", logger="synthpack.physics.driver"):
+        placements = pour(large_library, 140, 20, seed=4, container=tall, progress=False,
+                          engine_options={"record_snapshots": True})
     assert any("Retired" in r.message for r in caplog.records)
     checks = placements.checks
     assert checks.n_outside == 0 and all(checks.settled_per_batch)
@@ -435,11 +438,11 @@ def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch)
     class Stop(Exception):
         pass
 
-    def capture(self, bodies, tube, material, settle, options, progress, compaction=None):
-        received.append((options, material.collision_shape))
+    def capture(self, scene):
+        received.append((scene.options, scene.material.collision_shape))
         raise Stop
 
-    monkeypatch.setattr(pybullet_engine.PybulletEngine, "_simulate", capture)
+    monkeypatch.setattr(pybullet_engine.PybulletEngine, "open", capture)
     config = PackConfig.from_dict({"pour": {"n_particles": 2, "batch_size": 2,
                                             "collision_shape": "decomposition",
                                             "engine_options": {"allow_sleeping": False}}})
@@ -450,14 +453,15 @@ def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch)
         PackConfig.from_dict({"pour": {"engine": "blender", "collision_shape": "decomposition"}})
 
 
-def test_both_engines_use_the_shared_hull_and_burial_helpers():
+def test_both_engines_use_the_shared_hull_helpers_and_the_drivers_burial_rule():
     assert pybullet_engine.simplify_hull is hulls.simplify_hull
     assert blender_engine.simplify_hull is hulls.simplify_hull
     assert pybullet_engine.convex_hull is blender_engine.convex_hull is hulls.convex_hull
-    assert pybullet_engine.buried is burial.buried
-    assert pybullet_engine.largest_diameter is burial.largest_diameter
-    assert not hasattr(pybullet_engine, "MAX_HULL_VERTICES")
-    assert not hasattr(blender_engine, "MAX_HULL_VERTICES")
+    assert driver.buried is burial.buried and driver.largest_diameter is burial.largest_diameter
+    for engine in (pybullet_engine, blender_engine):  # the driver retires buried grains, for every engine
+        assert not hasattr(engine, "buried") and not hasattr(engine, "MAX_HULL_VERTICES")
+    assert issubclass(pybullet_engine._PybulletWorld, driver.World)
+    assert issubclass(blender_engine._BlenderWorld, driver.World)
 
 
 def test_simplified_hulls_keep_at_most_the_vertices_asked_for():
@@ -493,9 +497,13 @@ def test_engines_refuse_bad_bodies_with_input_errors():
 
     tube = TubeSpec(2.0, 5.0, 0.2, 0.2)
     engine = ENGINES["pybullet"]
+
+    def scene(bodies, tube=tube, options=None):
+        return Scene(bodies, tube, PourConfig().material(), SettleCriteria(), options or engine.options())
+
     with pytest.raises(SynthpackInputError, match="ordered by batch"):
-        engine.simulate([body(1), body(0)], tube, Material(), SettleCriteria())
+        engine.simulate(scene([body(1), body(0)]))
     with pytest.raises(SynthpackInputError, match="TubeSpec.height must be > 0"):
-        engine.simulate([body(0)], TubeSpec(2.0, 0.0, 0.2, 0.2), Material(), SettleCriteria())
+        engine.simulate(scene([body(0)], TubeSpec(2.0, 0.0, 0.2, 0.2)))
     with pytest.raises(SynthpackInputError, match="takes PybulletOptions options"):
-        engine.simulate([body(0)], tube, Material(), SettleCriteria(), ENGINES["blender"].options())
+        engine.simulate(scene([body(0)], options=ENGINES["blender"].options()))

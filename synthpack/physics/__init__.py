@@ -8,11 +8,13 @@ Modules, one job each, in the order a pour runs them:
 ``plan``               the seeded pour plan: which grains, at what scale, orientation and drop height
 ``container``          `Tube`: the container, sized for the pour
 ``compaction``         packing to a target solid fraction, steered by the bulk after each locked batch
-``engine``             the scene types and the `Engine` base class every engine subclasses
+``scene``              `Scene`: the grains, tube, material, settle criteria and options every engine pours
+``driver``             the one batch loop (spawn, settle, lock, retire, snapshot) over an engine's hooks
+``engine``             the `Engine` base class every engine subclasses
 ``registry``           the engines by name
 ``pybullet_engine``    the default engine (pybullet), with ``_bullet`` (its client)
 ``blender_engine``     Blender's engine, run in its own interpreter by ``blender_script``
-``hulls``, ``burial``  collision hulls and retiring buried grains, shared by the engines
+``hulls``, ``burial``  collision hulls, and which buried grains the driver retires
 ``checks``             containment, overlap and settling checks of a finished pour
 ``placements``         `Placements`: the poses of a pour, saved and read as JSON
 =====================  ==================================================================================
@@ -21,7 +23,7 @@ Modules, one job each, in the order a pour runs them:
 from .compaction import PackingController
 from .config import PourConfig
 from .container import Tube
-from .engine import Material, SettleCriteria
+from .scene import Material, SettleCriteria
 from .placements import Placements
 from .pouring import CONTAINMENT_ATTEMPTS, check_pour_size, pour
 from .checks import PourChecks

@@ -1,56 +1,58 @@
-"""Batched pouring of grains into a tube with Blender's rigid-body simulator.
+"""The Blender side of the Blender engine: the driver's hooks, served inside Blender's Python.
 
 This file runs INSIDE a Blender Python interpreter (``bpy``), never inside synthpack:
 it imports only the standard library, ``bpy`` and ``numpy`` (both ship with
-Blender), and loads synthpack's NumPy-only ``burial.py`` from this folder by file path
-(no synthpack package is imported). :mod:`synthpack.physics.blender_engine` writes its
-input and starts it in a subprocess, either as::
+Blender; NumPy 1.x there). :mod:`synthpack.physics.blender_engine` saves the pour's
+scene (:meth:`synthpack.physics.scene.Scene.save`: ``scene.json`` and ``bodies.npz``)
+and the grains' collision hulls (``hulls.npz``) into one folder and starts it, either as::
 
-    PYTHON_WITH_BPY blender_script.py SCENE_JSON RESULT_JSON
-    blender --background --factory-startup --python blender_script.py -- SCENE_JSON RESULT_JSON
+    PYTHON_WITH_BPY blender_script.py SCENE_JSON
+    blender --background --factory-startup --python blender_script.py -- SCENE_JSON
 
-Input (``SCENE_JSON``, all lengths in simulation units, z up, gravity -z)::
+The batch loop is not here: synthpack's driver (:func:`synthpack.physics.driver.drive`)
+runs it, the same for every engine, and sends this script one call per hook on stdin,
+one JSON object a line, ``{"call": NAME, "args": {...}}``; each reply is one line
+``@synthpack-reply@ {JSON}`` on stdout (the rest of stdout is Blender's own log). The
+calls, all lengths in simulation units, z up, gravity -z:
 
-    {"tube": {"inner_radius", "height", "wall_thickness", "base_thickness"},
-     "material": {"friction", "restitution", "linear_damping", "angular_damping",
-                  "collision_margin"},
-     "settle": {"time_step", "substeps", "linear_speed", "angular_speed",
-                "quiet_steps", "max_steps", "min_steps"},
-     "solver_iterations": int,
-     "fixed_steps": null, or run every batch for exactly this many frames,
-     "record_snapshots": bool, also report the poses of all grains placed so far,
-                         read back from Blender, after each batch,
-     "blend_file": null or path of a .blend to save the final pack into,
-     "bodies": [{"mesh": npz file (relative to the scene file) holding "vertices"
-                 (V, 3) and "faces" (F, 3) of the grain and "hull_vertices" (H, 3) and
-                 "hull_faces" (G, 3) of its convex hull, particle-local frame;
-                 "mass", "center_mass" [3], "orientation" [w, x, y, z],
-                 "spawn_offset" [x, y, dz], "batch"}, ...]}
+``open(hulls, solver_iterations)``
+    An empty factory scene with a rigid-body world stepping ``time_step`` per frame
+    (``substeps`` solver substeps), the tube, and the grains read from the scene; reply
+    ``{"blender_version"}``.
+``add_batch(members, positions, friction, inflation)``
+    Each grain of ``members`` becomes an ACTIVE rigid body with a CONVEX_HULL collision
+    shape built from its hull (inflated by ``inflation`` of its size about the centre of
+    mass), shifted so that the object ORIGIN is the grain's centre of mass (Blender's
+    rigid bodies rotate about the origin), its particle-local origin at ``positions``,
+    turned by its orientation, at ``friction``. The wall is raised when the batch
+    reaches above it, so no grain escapes over the rim while it falls.
+``settle(criteria, fixed_steps)``
+    The timeline restarts at frame 1 and frames are stepped one by one. A grain is quiet
+    when the frame-to-frame motion of its centre of mass is below ``linear_speed`` and
+    the rotation angle between frames below ``angular_speed`` (both per second); the
+    batch has settled after ``quiet_steps`` consecutive frames in which all its grains
+    are quiet, and at least ``min_steps`` frames; ``max_steps`` caps it (with
+    ``fixed_steps``, exactly that many frames). Reply ``{"steps", "settled"}``.
+``set_friction(friction)``
+    The batch's grains get ``friction``, from where they are: the next ``settle`` starts
+    them from their current poses (at rest: the timeline restarts).
+``lock()``
+    Each grain of the batch becomes a PASSIVE rigid body at its settled pose, with the
+    same collision shape and the material's friction; Blender never moves a passive
+    body. Reply ``{"positions", "quaternions", "hulls"}``: the poses of the particle-local
+    origins (w, x, y, z) and the hull vertices in the world.
+``retire(indices)``
+    Deletes these locked grains (the driver judges which are buried): Blender's cost per
+    frame grows with the number of objects.
+``poses(indices)``
+    The grains' poses read back from Blender (a locked grain that moved would show; a
+    deleted one keeps its last pose): ``{"positions", "quaternions"}``.
+``close()``
+    Saves the final pack as a .blend file when the options name one, replies
+    ``{"seconds"}`` and ends the script.
 
-Method, batch by batch (batches in increasing order, as in the paper's section 3.3):
-
-1. Each grain becomes an ACTIVE rigid body with a CONVEX_HULL collision shape built
-   from its hull vertices, shifted so that the object ORIGIN is the grain's centre of
-   mass (Blender's rigid bodies rotate about the origin). It spawns with the given
-   orientation, its particle-local origin at ``(x, y, top + dz)``, where ``top`` is the
-   highest world z of all grains already placed (0 for the first batch).
-2. The timeline restarts at frame 1 and frames are stepped one by one (each frame is
-   ``time_step`` seconds, split into ``substeps`` solver substeps). A grain is quiet
-   when the frame-to-frame motion of its centre of mass is below ``linear_speed`` and
-   the rotation angle between frames below ``angular_speed`` (both per second); the
-   batch has settled after ``quiet_steps`` consecutive frames in which all its grains
-   are quiet, and at least ``min_steps`` frames; ``max_steps`` caps the batch. (With
-   ``fixed_steps``, every batch runs exactly that many frames: the paper's schedule.)
-3. The batch is LOCKED: each grain becomes a PASSIVE rigid body at its settled pose,
-   with the same convex-hull collision shape; Blender never moves a passive body.
-   Locked grains buried too deep for any later grain to reach are then deleted (see
-   :func:`retire_buried`, the rule of ``burial.py`` that the pybullet engine uses too):
-   Blender's cost per frame grows with the number of objects.
-
-The tube is a PASSIVE box floor and a PASSIVE triangle-mesh wall; the wall is raised
-above ``height`` when a batch spawns higher, so no grain escapes over the rim while it
-falls. Masses are rescaled so the lightest grain weighs 1 (only ratios matter, and
-Blender clamps masses below 0.001).
+The tube is a PASSIVE box floor and a PASSIVE triangle-mesh wall. Masses are rescaled so
+the lightest grain weighs 1 (only ratios matter, and Blender clamps masses below 0.001).
 
 The paper locked batches with keyframes on one continuous timeline. That works in
 Blender 5 too (keyframing ``rigid_body.kinematic`` False -> True at frames t, t+1 with
@@ -63,16 +65,8 @@ new batch starts at rest at its spawn poses), a short point cache and frame numb
 below Blender's limit, so the number of batches is unlimited. Merging each locked batch
 into one passive triangle-mesh object (fewer objects) was measured too: convex-versus-
 triangle contacts made it 3x slower than passive convex hulls.
-
-Output (``RESULT_JSON``): per body the final world position of its particle-LOCAL
-origin and its quaternion (w, x, y, z), local -> world (read back from Blender at the
-end for every grain still in the scene, so a locked grain that moved would show);
-optional per-batch snapshots of the same; frames and settled flag per batch; the
-Blender version; the run time in seconds. Each batch prints one line
-``BATCH k/n frames=F settled=0|1 seconds=S locked_in_scene=L`` to stdout.
 """
 
-import importlib.util
 import json
 import math
 import os
@@ -82,6 +76,9 @@ import time
 NO_BPY_EXIT_CODE = 3
 """Exit status when ``bpy`` cannot be imported (the engine turns it into a setup hint)."""
 
+REPLY = "@synthpack-reply@ "
+"""What starts each reply line on stdout (the engine reads the JSON after it)."""
+
 try:
     import bpy
 except ImportError:
@@ -90,24 +87,12 @@ except ImportError:
 
 import numpy as np
 
-
-def load_burial():
-    """synthpack's ``burial.py`` (next to this file), loaded by path without the synthpack package."""
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "burial.py")
-    spec = importlib.util.spec_from_file_location("synthpack_burial", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-burial = load_burial()
-
 TUBE_CHORD_TOLERANCE = 0.002
 """Largest gap (simulation units) between the tube's polygonal inner wall and the circle."""
 
 
 def parse_args(argv):
-    """Return (scene_path, result_path) from the command line.
+    """Return the scene path from the command line.
 
     Parameters
     ----------
@@ -116,9 +101,9 @@ def parse_args(argv):
         ``--``.
     """
     args = argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
-    if len(args) != 2:
-        raise SystemExit("usage: blender_script.py SCENE_JSON RESULT_JSON")
-    return args[0], args[1]
+    if len(args) != 1:
+        raise SystemExit("usage: blender_script.py SCENE_JSON")
+    return args[0]
 
 
 def quaternion_to_matrix(q):
@@ -295,28 +280,60 @@ def build_wall(tube, material, wall_top, old=None):
     return obj
 
 
+def read_scene(scene_path):
+    """The scene's description (``scene.json``) and its bodies' arrays, one dict per body.
+
+    Reads what :meth:`synthpack.physics.scene.Scene.save` writes: each body's
+    ``vertices``, ``faces``, ``mass``, ``center_mass``, ``orientation``, ``spawn_offset``
+    and ``batch``, float64 / int64 as saved.
+    """
+    with open(scene_path) as handle:
+        scene = json.load(handle)
+    folder = os.path.dirname(os.path.abspath(scene_path))
+    with np.load(os.path.join(folder, scene["bodies"])) as data:
+        arrays = {name: data[name] for name in data.files}
+    v, f = arrays["vertex_offsets"], arrays["face_offsets"]
+    bodies = []
+    for k in range(scene["n_bodies"]):
+        body = {name: arrays[name][k] for name in ("mass", "center_mass", "orientation", "spawn_offset", "batch")}
+        body["vertices"] = arrays["vertices"][v[k]:v[k + 1]]
+        body["faces"] = arrays["faces"][f[k]:f[k + 1]]
+        bodies.append(body)
+    return scene, bodies
+
+
+def read_hulls(path, n):
+    """The (vertices (H, 3), faces (G, 3)) of each of the ``n`` grains' collision hulls, local frame."""
+    with np.load(path) as data:
+        vertices, faces = data["vertices"], data["faces"]
+        v, f = data["vertex_offsets"], data["face_offsets"]
+    return [(vertices[v[k]:v[k + 1]], faces[f[k]:f[k + 1]]) for k in range(n)]
+
+
 class Grain:
     """One body of the scene: its hull in the centre-of-mass frame and its pose."""
 
-    def __init__(self, index, spec, scene_dir, mass_scale):
-        data = np.load(os.path.join(scene_dir, spec["mesh"]))
+    def __init__(self, index, body, hull, mass_scale):
         self.index = index
-        self.spec = spec
-        self.mass = spec["mass"] * mass_scale
-        self.center_mass = np.asarray(spec["center_mass"], dtype=np.float64)
-        self.hull = np.asarray(data["hull_vertices"], dtype=np.float64) - self.center_mass
-        self.hull_faces = np.asarray(data["hull_faces"], dtype=np.int64)
-        self.vertices = np.asarray(data["vertices"], dtype=np.float64)
-        self.faces = np.asarray(data["faces"], dtype=np.int64)
-        self.rotation = quaternion_to_matrix(spec["orientation"])
+        self.mass = body["mass"] * mass_scale
+        self.center_mass = np.asarray(body["center_mass"], dtype=np.float64)
+        self.hull = np.asarray(hull[0], dtype=np.float64) - self.center_mass
+        self.hull_faces = np.asarray(hull[1], dtype=np.int64)
+        self.vertices = np.asarray(body["vertices"], dtype=np.float64)
+        self.faces = np.asarray(body["faces"], dtype=np.int64)
+        self.rotation = quaternion_to_matrix(body["orientation"])
         self.com_position = None  # world position of the centre of mass
         self.obj = None
 
-    def spawn(self, top):
-        """Create the ACTIVE grain object at its spawn pose above ``top``."""
-        x, y, dz = self.spec["spawn_offset"]
-        origin = np.array([x, y, top + dz])
-        self.com_position = origin + self.rotation @ self.center_mass
+    def spawn(self, origin, inflation):
+        """Create the grain's object with its particle-local origin at ``origin`` (3,).
+
+        With ``inflation`` > 0 its collision hull is inflated by that fraction about the
+        centre of mass (the object's origin).
+        """
+        if inflation > 0:
+            self.hull = self.hull * (1.0 + inflation)
+        self.com_position = np.asarray(origin, dtype=np.float64) + self.rotation @ self.center_mass
         mesh = new_mesh("grain", self.hull, self.hull_faces)
         self.obj = new_object("grain_%06d" % self.index, mesh)
         self.obj.rotation_mode = "QUATERNION"
@@ -330,6 +347,14 @@ class Grain:
     def origin_position(self):
         """World position (3,) of the particle-local origin: com - R @ center_mass."""
         return self.com_position - self.rotation @ self.center_mass
+
+    def place(self):
+        """Set the object's location and rotation (which the simulation does not write back) to the current pose.
+
+        The world rebuilt at the next first frame starts the grain there.
+        """
+        self.obj.location = self.com_position
+        self.obj.rotation_quaternion = matrix_to_quaternion(self.rotation)
 
 
 def read_poses(grains):
@@ -388,43 +413,11 @@ def settle_batch(scene, grains, settle, fixed_steps):
     return step, quiet >= settle["quiet_steps"] and step >= settle["min_steps"]
 
 
-def lock_batch(grains):
-    """Lock settled grains: PASSIVE rigid bodies at their settled poses, same hull shape.
-
-    Blender never moves a passive body, so the grains' poses are final from here on.
-    The object's location and rotation (which the simulation does not write back) are
-    set to the settled pose, which the world rebuilt at the next batch's first frame
-    uses.
-    """
-    for grain in grains:
-        grain.obj.location = grain.com_position
-        grain.obj.rotation_quaternion = matrix_to_quaternion(grain.rotation)
-        grain.obj.rigid_body.type = "PASSIVE"
-
-
-def retire_buried(locked, radius, largest):
-    """Delete the locked grains that ``burial.buried`` says no later grain can reach.
-
-    Their final poses are already recorded. This keeps the number of objects, and with
-    it Blender's cost per frame, bounded as the pack grows (the pybullet engine uses
-    the same rule).
-
-    Parameters
-    ----------
-    locked : list of Grain
-        Locked grains still in the scene; the retired ones are removed from it.
-    radius : float
-        Inner radius of the tube.
-    largest : float
-        Largest grain diameter.
-    """
-    gone = burial.buried([g.world_hull() for g in locked], radius, largest)
-    for grain in (g for g, out in zip(locked, gone) if out):
-        mesh = grain.obj.data
-        bpy.data.objects.remove(grain.obj, do_unlink=True)
-        bpy.data.meshes.remove(mesh)
-        grain.obj = None
-    locked[:] = [g for g, out in zip(locked, gone) if not out]
+def remove_object(obj):
+    """Delete ``obj`` and its mesh from Blender."""
+    mesh = obj.data
+    bpy.data.objects.remove(obj, do_unlink=True)
+    bpy.data.meshes.remove(mesh)
 
 
 def save_blend(path, grains, tube_objects):
@@ -445,71 +438,105 @@ def save_blend(path, grains, tube_objects):
     bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(path), check_existing=False)
 
 
-def run(scene_path, result_path):
-    """Simulate the scene described in ``scene_path`` and write ``result_path``."""
-    start = time.perf_counter()
-    with open(scene_path) as handle:
-        spec = json.load(handle)
-    settle, material = spec["settle"], spec["material"]
-    scene_dir = os.path.dirname(os.path.abspath(scene_path))
-    masses = np.array([b["mass"] for b in spec["bodies"]], dtype=np.float64)
-    mass_scale = 1.0 / masses.min()  # only mass ratios matter; Blender's minimum mass is 0.001
-    grains = [Grain(i, b, scene_dir, mass_scale) for i, b in enumerate(spec["bodies"])]
-    batch_ids = sorted({g.spec["batch"] for g in grains})
-    fixed_steps = spec["fixed_steps"]
-    scene = setup_world(settle, spec["solver_iterations"], (fixed_steps or settle["max_steps"]) + 1)
-    wall_top = spec["tube"]["height"]
-    floor = build_floor(spec["tube"], material)
-    wall = build_wall(spec["tube"], material, wall_top)
+class World:
+    """The pour in Blender: one method per call of the driver (see the module docstring)."""
 
-    largest = burial.largest_diameter(g.vertices for g in grains)
-    top = 0.0
-    frames, settled, locked, placed, snapshots = [], [], [], [], []
-    for k, batch_id in enumerate(batch_ids):
-        batch = [g for g in grains if g.spec["batch"] == batch_id]
-        for grain in batch:
-            grain.spawn(top)
-        reach = max(float(g.world_hull()[:, 2].max()) for g in batch)
-        if reach > wall_top:  # raise the wall so no grain escapes over the rim
-            wall_top = reach + 1.0
-            wall = build_wall(spec["tube"], material, wall_top, old=wall)
-        add_rigid_bodies([g.obj for g in batch], "ACTIVE", "CONVEX_HULL", material)
-        for grain in batch:
+    def __init__(self, scene_path):
+        self.start = time.perf_counter()
+        self.spec, bodies = read_scene(scene_path)
+        self.folder = os.path.dirname(os.path.abspath(scene_path))
+        self.bodies = bodies
+        self.grains, self.batch, self.friction = [], [], None
+        self.scene = self.floor = self.wall = self.wall_top = None
+
+    def open(self, hulls, solver_iterations):
+        spec = self.spec
+        settle, material, fixed_steps = spec["settle"], spec["material"], spec["options"]["fixed_steps"]
+        masses = np.array([b["mass"] for b in self.bodies], dtype=np.float64)
+        mass_scale = 1.0 / masses.min()  # only mass ratios matter; Blender's minimum mass is 0.001
+        shapes = read_hulls(os.path.join(self.folder, hulls), len(self.bodies))
+        self.grains = [Grain(i, b, h, mass_scale) for i, (b, h) in enumerate(zip(self.bodies, shapes))]
+        self.scene = setup_world(settle, solver_iterations, (fixed_steps or settle["max_steps"]) + 1)
+        self.wall_top = spec["tube"]["height"]
+        self.floor = build_floor(spec["tube"], material)
+        self.wall = build_wall(spec["tube"], material, self.wall_top)
+        return {"blender_version": bpy.app.version_string}
+
+    def add_batch(self, members, positions, friction, inflation):
+        tube, material = self.spec["tube"], self.spec["material"]
+        self.batch = [self.grains[i] for i in members]
+        for grain, origin in zip(self.batch, positions):
+            grain.spawn(origin, inflation)
+        reach = max(float(g.world_hull()[:, 2].max()) for g in self.batch)
+        if reach > self.wall_top:  # raise the wall so no grain escapes over the rim
+            self.wall_top = reach + 1.0
+            self.wall = build_wall(tube, material, self.wall_top, old=self.wall)
+        add_rigid_bodies([g.obj for g in self.batch], "ACTIVE", "CONVEX_HULL", dict(material, friction=friction))
+        for grain in self.batch:
             grain.obj.rigid_body.mass = grain.mass
-        batch_start = time.perf_counter()
-        n_frames, ok = settle_batch(scene, batch, settle, fixed_steps)
-        frames.append(n_frames)
-        settled.append(bool(ok))
-        placed.extend(batch)
-        if spec["record_snapshots"]:
-            update_from_blender(placed)
-            snapshots.append(pose_lists(sorted(placed, key=lambda g: g.index)))
-        lock_batch(batch)
-        top = max(top, max(float(g.world_hull()[:, 2].max()) for g in batch))
-        locked.extend(batch)
-        retire_buried(locked, spec["tube"]["inner_radius"], largest)
-        print(
-            "BATCH %d/%d frames=%d settled=%d seconds=%.2f locked_in_scene=%d"
-            % (k + 1, len(batch_ids), n_frames, ok, time.perf_counter() - batch_start, len(locked)),
-            flush=True,
-        )
+        self.friction = friction
+        return {}
 
-    update_from_blender(grains)
-    positions, quaternions = pose_lists(grains)
-    if spec["blend_file"]:
-        save_blend(spec["blend_file"], grains, [floor, wall])
-    result = {
-        "blender_version": bpy.app.version_string,
-        "positions": positions,
-        "quaternions": quaternions,
-        "snapshots": snapshots if spec["record_snapshots"] else None,
-        "frames_per_batch": frames,
-        "settled_per_batch": settled,
-        "seconds": time.perf_counter() - start,
-    }
-    with open(result_path, "w") as handle:
-        json.dump(result, handle)
+    def settle(self, criteria, fixed_steps):
+        steps, settled = settle_batch(self.scene, self.batch, criteria, fixed_steps)
+        return {"steps": steps, "settled": bool(settled)}
+
+    def set_friction(self, friction):
+        for grain in self.batch:
+            grain.place()
+            grain.obj.rigid_body.friction = friction
+        self.friction = friction
+        return {}
+
+    def lock(self):
+        """PASSIVE rigid bodies at the settled poses, same hull shape: Blender never moves them again."""
+        material_friction = self.spec["material"]["friction"]
+        for grain in self.batch:
+            grain.place()
+            grain.obj.rigid_body.type = "PASSIVE"
+            if self.friction != material_friction:
+                grain.obj.rigid_body.friction = material_friction
+        positions, quaternions = pose_lists(self.batch)
+        hulls = [g.world_hull().tolist() for g in self.batch]
+        self.batch = []
+        return {"positions": positions, "quaternions": quaternions, "hulls": hulls}
+
+    def retire(self, indices):
+        for i in indices:
+            remove_object(self.grains[i].obj)
+            self.grains[i].obj = None
+        return {}
+
+    def poses(self, indices):
+        grains = [self.grains[i] for i in indices]
+        update_from_blender(grains)
+        positions, quaternions = pose_lists(grains)
+        return {"positions": positions, "quaternions": quaternions}
+
+    def close(self):
+        blend = self.spec["options"].get("blend_file")
+        if blend:
+            save_blend(blend, self.grains, [self.floor, self.wall])
+        return {"seconds": time.perf_counter() - self.start}
+
+
+def reply(value):
+    """Write one reply line (after a newline, so it starts a line whatever Blender printed)."""
+    sys.stdout.write("\n" + REPLY + json.dumps(value) + "\n")
+    sys.stdout.flush()
+
+
+def serve(scene_path):
+    """Answer the driver's calls from stdin until ``close`` (or the end of the input)."""
+    world = World(scene_path)
+    calls = {name: getattr(world, name) for name in
+             ("open", "add_batch", "settle", "set_friction", "lock", "retire", "poses", "close")}
+    for line in sys.stdin:
+        request = json.loads(line)
+        reply(calls[request["call"]](**request["args"]))
+        if request["call"] == "close":
+            break
 
 
 if __name__ == "__main__":
-    run(*parse_args(sys.argv))
+    serve(parse_args(sys.argv))

@@ -2,12 +2,9 @@
 
 Every grain still in a physics world costs a little per step, even a static one
 (measured with pybullet: 4,000 locked grains made a step of 50 falling grains 3-6x
-slower), so both engines remove locked grains that can no longer be reached, after
-their final poses are recorded; the cost per grain then stays about flat however
-many grains are poured.
-
-This module needs only NumPy (1.x or 2.x) and imports nothing from synthpack:
-``blender_script.py``, which runs inside Blender's own Python, loads it by file path.
+slower), so the batch driver (:mod:`synthpack.physics.driver`) has every engine remove
+the locked grains that can no longer be reached, after their final poses are recorded;
+the cost per grain then stays about flat however many grains are poured.
 """
 
 from __future__ import annotations

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, cKDTree
 from scipy.spatial.transform import Rotation
 
+from .._shared.seeds import generator
 from .container import Tube
 
 logger = logging.getLogger(__name__)
@@ -287,7 +288,7 @@ def _packing(
     hulls = {i: ConvexHull(meshes[i][0]).equations for i in np.unique(indices)}
     grains = [(*meshes[i], hulls[i], positions[k], rotations[k], scales[k], world[k], 1.0)
               for k, i in enumerate(indices)]
-    hits = _hits(grains, radius, z_min, z_max, n_samples, np.random.default_rng(seed), exact=True)
+    hits = _hits(grains, radius, z_min, z_max, n_samples, generator(seed, "checks"), exact=True)
     solid = int(np.count_nonzero(hits))
     overlap = float(np.count_nonzero(hits > 1) / solid) if solid else 0.0
     return solid / n_samples, overlap, region

@@ -49,6 +49,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
+from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from .checks import PourChecks, solid_fraction_of
 
@@ -169,7 +170,8 @@ def _prior_knob(fraction: float) -> float:
 class PackingController:
     """Steers each batch's knob toward a target bulk packing fraction (simulation units).
 
-    The engine asks :meth:`next_batch` before a batch falls and calls :meth:`observe`
+    The batch driver (:func:`synthpack.physics.driver.drive`, the same for every engine)
+    asks :meth:`next_batch` before a batch falls and calls :meth:`observe`
     once it is locked; :meth:`record` is what the checks and the manifest keep.
 
     Parameters
@@ -206,7 +208,7 @@ class PackingController:
 
     def __post_init__(self) -> None:
         self._measured_to = float(self.margin)
-        self._rng = np.random.default_rng(self.seed)
+        self._rng = generator(self.seed, "compaction")
 
     def next_batch(self) -> BatchCompaction:
         """The knob of the next batch, from the target, the layers measured so far and the prior.
@@ -302,7 +304,7 @@ def resolve_target(target: Any, library: Any, engine: Any) -> float | None:
             return None
         raise SynthpackInputError(
             f"The {engine.name} engine cannot pack to target_solid_fraction {target:g}; "
-            "use the pybullet engine, or target_solid_fraction: none."
+            "use another engine, or target_solid_fraction: none."
         )
     if target == TARGET_SOURCE:
         statistics = getattr(library, "statistics", None)

@@ -7,7 +7,7 @@ from typing import Any
 
 from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
-from .engine import COLLISION_SHAPES, Material, SettleCriteria
+from .scene import COLLISION_SHAPES, Material, SettleCriteria
 from .compaction import MAX_TARGET, TARGET_SOURCE, expected_fraction, parse_target
 from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube
 from .plan import parse_scale
@@ -62,7 +62,7 @@ class PourConfig:
     friction: float = setting(0.6, non_negative, "friction coefficient")
     restitution: float = setting(0.1, in_range(0.0, 1.0), "restitution (bounciness)")
     collision_shape: str = setting(
-        Material.collision_shape, one_of(COLLISION_SHAPES),
+        "hull", one_of(COLLISION_SHAPES),
         "how grains collide: hull (convex hull) or decomposition (V-HACD convex parts, for concave "
         "grains; pybullet only, 2-3 s per distinct grain to prepare)",
     )
@@ -86,7 +86,7 @@ class PourConfig:
             )
 
     def material(self) -> Material:
-        """The pour's :class:`~synthpack.physics.engine.Material`: these settings, the rest its defaults."""
+        """The pour's :class:`~synthpack.physics.scene.Material`: these settings, the rest its defaults."""
         return Material(friction=self.friction, restitution=self.restitution,
                         collision_shape=self.collision_shape)
 

@@ -12,7 +12,7 @@ import trimesh
 
 from .._shared.text import sig
 from ..errors import SynthpackInputError
-from .engine import TubeSpec
+from .scene import TubeSpec
 
 logger = logging.getLogger(__name__)
 

@@ -37,7 +37,9 @@ from .checks import PourChecks, compute_checks
 from .compaction import PackingController, report_target, resolve_target
 from .config import PourConfig
 from .container import Tube
-from .engine import Body, Engine, EngineOptions, EngineResult, Material, SettleCriteria, TubeSpec
+from .driver import EngineResult
+from .engine import Engine
+from .scene import Body, EngineOptions, Material, Scene, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
 from .registry import get_engine
@@ -235,7 +237,7 @@ def _run(
     bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)
     start = time.perf_counter()
     try:
-        result = engine.simulate(bodies, tube, material, settle, options,
+        result = engine.simulate(Scene(bodies, tube, material, settle, options),
                                  progress=lambda done, total: bar.update(1), compaction=compaction)
     finally:
         bar.close()

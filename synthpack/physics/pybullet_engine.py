@@ -1,7 +1,9 @@
 """Batched, locked rigid-body pouring with pybullet (the default engine).
 
-Implements the engine interface of :mod:`synthpack.physics.engine`; all lengths are
-simulation units (about one grain diameter).
+Implements the engine interface of :mod:`synthpack.physics.engine`: a
+:class:`~synthpack.physics.driver.World` whose hooks the one batch loop
+(:func:`~synthpack.physics.driver.drive`) calls; all lengths are simulation units
+(about one grain diameter).
 
 Choices, and why:
 
@@ -56,14 +58,13 @@ Choices, and why:
 * Locking: a settled batch's bodies are removed and re-created as STATIC bodies
   (mass 0) at their final poses, with the same collision shapes. Static bodies are
   never integrated and static-static pairs are never collided, but every body in
-  the world still costs a little per step, so locked grains buried deeper than any
-  later grain can reach are removed from the world (:mod:`synthpack.physics.burial`,
-  shared with the Blender engine).
-* Packing to a target (:mod:`synthpack.physics.compaction`): a
-  :class:`~synthpack.physics.compaction.PackingController` sets each batch's knob
-  before it falls: a lowered friction while it falls (denser, :func:`_compact`), or
-  collision hulls inflated about the centre of mass (looser, :func:`_shape_for`);
-  it measures the bulk after each batch is locked.
+  the world still costs a little per step, so the driver retires locked grains
+  buried deeper than any later grain can reach (:mod:`synthpack.physics.burial`):
+  they are removed from the world.
+* Packing to a target (:mod:`synthpack.physics.compaction`, steered by the driver): a
+  batch added at a lowered friction gets it while it falls (``changeDynamics``), and
+  the material's back before it settles; a spaced batch collides as hulls inflated
+  about the centre of mass (:func:`_shape_for`), with the true grain's mass and inertia.
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
@@ -81,19 +82,10 @@ from scipy.spatial.transform import Rotation
 
 from .._shared.schema import setting
 from ..errors import SynthpackInputError
-from .burial import buried, largest_diameter
-from .compaction import FALL_QUIET, FALL_STEPS, BatchCompaction, PackingController
-from .engine import (
-    Body,
-    Engine,
-    EngineOptions,
-    EngineResult,
-    Material,
-    ProgressCallback,
-    SettleCriteria,
-    TubeSpec,
-)
+from .driver import LockedBatch, World
+from .engine import Engine
 from .hulls import convex_hull, protrusion, shrink_hull, simplify_hull
+from .scene import Body, EngineOptions, Material, Scene, SettleCriteria, TubeSpec
 
 if TYPE_CHECKING:
     from ._bullet import Client
@@ -122,7 +114,7 @@ class PybulletOptions(EngineOptions):
         when hit). False keeps every grain of the batch awake, as Blender's rigid
         bodies are by default (no deactivation).
 
-    See :class:`~synthpack.physics.engine.EngineOptions` for ``max_hull_vertices``,
+    See :class:`~synthpack.physics.scene.EngineOptions` for ``max_hull_vertices``,
     ``fixed_steps`` and ``record_snapshots``.
     """
 
@@ -150,20 +142,11 @@ class PybulletEngine(Engine):
             )
         return super().options(values, prefix)
 
-    def _simulate(
-        self,
-        bodies: Sequence[Body],
-        tube: TubeSpec,
-        material: Material,
-        settle: SettleCriteria,
-        options: PybulletOptions,
-        progress: ProgressCallback | None,
-        compaction: PackingController | None = None,
-    ) -> EngineResult:
+    def open(self, scene: Scene) -> World:
+        """A fresh physics client holding the scene's tube (:class:`_PybulletWorld`)."""
         from ._bullet import Client
 
-        with Client() as client:
-            return _pour(client, bodies, tube, material, settle, progress, options, compaction)
+        return _PybulletWorld(Client(), scene)
 
 
 @dataclass(frozen=True)
@@ -179,89 +162,87 @@ class _Shape:
     inradius: float  # distance from the centre of mass to the hull's nearest face
 
 
-def _pour(
-    client: Client,
-    bodies: Sequence[Body],
-    tube: TubeSpec,
-    material: Material,
-    settle: SettleCriteria,
-    progress: ProgressCallback | None,
-    options: PybulletOptions,
-    compaction: PackingController | None = None,
-) -> EngineResult:
-    """Pour `bodies`, batch by batch, on a fresh physics client (see :class:`PybulletEngine`)."""
-    _configure(client, settle)
-    shapes: dict[bytes, _Shape] = {}
-    body_shapes = [_shape_for(client, body, shapes, material, options.max_hull_vertices)
-                   for body in bodies]
-    inset = max(shape.protrusion for shape in shapes.values())
-    logger.debug("Tube colliders inset by %.4f (the grains' largest reach outside their shapes)", inset)
-    wall_top = _build_tube(client, tube, material, 0.0, tube.height, inset)
-    n = len(bodies)
-    positions = np.zeros((n, 3))
-    quaternions = np.zeros((n, 4))
-    steps_per_batch: list[int] = []
-    settled_per_batch: list[bool] = []
-    snapshots: list[tuple[np.ndarray, np.ndarray]] = []
-    locked: dict[int, np.ndarray] = {}  # static body id -> its hull's world vertices
-    largest = largest_diameter(b.vertices for b in bodies)
-    top = 0.0
-    batches = np.array([b.batch for b in bodies], dtype=np.int64)
-    batch_ids = np.unique(batches)
-    for number, batch in enumerate(batch_ids):
-        members = np.flatnonzero(batches == batch)
-        plan = None if compaction is None else compaction.next_batch()
-        inflation = 0.0 if plan is None else plan.inflation
-        spawn = [_spawn_pose(bodies[i], top) for i in members]
+class _PybulletWorld(World):
+    """One pour on its own physics client: the hooks :func:`~synthpack.physics.driver.drive` calls.
+
+    Every distinct grain's collision shape is made when the world is (the tube's inset
+    needs the largest reach of all of them); a spaced batch's inflated shapes when it
+    is added. A locked grain is a static body at the pose it settled at.
+    """
+
+    def __init__(self, client: Client, scene: Scene) -> None:
+        self.client, self.scene = client, scene
+        try:
+            _configure(client, scene.settle)
+            self._shapes: dict[bytes, _Shape] = {}
+            self._body_shapes = [self._shape(body, 0.0) for body in scene.bodies]
+            self._inset = max(shape.protrusion for shape in self._shapes.values())
+            logger.debug("Tube colliders inset by %.4f (the grains' largest reach outside their shapes)", self._inset)
+            self._wall_top = _build_tube(client, scene.tube, scene.material, 0.0, scene.tube.height, self._inset)
+        except BaseException:
+            client.close()
+            raise
+        self._batch: list[tuple[int, int, _Shape]] = []  # (body index, body id, shape) of the moving batch
+        self._static: dict[int, int] = {}  # body index -> its static body id, while it is in the world
+        n = len(scene.bodies)
+        self._positions, self._quaternions = np.zeros((n, 3)), np.zeros((n, 4))  # poses of the locked grains
+
+    def _shape(self, body: Body, inflation: float) -> _Shape:
+        return _shape_for(self.client, body, self._shapes, self.scene.material,
+                          self.scene.options.max_hull_vertices, inflation)
+
+    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: float) -> None:
+        client, scene, bodies = self.client, self.scene, self.scene.bodies
         reach = max(pos[2] + float(np.linalg.norm(bodies[i].vertices, axis=1).max())
-                    for i, (pos, _) in zip(members, spawn))
-        if reach > wall_top:
-            wall_top = _build_tube(client, tube, material, wall_top, reach + 1.0, inset)
-        active = []
-        for i, (pos, quat) in zip(members, spawn):
-            shape = body_shapes[i] if inflation == 0 else _shape_for(
-                client, bodies[i], shapes, material, options.max_hull_vertices, inflation)
-            body_id = _create_dynamic(client, shape, bodies[i].mass, pos, quat, material)
-            if plan is not None and plan.settle_friction != material.friction:
-                client.changeDynamics(body_id, -1, lateralFriction=plan.settle_friction)
-            if not options.allow_sleeping:
-                client.changeDynamics(body_id, -1,
-                                      activationState=client.ACTIVATION_STATE_DISABLE_SLEEPING)
-            active.append((body_id, shape))
-        if plan is not None and plan.compacts and options.fixed_steps is None:
-            steps, settled = _compact(client, [a for a, _ in active], plan, material, settle)
-        else:
-            steps, settled = _run_batch(client, [a for a, _ in active], settle, options.fixed_steps)
-        for i, (body_id, shape) in zip(members, active):
-            positions[i], quaternions[i] = _local_pose(client, body_id, shape)
+                    for i, pos in zip(members, positions))
+        if reach > self._wall_top:
+            self._wall_top = _build_tube(client, scene.tube, scene.material, self._wall_top, reach + 1.0, self._inset)
+        for i, position in zip(members, positions):
+            shape = self._body_shapes[i] if inflation == 0 else self._shape(bodies[i], inflation)
+            orientation = np.asarray(bodies[i].orientation, dtype=float)
+            body_id = _create_dynamic(client, shape, bodies[i].mass, position, orientation, scene.material)
+            if friction != scene.material.friction:
+                client.changeDynamics(body_id, -1, lateralFriction=friction)
+            if not scene.options.allow_sleeping:
+                client.changeDynamics(body_id, -1, activationState=client.ACTIVATION_STATE_DISABLE_SLEEPING)
+            self._batch.append((int(i), body_id, shape))
+
+    def settle(self, criteria: SettleCriteria, fixed_steps: int | None) -> tuple[int, bool]:
+        return _run_batch(self.client, [body_id for _, body_id, _ in self._batch], criteria, fixed_steps)
+
+    def set_friction(self, friction: float) -> None:
+        for _, body_id, _ in self._batch:
+            self.client.changeDynamics(body_id, -1, lateralFriction=friction)
+
+    def lock(self) -> LockedBatch:
+        """Each body of the batch removed and re-created as a STATIC body (mass 0), same shape, same pose."""
+        client, material = self.client, self.scene.material
+        hulls = []
+        for i, body_id, shape in self._batch:
+            position, quaternion = _local_pose(client, body_id, shape)
             client.removeBody(body_id)
-            static = _create_static(client, shape, positions[i], quaternions[i], material)
-            rotation = Rotation.from_quat(quaternions[i], scalar_first=True)
-            locked[static] = rotation.apply(shape.hull_vertices) + positions[i]
-            top = max(top, float(locked[static][:, 2].max()))
-        _retire_buried(client, locked, tube.inner_radius, largest)
-        if compaction is not None:
-            compaction.observe(members, positions[members], quaternions[members])
-        steps_per_batch.append(steps)
-        settled_per_batch.append(settled)
-        if not settled:
-            logger.warning(
-                "Batch %d was not at rest after %d steps; it is locked as it is.", batch, steps
-            )
-        if options.record_snapshots:
-            placed = np.flatnonzero(batches <= batch)
-            snapshots.append((positions[placed].copy(), quaternions[placed].copy()))
-        logger.debug("Batch %d: %d grains, %d steps, pack top %.3f",
-                     batch, len(members), steps, top)
-        if progress is not None:
-            progress(number, len(batch_ids))
-    return EngineResult(
-        positions=positions,
-        quaternions=quaternions,
-        steps_per_batch=steps_per_batch,
-        settled_per_batch=settled_per_batch,
-        snapshots=snapshots if options.record_snapshots else None,
-    )
+            self._static[i] = _create_static(client, shape, position, quaternion, material)
+            self._positions[i], self._quaternions[i] = position, quaternion
+            hulls.append(Rotation.from_quat(quaternion, scalar_first=True).apply(shape.hull_vertices) + position)
+        members = [i for i, _, _ in self._batch]
+        self._batch = []
+        return LockedBatch(self._positions[members].copy(), self._quaternions[members].copy(), hulls)
+
+    def retire(self, indices: Sequence[int]) -> None:
+        for i in indices:
+            self.client.removeBody(self._static.pop(i))
+
+    def poses(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The batch's poses from pybullet; a locked grain's the pose it was locked at (static bodies never move)."""
+        positions, quaternions = self._positions[indices].copy(), self._quaternions[indices].copy()
+        moving = {i: (body_id, shape) for i, body_id, shape in self._batch}
+        for k, i in enumerate(indices):
+            if int(i) in moving:
+                positions[k], quaternions[k] = _local_pose(self.client, *moving[int(i)])
+        return positions, quaternions
+
+    def close(self) -> None:
+        self.client.close()
 
 
 def _configure(client: Client, settle: SettleCriteria) -> None:
@@ -324,12 +305,6 @@ def _build_tube(
         body = client.createMultiBody(0.0, floor, -1, basePosition=[0.0, 0.0, inset - base / 2])
         _apply_material(client, body, material, grain=False)
     return z1
-
-
-def _spawn_pose(body: Body, top: float) -> tuple[np.ndarray, np.ndarray]:
-    """World position of the local origin and (w, x, y, z) orientation at spawn."""
-    x, y, dz = np.asarray(body.spawn_offset, dtype=float)
-    return np.array([x, y, top + dz]), np.asarray(body.orientation, dtype=float)
 
 
 def _shape_for(
@@ -453,23 +428,6 @@ def _create_static(
     return body
 
 
-def _retire_buried(
-    client: Client, locked: dict[int, np.ndarray], radius: float, largest: float
-) -> None:
-    """Remove the locked grains :func:`~synthpack.physics.burial.buried` says no grain can reach.
-
-    `locked` maps static body ids to their hulls' world vertices; the retired grains
-    leave it and the world (their final poses are already recorded).
-    """
-    ids = list(locked)
-    retired = [i for i, gone in zip(ids, buried([locked[i] for i in ids], radius, largest)) if gone]
-    for body_id in retired:
-        client.removeBody(body_id)
-        del locked[body_id]
-    if retired:
-        logger.debug("Retired %d buried grains; %d locked grains remain", len(retired), len(locked))
-
-
 def _run_batch(
     client: Client, body_ids: list[int], settle: SettleCriteria, fixed_steps: int | None
 ) -> tuple[int, bool]:
@@ -485,25 +443,6 @@ def _run_batch(
         if step >= settle.min_steps and quiet >= settle.quiet_steps:
             return step, True
     return settle.max_steps, False
-
-
-def _compact(
-    client: Client, body_ids: list[int], plan: BatchCompaction, material: Material, settle: SettleCriteria
-) -> tuple[int, bool]:
-    """Settle a batch with compaction (:mod:`.compaction`); (steps, settled) as :func:`_run_batch`.
-
-    The batch (created at ``plan.settle_friction``) falls until it moves slower than
-    :data:`~synthpack.physics.compaction.FALL_QUIET` times the settle thresholds (at
-    most :data:`~synthpack.physics.compaction.FALL_STEPS` steps); then it gets the
-    material's friction back and settles by `settle`.
-    """
-    fall = replace(settle, max_steps=min(settle.max_steps, FALL_STEPS),
-                   linear_speed=settle.linear_speed * FALL_QUIET, angular_speed=settle.angular_speed * FALL_QUIET)
-    steps, _ = _run_batch(client, body_ids, fall, None)
-    for body in body_ids:
-        client.changeDynamics(body, -1, lateralFriction=material.friction)
-    final, settled = _run_batch(client, body_ids, replace(settle, min_steps=0), None)
-    return steps + final, settled
 
 
 def _is_quiet(client: Client, body_ids: list[int], settle: SettleCriteria) -> bool:
