@@ -259,7 +259,7 @@ def test_bad_input_is_rejected():
         BLENDER.simulate(scene(make_bodies()[:1], settle=SettleCriteria(max_steps=2_000_000)))
     with pytest.raises(SynthpackInputError, match="'engine_options.fixed_steps' is out of range"):
         BLENDER.options({"fixed_steps": 2_000_000})
-    with pytest.raises(SynthpackInputError, match="takes BlenderOptions options"):
+    with pytest.raises(SynthpackInputError, match="takes BlenderConfig options"):
         BLENDER.simulate(Scene(make_bodies()[:1], TUBE, MATERIAL, SETTLE, ENGINES["pybullet"].options()))
 
 

@@ -19,7 +19,7 @@ from synthpack.physics import blender_engine, burial, driver, hulls, pybullet_en
 from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.container import MAX_FILL_ASPECT
 from synthpack.physics.engine import Engine
-from synthpack.physics.scene import Body, EngineOptions, Scene, TubeSpec
+from synthpack.physics.scene import Body, EngineConfig, Scene, TubeSpec
 from synthpack.physics.plan import make_plan
 
 TOLERANCE_VOXELS = 0.5  # largest penetration into the tube wall or floor accepted
@@ -399,7 +399,7 @@ def test_the_registry_lists_both_engines():
     assert list(ENGINES) == ["pybullet", "blender"]  # the default first
     for name, engine in ENGINES.items():
         assert isinstance(engine, Engine) and engine.name == name and get_engine(name) is engine
-        assert issubclass(engine.Options, EngineOptions)
+        assert issubclass(engine.Options, EngineConfig)
         assert engine.options() == engine.Options()  # no options: the defaults
     assert isinstance(ENGINES["pybullet"], pybullet_engine.PybulletEngine)
     assert isinstance(ENGINES["blender"], blender_engine.BlenderEngine)
@@ -410,7 +410,7 @@ def test_the_registry_lists_both_engines():
 
 def test_engine_options_are_typed_dataclasses_with_defaults(tmp_path):
     options = ENGINES["pybullet"].options({"max_hull_vertices": None, "fixed_steps": 5})
-    assert options == pybullet_engine.PybulletOptions(max_hull_vertices=None, fixed_steps=5)
+    assert options == pybullet_engine.PybulletConfig(max_hull_vertices=None, fixed_steps=5)
     assert options.allow_sleeping is True
     assert ENGINES["blender"].options().max_hull_vertices == hulls.MAX_HULL_VERTICES
     path = ENGINES["blender"].options({"blend_file": tmp_path / "pack.blend"}).blend_file
@@ -448,7 +448,7 @@ def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch)
                                             "engine_options": {"allow_sleeping": False}}})
     with pytest.raises(Stop):
         generate.build_pack(large_library, config, 0, progress=False)
-    assert received == [(pybullet_engine.PybulletOptions(allow_sleeping=False), "decomposition")]
+    assert received == [(pybullet_engine.PybulletConfig(allow_sleeping=False), "decomposition")]
     with pytest.raises(SynthpackInputError, match="blender engine collides grains as convex hulls only"):
         PackConfig.from_dict({"pour": {"engine": "blender", "collision_shape": "decomposition"}})
 
@@ -505,5 +505,5 @@ def test_engines_refuse_bad_bodies_with_input_errors():
         engine.simulate(scene([body(1), body(0)]))
     with pytest.raises(SynthpackInputError, match="TubeSpec.height must be > 0"):
         engine.simulate(scene([body(0)], TubeSpec(2.0, 0.0, 0.2, 0.2)))
-    with pytest.raises(SynthpackInputError, match="takes PybulletOptions options"):
+    with pytest.raises(SynthpackInputError, match="takes PybulletConfig options"):
         engine.simulate(scene([body(0)], options=ENGINES["blender"].options()))

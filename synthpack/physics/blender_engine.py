@@ -47,13 +47,13 @@ from ..errors import SynthpackInputError
 from .driver import LockedBatch, World
 from .engine import Engine
 from .hulls import convex_hull, simplify_hull
-from .scene import EngineOptions, Material, Scene, SettleCriteria
+from .scene import EngineConfig, Material, Scene, SettleCriteria
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "BlenderEngine",
-    "BlenderOptions",
+    "BlenderConfig",
     "BlenderError",
     "find_blender",
     "require_blender",
@@ -98,20 +98,20 @@ class BlenderError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class BlenderOptions(EngineOptions):
+class BlenderConfig(EngineConfig):
     """Options of the Blender engine (``engine_options`` of :func:`~synthpack.physics.pour`).
 
     Attributes
     ----------
     fixed_steps : int or None
-        As in :class:`~synthpack.physics.scene.EngineOptions`, in frames, below
+        As in :class:`~synthpack.physics.scene.EngineConfig`, in frames, below
         :data:`LAST_FRAME`; a batch then counts as settled when all its grains are below
         the speed thresholds on the last frame.
     blend_file : str or None
         Also save the final pack (tube and grains at their final poses, no physics) as
         this .blend file, to look at in Blender's GUI; its folder must exist.
 
-    See :class:`~synthpack.physics.scene.EngineOptions` for ``max_hull_vertices`` and
+    See :class:`~synthpack.physics.scene.EngineConfig` for ``max_hull_vertices`` and
     ``record_snapshots``.
     """
 
@@ -152,9 +152,9 @@ class BlenderEngine(Engine):
     """
 
     name = "blender"
-    Options = BlenderOptions
+    Options = BlenderConfig
 
-    def check(self, material: Material, settle: SettleCriteria, options: EngineOptions) -> None:
+    def check(self, material: Material, settle: SettleCriteria, options: EngineConfig) -> None:
         """The common checks, hulls only, Blender's collision-margin and frame limits and the .blend file's folder."""
         super().check(material, settle, options)
         if material.collision_shape != "hull":

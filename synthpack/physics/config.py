@@ -42,8 +42,8 @@ class PourConfig:
     """Batched rigid-body pouring (paper 3.3).
 
     ``engine_options`` holds the options of the chosen engine that differ from its
-    defaults (:class:`~synthpack.physics.pybullet_engine.PybulletOptions`,
-    :class:`~synthpack.physics.blender_engine.BlenderOptions`); they are checked
+    defaults (:class:`~synthpack.physics.pybullet_engine.PybulletConfig`,
+    :class:`~synthpack.physics.blender_engine.BlenderConfig`); they are checked
     against that engine when the config is made.
 
     Raises

@@ -1,7 +1,7 @@
 """The engine interface: the base class every rigid-body engine subclasses.
 
 An engine is an :class:`Engine`: a ``name``, a frozen dataclass of its ``Options``
-(an :class:`~synthpack.physics.scene.EngineOptions`, built on
+(an :class:`~synthpack.physics.scene.EngineConfig`, built on
 :mod:`synthpack._shared.schema`, so ``engine_options`` are checked like every other
 setting), checks of what it can simulate, an availability check, and :meth:`Engine.open`,
 which makes a :class:`~synthpack.physics.driver.World` for a
@@ -24,7 +24,7 @@ from ..errors import SynthpackInputError
 from .compaction import PackingController
 from .driver import EngineResult, ProgressCallback, World, drive
 from .scene import (
-    EngineOptions,
+    EngineConfig,
     Material,
     Scene,
     SettleCriteria,
@@ -47,8 +47,8 @@ class Engine(abc.ABC):
 
     #: The name of the engine in ``pour(engine=...)`` and in the config's ``pour.engine``.
     name: ClassVar[str]
-    #: The engine's options: an :class:`EngineOptions` subclass.
-    Options: ClassVar[type[EngineOptions]] = EngineOptions
+    #: The engine's options: an :class:`EngineConfig` subclass.
+    Options: ClassVar[type[EngineConfig]] = EngineConfig
     #: Whether the engine packs to a target (:mod:`synthpack.physics.compaction`): whether its
     #: world honours the friction and the inflated shells :meth:`World.add_batch
     #: <synthpack.physics.driver.World.add_batch>` asks for and :meth:`World.set_friction
@@ -58,7 +58,7 @@ class Engine(abc.ABC):
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
-    ) -> EngineOptions:
+    ) -> EngineConfig:
         """The engine's options from a mapping of those that differ from the defaults.
 
         Parameters
@@ -79,7 +79,7 @@ class Engine(abc.ABC):
             values = {k: os.fspath(v) if isinstance(v, os.PathLike) else v for k, v in values.items()}
         return build(self.Options, {} if values is None else values, prefix)
 
-    def check(self, material: Material, settle: SettleCriteria, options: EngineOptions) -> None:
+    def check(self, material: Material, settle: SettleCriteria, options: EngineConfig) -> None:
         """Raise SynthpackInputError for settings this engine cannot simulate.
 
         Cheap, so :func:`~synthpack.physics.pour` calls it before any work; engines

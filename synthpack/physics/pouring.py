@@ -39,7 +39,7 @@ from .config import PourConfig
 from .container import Tube
 from .driver import EngineResult
 from .engine import Engine
-from .scene import Body, EngineOptions, Material, Scene, SettleCriteria, TubeSpec
+from .scene import Body, EngineConfig, Material, Scene, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
 from .registry import get_engine
@@ -231,7 +231,7 @@ def _count(value: Any, name: str) -> int:
 
 def _run(
     engine: Engine, bodies: list[Body], tube: TubeSpec, material: Material, settle: SettleCriteria,
-    options: EngineOptions, n_batches: int, progress: bool, compaction: PackingController | None,
+    options: EngineConfig, n_batches: int, progress: bool, compaction: PackingController | None,
 ) -> tuple[EngineResult, float]:
     """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
     bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)

@@ -85,14 +85,14 @@ from ..errors import SynthpackInputError
 from .driver import LockedBatch, World
 from .engine import Engine
 from .hulls import convex_hull, protrusion, shrink_hull, simplify_hull
-from .scene import Body, EngineOptions, Material, Scene, SettleCriteria, TubeSpec
+from .scene import Body, EngineConfig, Material, Scene, SettleCriteria, TubeSpec
 
 if TYPE_CHECKING:
     from ._bullet import Client
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["PybulletEngine", "PybulletOptions", "WALL_SEGMENTS", "SOLVER_ITERATIONS", "GRAVITY"]
+__all__ = ["PybulletEngine", "PybulletConfig", "WALL_SEGMENTS", "SOLVER_ITERATIONS", "GRAVITY"]
 
 #: Number of boxes in the wall ring.
 WALL_SEGMENTS = 48
@@ -104,7 +104,7 @@ _MIN_COLLIDER_THICKNESS = 1.0  # sim units: walls and floor are at least this th
 
 
 @dataclass(frozen=True)
-class PybulletOptions(EngineOptions):
+class PybulletConfig(EngineConfig):
     """Options of the pybullet engine (``engine_options`` of :func:`~synthpack.physics.pour`).
 
     Attributes
@@ -114,7 +114,7 @@ class PybulletOptions(EngineOptions):
         when hit). False keeps every grain of the batch awake, as Blender's rigid
         bodies are by default (no deactivation).
 
-    See :class:`~synthpack.physics.scene.EngineOptions` for ``max_hull_vertices``,
+    See :class:`~synthpack.physics.scene.EngineConfig` for ``max_hull_vertices``,
     ``fixed_steps`` and ``record_snapshots``.
     """
 
@@ -127,12 +127,12 @@ class PybulletEngine(Engine):
     """The default engine: headless, deterministic pybullet (see the module's notes)."""
 
     name = "pybullet"
-    Options = PybulletOptions
+    Options = PybulletConfig
     supports_compaction = True
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
-    ) -> EngineOptions:
+    ) -> EngineConfig:
         """As :meth:`Engine.options`; the former ``convex_decomposition`` option gets a pointer to its successor."""
         if isinstance(values, Mapping) and "convex_decomposition" in values:
             raise SynthpackInputError(

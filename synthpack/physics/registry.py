@@ -4,9 +4,9 @@ Each engine is an :class:`~synthpack.physics.engine.Engine` with a ``name``, an
 ``Options`` dataclass, checks, an availability check and ``simulate``:
 
 * ``pybullet`` (the default): :class:`~synthpack.physics.pybullet_engine.PybulletEngine`,
-  options :class:`~synthpack.physics.pybullet_engine.PybulletOptions`;
+  options :class:`~synthpack.physics.pybullet_engine.PybulletConfig`;
 * ``blender`` (the paper's): :class:`~synthpack.physics.blender_engine.BlenderEngine`,
-  options :class:`~synthpack.physics.blender_engine.BlenderOptions`.
+  options :class:`~synthpack.physics.blender_engine.BlenderConfig`.
 
 Importing this module imports neither pybullet nor Blender: pybullet is imported when
 the first pour starts, and Blender runs in a process of its own.

@@ -8,7 +8,7 @@ z through x = y = 0, inner tube floor at z = 0.
 
 A :class:`Scene` holds the grains (:class:`Body`), the :class:`TubeSpec`, the
 :class:`Material`, the :class:`SettleCriteria` and the engine's options
-(:class:`EngineOptions`); each engine is a view of it, as Kubric's simulators are
+(:class:`EngineConfig`); each engine is a view of it, as Kubric's simulators are
 views of its scene. :meth:`Scene.save` writes it as JSON plus one ``.npz`` of arrays, which
 is how it reaches an engine that runs in a process of its own (Blender).
 
@@ -41,7 +41,7 @@ __all__ = [
     "TubeSpec",
     "Material",
     "SettleCriteria",
-    "EngineOptions",
+    "EngineConfig",
     "Scene",
     "SCENE_FILE",
     "BODIES_FILE",
@@ -177,7 +177,7 @@ class SettleCriteria:
 
 
 @dataclass(frozen=True)
-class EngineOptions:
+class EngineConfig:
     """The options every engine takes: ``engine_options`` of :func:`~synthpack.physics.pour`.
 
     Each engine's ``Options`` extends it. Build them with
@@ -223,7 +223,7 @@ class Scene:
         Friction, restitution, damping and collision margin of grains and tube.
     settle : SettleCriteria
         Time step, substeps and when a batch counts as settled.
-    options : EngineOptions
+    options : EngineConfig
         The engine's options (:meth:`~synthpack.physics.engine.Engine.options`).
     """
 
@@ -231,7 +231,7 @@ class Scene:
     tube: TubeSpec
     material: Material
     settle: SettleCriteria
-    options: EngineOptions
+    options: EngineConfig
 
     def batches(self) -> list[np.ndarray]:
         """The indices (into :attr:`bodies`) of each batch's bodies, batches in increasing order."""
