@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from synthpack._shared.seeds import generator
 from synthpack.artefacts import (
     BeamHardening,
     Compose,
@@ -60,9 +61,9 @@ def test_a_blur_after_noise_sees_the_finished_noisy_volume(volume):
 def test_rings_and_cupping_are_centred_on_the_whole_slice(volume):
     for transform in (RingArtefacts(amplitude=0.5, n_rings=4), BeamHardening(strength=0.3)):
         out, _ = _blockwise(transform, volume)
-        # the per-volume draws come from the call seed [seed, step, 1]: the whole-volume core with it
-        params = transform.sample(np.random.default_rng([5, 0, 0]))
-        whole = transform._transform(volume, np.random.default_rng(np.random.SeedSequence([5, 0, 1])), **params)
+        # the per-volume draws come from the step's "transform_volume" stream: the whole-volume core with it
+        params = transform.sample(generator(5, "transform_params", 0))
+        whole = transform._transform(volume, generator(5, "transform_volume", 0), **params)
         np.testing.assert_array_equal(out, whole)
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -182,7 +181,7 @@ def test_load_rejects_missing_and_corrupt_files(poured, tmp_path):
         ({"engine_options": {"fixed_steps": 0}}, "'pour.engine_options.fixed_steps' is out of range"),
         ({"engine_options": {"blend_file": "a.blend"}}, "unknown config key 'pour.engine_options.blend_file'"),
         ({"container": Tube(50.0, 1000.0, 10.0, 10.0)}, "too narrow for the largest grain"),
-        ({"material": replace(PourConfig().material(), restitution=1.5)},
+        ({"restitution": 1.5},
          r"Material.restitution is out of range: got 1.5, expected between 0.0 and 1.0"),
         ({"settle": SettleCriteria(quiet_steps=0)}, "SettleCriteria.quiet_steps is out of range"),
         ({"settle": SettleCriteria(quiet_steps=2.5)}, "SettleCriteria.quiet_steps has the wrong type"),
@@ -327,7 +326,7 @@ def test_winding_number_separates_inside_from_outside():
 
 def test_convex_decomposition_pours_a_concave_aware_pack(large_library):
     one = large_library[:1]  # one distinct grain: a single V-HACD run
-    placements = pour(one, 3, 3, seed=2, progress=False, material=PourConfig(collision_shape="decomposition").material())
+    placements = pour(one, PourConfig(n_particles=3, batch_size=3, collision_shape="decomposition"), 2, progress=False)
     assert placements.checks.n_outside == 0 and all(placements.checks.settled_per_batch)
     assert placements.parameters["material"]["collision_shape"] == "decomposition"
     with pytest.raises(SynthpackInputError, match="now the collision shape: set pour.collision_shape"):
@@ -386,8 +385,9 @@ def test_bad_engine_option_values_raise():
 def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow_tube, caplog):
     tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)
     with caplog.at_level("DEBUG", logger="synthpack.physics.driver"):
-        placements = pour(large_library, 140, 20, seed=4, container=tall, progress=False,
-                          engine_options={"record_snapshots": True})
+        placements = pour(large_library, PourConfig(n_particles=140, batch_size=20,
+                                                    engine_options={"record_snapshots": True}),
+                          4, container=tall, progress=False)
     assert any("Retired" in r.message for r in caplog.records)
     checks = placements.checks
     assert checks.n_outside == 0 and all(checks.settled_per_batch)
