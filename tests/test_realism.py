@@ -222,7 +222,7 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert "logistic AUC" in (out / "realism.md").read_text()
     # the two packs are of one pour (the same seed and config but the post-processing); no none pack: no flag
     assert report["settings"]["packs"][0]["pour"] == report["settings"]["packs"][1]["pour"]
-    assert report["worse_than_none"] == [] and "worse than **none**" not in (out / "realism.md").read_text()
+    assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
     assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
     printed = capsys.readouterr().out
     assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed

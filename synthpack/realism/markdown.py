@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .targets import worse_line
+
 __all__ = ["report_markdown"]
 
 _HOW_TO_READ = """\
@@ -121,18 +123,8 @@ def _targets_section(report: dict) -> list[str]:
     out = ["\n## Targets\n", "Each pack's figures against the targets (`synthpack.realism.targets`; AUC "
            "limits from the floor, relative figures against the source's).\n",
            _table(["figure", "target", *[p["name"] for p in packs]], rows)]
-    out += [_worse_line(flag) for flag in report.get("worse_than_none", [])]
+    out += [f"\n- {worse_line(flag)}\n" for flag in report.get("worse_than_none", [])]
     return out
-
-
-def _worse_line(flag: dict) -> str:
-    """One post-processing mode against the ``none`` pack of the same pour."""
-    who = f"**{flag['mode']}** (`{flag['pack']}`)"
-    none = f"**none** (`{flag['none']}`, the same pour)"
-    if not flag["worse"]:
-        return f"\n- {who} is nowhere worse than {none}.\n"
-    figures = ", ".join(f"{w['figure']} ({w['gap']} > {w['none_gap']})" for w in flag["worse"])
-    return f"\n- {who} is worse than {none} on: {figures}\n"
 
 
 def _classifier_section(report: dict) -> list[str]:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 __all__ = ["CNN_AUC_MARGIN", "COORDINATION_TOLERANCE", "LOGISTIC_AUC_MARGIN", "NOISE_STD_TOLERANCE",
            "NPS_RING_FACTOR", "SOLID_FRACTION_TOLERANCE", "TARGETS", "W_LIMIT", "WORSE_RESOLUTION", "Target",
-           "pour_key", "pack_targets", "worse_than_none"]
+           "pour_key", "pack_targets", "worse_line", "worse_than_none"]
 
 #: Logistic AUC: at most this much above the floor (the source against itself).
 LOGISTIC_AUC_MARGIN = 0.05
@@ -261,3 +261,13 @@ def worse_than_none(packs: Sequence[dict], infos: Sequence[dict]) -> list[dict]:
                  and mine["deviation"] > theirs["deviation"] + max(mine["resolution"], theirs["resolution"])]
         result.append({"pack": pack["name"], "mode": info.get("mode"), "none": none["name"], "worse": worse})
     return result
+
+
+def worse_line(flag: dict) -> str:
+    """One entry of `worse_than_none` in words, e.g. ``"calibrated (pack_a) is worse than none (pack_b, the
+    same pour) on: W edges (0.062 > 0.054)"``, or that it is nowhere worse."""
+    who, none = f"{flag['mode']} ({flag['pack']})", f"none ({flag['none']}, the same pour)"
+    if not flag["worse"]:
+        return f"{who} is nowhere worse than {none}"
+    return f"{who} is worse than {none} on: " + ", ".join(
+        f"{w['figure']} ({w['gap']} > {w['none_gap']})" for w in flag["worse"])
