@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 __all__ = ["CNN_AUC_MARGIN", "COORDINATION_TOLERANCE", "LOGISTIC_AUC_MARGIN", "NOISE_STD_TOLERANCE",
-           "NPS_RING_FACTOR", "SOLID_FRACTION_TOLERANCE", "TARGETS", "W_LIMIT", "WORSE_RESOLUTION", "Target",
+           "NPS_RING_FACTOR", "SOLID_FRACTION_TOLERANCE", "TARGETS", "W_LIMIT", "WORSE_RESOLUTION", "Reading", "Target",
            "pour_key", "pack_targets", "worse_line", "worse_than_none"]
 
 #: Logistic AUC: at most this much above the floor (the source against itself).
@@ -96,7 +96,8 @@ class Target:
     target : str
         The target in words.
     read : callable
-        ``read(source_figures, pack) -> Reading or None``; `pack` is one entry of
+        ``read(source, pack) -> Reading or None``; `source` is ``RealismReport.to_dict()["source"]``
+        (its ``figures``), `pack` one entry of
         ``RealismReport.to_dict()["packs"]`` (its ``figures`` and ``distances``, the
         latter with ``classifier``), extended by ``floor`` (the floor's summary or None).
         None where the figure was not measured.
