@@ -194,7 +194,7 @@ def test_compare_measures_the_floor_and_the_cnn_and_shows_its_picks(packs, large
     source_half, pack_half = (f["figures"]["edge_half_height"] for f in (figures["source"], figures["packs"][0]))
     assert abs(source_half) < 0.1 and pack_half > source_half
     nps = figures["packs"][0]["distances"]["nps_ratio"]
-    assert nps["grains"]["frequency"] == [0.125, 0.25, 0.375, 0.5] and len(nps["pores"]["ratio"]) == 4
+    assert nps["grains"]["frequency"] == [0.125, 0.25, 0.375, 0.5, 0.625, 0.75] and len(nps["pores"]["ratio"]) == 6
     markdown = paths["realism.md"].read_text()
     assert "**The floor**" in markdown and "## Classifiers" in markdown and "(cnn_patches.png)" in markdown
     assert "CNN AUC (source: its floor)" in markdown and "edge half height" in markdown
@@ -220,6 +220,10 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
         assert 0 <= pack["distances"]["ks_diameter"] <= 1
     assert report["floor"]["slab"] == 10 and "cnn" not in report["floor"] and report["settings"]["cnn"] is None
     assert "logistic AUC" in (out / "realism.md").read_text()
+    # the two packs are of one pour (the same seed and config but the post-processing); no none pack: no flag
+    assert report["settings"]["packs"][0]["pour"] == report["settings"]["packs"][1]["pour"]
+    assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
+    assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
     printed = capsys.readouterr().out
     assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed
     # without packs: the source and its floor only

@@ -1,4 +1,5 @@
-"""The stronger judge of the realism report: the floor, the CNN, edge half height, NPS ratios.
+"""The stronger judge of the realism report: the floor, the CNN, edge half height, NPS ratios, full-band W,
+the targets table, the worse-than-none line and the slices at one scale.
 
 Tolerances of the classifier tests. With n patches per class and k folds, the AUC of
 one held-out fold of a classifier that cannot tell the sets apart has a spread of
@@ -11,16 +12,24 @@ standard deviation at unchanged variance; any working classifier separates those
 almost perfectly, so > 0.95 is asked.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
+from matplotlib import image
 from scipy import ndimage, special
 
 from synthpack.errors import SynthpackInputError
-from synthpack.realism import CnnConfig, Specimen
+from synthpack.pipeline.config import PackConfig
+from synthpack.realism import CnnConfig, RealismReport, Specimen
 from synthpack.realism.appearance import noise_power_spectrum, nps_ratio
 from synthpack.realism.discriminator import classifier_test, specimen_patches
 from synthpack.realism.floor import floor_test, slab_parity
+from synthpack.realism.markdown import report_markdown
+from synthpack.realism.plots import save_slices_plot, slice_layout
+from synthpack.realism.report import distances, measure
+from synthpack.realism.targets import LOGISTIC_AUC_MARGIN, TARGETS, W_LIMIT, pour_key
 from synthpack.measure.edges import EdgeProfile, edge_profile, half_height, signed_distance
 
 # Tiny CNN for tests: a second or two per cross-validation on 2 cores.
@@ -119,8 +128,152 @@ def test_nps_ratio_of_a_volume_against_itself_is_one():
     mask = np.ones(SHAPE, dtype=bool)
     spectrum = noise_power_spectrum(volume, mask)
     same = nps_ratio(spectrum, spectrum)
-    assert same["frequency"] == [0.125, 0.25, 0.375, 0.5]  # the 8x8 rings from 0.1 to 0.5 cycles/voxel
-    assert same["ratio"] == [1.0] * 4 and same["max_abs_log2"] == 0.0
+    # every ring of the 8x8 spectrum but ring 0 (the patch mean): from 1/8 cycles/voxel to the corner
+    assert same["frequency"] == [0.125, 0.25, 0.375, 0.5, 0.625, 0.75]
+    assert same["ratio"] == [1.0] * 6 and same["max_abs_log2"] == 0.0
     doubled = nps_ratio(noise_power_spectrum(2 * volume, mask), spectrum)
     np.testing.assert_allclose(doubled["ratio"], 4.0)
     assert doubled["max_abs_log2"] == pytest.approx(2.0)
+
+
+def test_nps_ratio_sees_texture_in_the_lowest_and_in_the_corner_ring():
+    white = _noise(7, blur=0.0)
+    mask = np.ones(SHAPE, dtype=bool)
+    reference = noise_power_spectrum(white, mask)
+    x = np.arange(SHAPE[2])
+    # a wave of 1/8 cycles/voxel along x: power 1/2 in ring 1, where white noise of variance 1 has 8/64
+    low = nps_ratio(noise_power_spectrum(white + np.sin(2 * np.pi * x / 8), mask), reference)
+    assert low["worst_frequency"] == 0.125 and low["ratio"][0] == pytest.approx(5.0, rel=0.1)
+    np.testing.assert_allclose(low["ratio"][1:], 1.0, atol=0.1)
+    # a checkerboard (0.5, 0.5 cycles/voxel): all in the corner ring, the one frequency (4, 4) of ring 6
+    y = np.arange(SHAPE[1])
+    checker = 0.5 * (-1.0) ** (y[:, None] + x[None, :])
+    high = nps_ratio(noise_power_spectrum(white + checker, mask), reference)
+    assert high["worst_frequency"] == 0.75 and high["ratio"][-1] > 10
+    np.testing.assert_allclose(high["ratio"][:-1], 1.0, atol=0.1)
+
+
+def _balls(seed: int, shading: float = 0.0) -> Specimen:
+    """Rows of three touching balls (radius 9) in two layers, grains 1.0, pores 0.2, white noise 0.05, and a
+    wave of `shading` amplitude (one period across the volume, along x)."""
+    z, y, x = np.mgrid[:40, :64, :64]
+    labels = np.zeros(z.shape, dtype=np.int32)
+    centres = [(cz, cy, cx) for cz in (10, 30) for cy in (10, 32, 54) for cx in (10, 28, 46)]
+    for label, (cz, cy, cx) in enumerate(centres, 1):
+        labels[(z - cz) ** 2 + (y - cy) ** 2 + (x - cx) ** 2 <= 81] = label
+    noise = np.random.default_rng(seed).normal(0.0, 0.05, z.shape)
+    tomogram = np.where(labels > 0, 1.0, 0.2) + noise + shading * np.sin(2 * np.pi * x / 64)
+    return Specimen(f"balls {seed}, shading {shading}", tomogram.astype(np.float32), labels,
+                    np.ones(z.shape, dtype=bool), (1.0, 1.0, 1.0), "px")
+
+
+@pytest.fixture(scope="module")
+def balls():
+    """Measurements of the ball volumes (the source, a pack of the same kind, the same pack shaded), the
+    floor of the source and each pack's classifier test (logistic regression only)."""
+    window = (0.0, 1.2)
+    measured = {name: measure(specimen, window) for name, specimen in
+                (("source", _balls(0)), ("plain", _balls(1)), ("shaded", _balls(1, shading=0.15)))}
+    source = measured["source"]
+    measured["floor"] = floor_test(source.patches, source.patch_corners, slab=5)
+    measured["tests"] = {name: classifier_test(source.patches, measured[name].patches) for name in ("plain", "shaded")}
+    return measured
+
+
+def test_w_is_full_band_so_low_frequency_shading_shows(balls):
+    plain, shaded = distances(balls["source"], balls["plain"]), distances(balls["source"], balls["shaded"])
+    for phase in ("grains", "pores", "edges"):
+        assert plain[f"wasserstein_{phase}"] < 0.01
+        assert shaded[f"wasserstein_{phase}"] > W_LIMIT  # 0.15 of the 0.8 contrast: W about 0.06
+    # the noise estimate, a high-pass figure, does not see the shading
+    for key in ("grain_std", "pore_std"):
+        assert getattr(balls["shaded"].appearance.noise, key) == pytest.approx(
+            getattr(balls["plain"].appearance.noise, key), rel=0.02)
+
+
+def _report(balls: dict, packs: list[str], modes: list[str], pours: list[str] | None = None) -> dict:
+    """``to_dict`` of a report of the measured balls, as `compare` would make of packs of one pour."""
+    source, measured = balls["source"], [balls[name] for name in packs]
+    infos = [{"path": m.specimen.name, "postprocess": mode, "mode": mode, "calibration": None, "pour": pour}
+             for m, mode, pour in zip(measured, modes, pours or ["one pour"] * len(packs))]
+    settings = {"source": "balls", "window": [0.0, 1.2], "patch": 16, "seed": 0, "slab": 5, "cnn": None,
+                "packs": infos}
+    return RealismReport(source, measured, [distances(source, m) for m in measured], balls["floor"],
+                         [balls["tests"][name] for name in packs], settings).to_dict()
+
+
+def test_targets_table_reads_the_measured_figures(balls):
+    report = _report(balls, ["plain", "shaded"], ["none", "calibrated"])
+    source, floor = report["source"]["figures"], report["floor"]
+    for pack in report["packs"]:
+        rows = {row["figure"]: row for row in pack["targets"]}
+        assert list(rows) == [target.figure for target in TARGETS]
+        for row in rows.values():
+            assert row["pass"] is None or row["pass"] == (row["deviation"] <= row["limit"])
+        assert rows["CNN AUC"]["pass"] is None  # the CNN did not run
+        assert rows["logistic AUC"]["limit"] == pytest.approx(floor["logistic"]["auc"] + LOGISTIC_AUC_MARGIN)
+        assert rows["logistic AUC"]["deviation"] == pack["distances"]["classifier"]["logistic"]["auc"]
+        for phase in ("grains", "pores", "edges"):
+            assert rows[f"W {phase}"]["deviation"] == pack["distances"][f"wasserstein_{phase}"]
+        assert rows["noise std in pores"]["deviation"] == pytest.approx(
+            abs(pack["figures"]["noise_pore"] / source["noise_pore"] - 1))
+        assert rows["noise std in pores"]["pass"] is True  # the same noise level
+        assert rows["NPS in pores, every ring"]["deviation"] == pack["distances"]["nps_ratio"]["pores"]["max_abs_log2"]
+        assert rows["solid fraction"]["deviation"] == pytest.approx(0.0, abs=1e-9)  # the same labels
+        assert rows["mean coordination"]["pass"] is True and source["coordination_mean"] > 0
+    plain, shaded = ({row["figure"]: row["pass"] for row in p["targets"]} for p in report["packs"])
+    assert plain["W pores"] is True and shaded["W pores"] is False
+    markdown = report_markdown(report)
+    assert "## Targets" in markdown and "**FAIL**" in markdown
+    w_pores = report["packs"][0]["distances"]["wasserstein_pores"]
+    assert f"| W pores | <= {W_LIMIT} of the contrast | {w_pores:.3f}: pass |" in markdown
+
+
+def test_a_mode_worse_than_none_is_flagged_and_only_then(balls):
+    plain, shaded = balls["plain"], balls["shaded"]
+    worse = _report(balls, ["plain", "shaded"], ["none", "calibrated"])
+    (flag,) = worse["worse_than_none"]
+    assert (flag["mode"], flag["pack"], flag["none"]) == ("calibrated", shaded.specimen.name, plain.specimen.name)
+    figures = [w["figure"] for w in flag["worse"]]
+    assert {"W grains", "W pores", "W edges"} <= set(figures)
+    assert "solid fraction" not in figures and "mean coordination" not in figures  # the same labels
+    w_pores = worse["packs"][1]["distances"]["wasserstein_pores"], worse["packs"][0]["distances"]["wasserstein_pores"]
+    assert f"W pores ({w_pores[0]:.3f} > {w_pores[1]:.3f})" in report_markdown(worse)
+    assert "is worse than none (" in report_markdown(worse)
+    # the other way round: the mode takes the shading away, so it is nowhere worse
+    better = _report(balls, ["shaded", "plain"], ["none", "calibrated"])
+    assert better["worse_than_none"][0]["worse"] == []
+    assert "is worse than" not in report_markdown(better) and "is nowhere worse than none (" in report_markdown(better)
+    # a none pack of another pour is no reference
+    other = _report(balls, ["plain", "shaded"], ["none", "calibrated"], pours=["a", "b"])
+    assert other["worse_than_none"] == [] and "worse than" not in report_markdown(other)
+
+
+def test_pour_key_ignores_only_the_post_processing_and_the_run():
+    manifest = {"seed": 3, "library_source": "scan.tif", "config": PackConfig().to_dict()}
+    again = {**manifest, "config": PackConfig().replace(postprocess="none", run={"threads": 1}).to_dict()}
+    assert pour_key(manifest) == pour_key(again)
+    for other in ({**manifest, "seed": 4}, {**manifest, "config": PackConfig().replace(seed=2).to_dict()},
+                  {**manifest, "config": PackConfig().replace(pour={"n_particles": 12}).to_dict()}):
+        assert pour_key(other) != pour_key(manifest)
+
+
+def test_slices_are_laid_out_at_one_scale_and_drawn_so(balls, tmp_path):
+    shapes = [(100, 100), (109, 109), (60, 200)]
+    scale, size, boxes = slice_layout(shapes)
+    assert scale == int(scale) and scale >= 1
+    for (rows, columns), (left, bottom, width, height) in zip(shapes, boxes):
+        assert (width, height) == (scale * columns, scale * rows)  # the same pixels per voxel in every panel
+        assert bottom + height == boxes[0][1] + boxes[0][3]  # tops aligned
+    assert all(a[0] + a[2] < b[0] for a, b in zip(boxes, boxes[1:])) and boxes[-1][0] + boxes[-1][2] <= size[0]
+    # wider than the picture at 1 pixel per voxel: one scale below 1, the panels still in the picture
+    scale, size, boxes = slice_layout([(50, 3000), (50, 1500)], width=1000)
+    assert scale < 1 and boxes[1][2] == pytest.approx(boxes[0][2] / 2) and boxes[-1][0] + boxes[-1][2] <= size[0]
+    # the picture: the source and two packs, one of them cut smaller; its size is the layout's
+    source, plain = balls["source"], balls["plain"]
+    cut = dataclasses.replace(plain.specimen, name="smaller", tomogram=plain.specimen.tomogram[:, :40, :50],
+                              labels=plain.specimen.labels[:, :40, :50], region=plain.specimen.region[:, :40, :50])
+    smaller = dataclasses.replace(plain, specimen=cut)
+    path = save_slices_plot(source, [plain, smaller], (0.0, 1.2), tmp_path / "slices.png")
+    _, size, _ = slice_layout([(64, 64), (64, 64), (40, 50)])
+    assert image.imread(path).shape[:2] == (size[1], size[0])

@@ -10,18 +10,23 @@ phases defined by the signed distance from the grain-pore boundary
 
 Figures:
 
-* intensity samples of each phase (their histograms, compared by Wasserstein distance);
+* intensity samples of each phase, full band: the raw intensities of every
+  voxel of the phase in the region (no high-pass, no per-patch mean removed), so
+  shading, drift, blotches and texture at any scale show in their histograms,
+  compared by Wasserstein distance;
 * noise standard deviation in grains and pores, by
   `synthpack.measure.estimate_noise` (second differences inside each label, away from
-  boundaries, robust spread);
+  boundaries, robust spread: a high-pass figure, blind to low frequencies);
 * noise power spectrum (NPS) of grains and pores: the radially averaged power of
   ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a phase's interior,
   each minus its mean, so that the powers of all frequency rings add up to the
   variance within a patch. Its centroid (the power-weighted mean frequency, in
   cycles per voxel) is high for white noise and low for smooth, correlated noise
   and texture. Against the source's, a pack's spectrum is read ring by ring: the
-  ratio pack / source of the power in each ring from 0.1 to 0.5 cycles per voxel
-  (`nps_ratio`; 1 = the same power at that frequency, 2 = twice as much);
+  ratio pack / source of the power in every ring from the lowest (ring 1,
+  ``1 / NPS_PATCH`` cycles per voxel) to the corner of the spectrum (ring 6 of
+  an 8x8 patch, 0.75) (`nps_ratio`; 1 = the same power at that frequency, 2 = twice
+  as much), so low-frequency blotches and high-frequency periodic texture both show;
 * the edge profile, its 10-90 width and its half-height position (where it
   crosses half-way from the pore to the grain level, voxels of signed distance
   from the label boundary; `synthpack.measure.edges`).
@@ -43,31 +48,28 @@ from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Appearance", "NPS_PATCH", "NPS_RATIO_BAND", "NoiseSpectrum", "measure_appearance", "noise_levels",
+__all__ = ["Appearance", "NPS_PATCH", "NoiseSpectrum", "measure_appearance", "noise_levels",
            "noise_power_spectrum", "nps_ratio", "phase_masks"]
 
-#: Frequencies (cycles/voxel) of the rings whose power `nps_ratio` compares.
-NPS_RATIO_BAND = (0.1, 0.5)
 
+def nps_ratio(spectrum: NoiseSpectrum, reference: NoiseSpectrum) -> dict:
+    """Ring-by-ring ratio of two noise power spectra of the same patch size, in every ring but ring 0.
 
-def nps_ratio(
-    spectrum: NoiseSpectrum, reference: NoiseSpectrum, band: tuple[float, float] = NPS_RATIO_BAND
-) -> dict:
-    """Ring-by-ring ratio of two noise power spectra of the same patch size.
+    Ring 0 (the patch mean) holds no power by construction; every other ring is
+    compared, from ring 1 (``1 / size`` cycles per voxel) to the corner ring.
 
     Parameters
     ----------
     spectrum, reference : NoiseSpectrum
         E.g. a pack's and the source's, from `noise_power_spectrum` with the same `size`.
-    band : (float, float)
-        The rings whose centre frequency lies in this closed range (cycles/voxel) are compared.
 
     Returns
     -------
     dict
         ``frequency`` (list of the rings' centres, cycles/voxel), ``ratio`` (list of
-        ``spectrum / reference`` power per ring) and ``max_abs_log2`` (the largest
-        ``|log2 ratio|``: below 1 means within a factor 2 in every ring).
+        ``spectrum / reference`` power per ring), ``max_abs_log2`` (the largest
+        ``|log2 ratio|``: at most 1 means within a factor 2 in every ring), and the
+        ring where it is reached: ``worst_frequency`` and ``worst_ratio``.
 
     Raises
     ------
@@ -76,10 +78,12 @@ def nps_ratio(
     """
     if not np.array_equal(spectrum.frequency, reference.frequency):
         raise ValueError("the spectra have different frequency rings: measure them with the same patch size")
-    ring = (reference.frequency >= band[0]) & (reference.frequency <= band[1])
+    ring = reference.frequency > 0
     ratio = spectrum.power[ring] / reference.power[ring]
+    worst = int(np.argmax(np.abs(np.log2(ratio))))
     return {"frequency": reference.frequency[ring].tolist(), "ratio": ratio.tolist(),
-            "max_abs_log2": float(np.max(np.abs(np.log2(ratio))))}
+            "max_abs_log2": float(abs(np.log2(ratio[worst]))),
+            "worst_frequency": float(reference.frequency[ring][worst]), "worst_ratio": float(ratio[worst])}
 
 
 def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
@@ -124,7 +128,8 @@ class Appearance:
     Attributes
     ----------
     samples : dict of str to ndarray of float32, shape (N_phase,)
-        Intensities of ``"grains"``, ``"pores"`` and ``"edges"`` (an even subsample).
+        Raw intensities of ``"grains"``, ``"pores"`` and ``"edges"`` in the region (an
+        even subsample; full band: nothing filtered or subtracted).
     noise : NoiseEstimate
         From `noise_levels`.
     spectra : dict of str to NoiseSpectrum or None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .targets import worse_line
+
 __all__ = ["report_markdown"]
 
 _HOW_TO_READ = """\
@@ -19,9 +21,11 @@ smoother noise and texture). The edge width is the 10-90 % rise distance of the 
 profile across grain-pore boundaries (voxels); its half height is the signed distance
 from the label boundary (voxels, + into the grains) where that profile crosses half-way
 from the pore to the grain level: 0 when the edge is centred on the boundary. The NPS
-ratio is the pack's noise power over the source's in each frequency ring from 0.1 to 0.5
-cycles/voxel (1 = the same power; the noise matches within a factor 2 in every ring when
-max |log2 ratio| < 1). A classifier AUC is the cross-validated area under the ROC curve of a
+ratio is the pack's noise power over the source's in every frequency ring of the 8x8
+spectrum, from the lowest (1/8 cycles/voxel) to the corner ring (1 = the same power; the
+noise matches within a factor 2 in every ring when max |log2 ratio| <= 1). W is full band
+(raw intensities, nothing filtered), so shading and blotches show in it that the noise
+figure, a high-pass estimate, does not see. A classifier AUC is the cross-validated area under the ROC curve of a
 model that tries to tell synthetic from real {patch}x{patch} in-slice patches: 0.5 = it cannot tell
 them apart, 1 = it always can.
 
@@ -92,10 +96,35 @@ def _auc(summary: dict | None, classifier: str, margin: bool = False) -> str:
 
 
 def _nps_cell(ratio: dict | None) -> str:
-    """Range of the per-ring NPS ratios and the largest |log2 ratio|."""
+    """Range of the per-ring NPS ratios, the largest |log2 ratio| and its ring."""
     if ratio is None:
         return "n/a"
-    return f"{min(ratio['ratio']):.2f}-{max(ratio['ratio']):.2f} (max abs log2 {ratio['max_abs_log2']:.2f})"
+    return (f"{min(ratio['ratio']):.2f}-{max(ratio['ratio']):.2f} (max abs log2 {ratio['max_abs_log2']:.2f} "
+            f"at {ratio['worst_frequency']:.3f})")
+
+
+def _target_cell(row: dict) -> str:
+    """A pack's figure against its target: the figure and pass / **FAIL** (n/a where not measured)."""
+    if row["pass"] is None:
+        return "n/a"
+    return f"{row['cell']}: " + ("pass" if row["pass"] else "**FAIL**")
+
+
+def _targets_section(report: dict) -> list[str]:
+    """Per pack, each target figure with pass / fail, and the packs worse than their pour's ``none`` pack."""
+    packs = report["packs"]
+    if not packs:
+        return []
+    rows = [[first["figure"], first["target"], *[_target_cell(p["targets"][k]) for p in packs]]
+            for k, first in enumerate(packs[0]["targets"])]
+    rows.append(["targets met", "", *[f"{sum(r['pass'] is True for r in p['targets'])} of "
+                                      f"{sum(r['pass'] is not None for r in p['targets'])} measured"
+                                      for p in packs]])
+    out = ["\n## Targets\n", "Each pack's figures against the targets (`synthpack.realism.targets`; AUC "
+           "limits from the floor, relative figures against the source's).\n",
+           _table(["figure", "target", *[p["name"] for p in packs]], rows)]
+    out += [f"\n- {worse_line(flag)}\n" for flag in report.get("worse_than_none", [])]
+    return out
 
 
 def _classifier_section(report: dict) -> list[str]:
@@ -124,17 +153,25 @@ def _classifier_section(report: dict) -> list[str]:
 
 
 def _nps_section(packs: list[dict]) -> list[str]:
-    """Per ring, the NPS ratio pack / source in grains and pores."""
-    columns = [(p["name"], phase, p["distances"]["nps_ratio"][phase]) for p in packs for phase in ("grains", "pores")]
+    """Per ring, the NPS ratio pack / source in each phase measured in some pack, and the worst ring."""
+    phases = [phase for phase in ("grains", "pores") if any(p["distances"]["nps_ratio"][phase] for p in packs)]
+    columns = [(p["name"], phase, p["distances"]["nps_ratio"][phase]) for p in packs for phase in phases]
     measured = [ratio for _, _, ratio in columns if ratio is not None]
     if not measured:
         return []
-    rows = [[f"{frequency:.3f}",
+    rows = [[f"{k + 1} ({frequency:.3f})",
              *["n/a" if ratio is None else f"{ratio['ratio'][k]:.2f}" for _, _, ratio in columns]]
             for k, frequency in enumerate(measured[0]["frequency"])]
-    rows.append(["max abs log2", *["n/a" if r is None else f"{r['max_abs_log2']:.2f}" for _, _, r in columns]])
+    rows.append(["max abs log2 (ring)", *["n/a" if r is None else f"{r['max_abs_log2']:.2f} ({r['worst_frequency']:.3f})"
+                                          for _, _, r in columns]])
+    unmeasured = [phase for phase in ("grains", "pores") if phase not in phases]
+    note = (f"\nNot measurable in {' or '.join(unmeasured)} (no 8x8 patch fits inside that phase's interior).\n"
+            if unmeasured else "")
     return ["\n## Noise power spectrum: pack / source, ring by ring\n",
-            _table(["ring (cycles/voxel)", *[f"{name}, {phase}" for name, phase, _ in columns]], rows)]
+            "Every ring of the 8x8 spectrum but ring 0 (the patch mean): ring 1 is 1/8 cycles/voxel, rings "
+            "above 4 (0.5 cycles/voxel) are the spectrum's corners (diagonal frequencies, where checkerboard "
+            "texture shows).\n",
+            _table(["ring (cycles/voxel)", *[f"{name}, {phase}" for name, phase, _ in columns]], rows), note]
 
 
 def report_markdown(report: dict) -> str:
@@ -169,13 +206,14 @@ def report_markdown(report: dict) -> str:
         _row("noise in pores", "noise_pore", source, packs, digits=4),
         _row("edge width (voxels)", "edge_width", source, packs),
         _half_height_row(source, packs),
-        ["NPS ratio pack / source in grains, 0.1-0.5 cycles/voxel", "-",
+        ["NPS ratio pack / source in grains, every ring", "-",
          *[_nps_cell(p["distances"]["nps_ratio"]["grains"]) for p in packs]],
-        ["NPS ratio pack / source in pores, 0.1-0.5 cycles/voxel", "-",
+        ["NPS ratio pack / source in pores, every ring", "-",
          *[_nps_cell(p["distances"]["nps_ratio"]["pores"]) for p in packs]],
         _row("grain size: median diameter", "diameter_median", source, packs, ks="ks_diameter"),
     ]
     out.append(_table(header, glance))
+    out += _targets_section(report)
     out.append("\n## Structure\n")
     out.append(_table(header, [
         _row("solid fraction (labels)", "solid_fraction", source, packs),

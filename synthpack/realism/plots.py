@@ -1,4 +1,4 @@
-"""Pictures of the realism report (PNG): structure, appearance, slices side by side, and the CNN's picks."""
+"""Pictures of the realism report (PNG): structure, appearance, slices side by side at one scale, the CNN's picks."""
 
 from __future__ import annotations
 
@@ -14,9 +14,15 @@ from .._shared.seeds import generator
 from .discriminator import ClassifierTest
 from .report import Measurements
 
-__all__ = ["save_appearance_plot", "save_cnn_patches_plot", "save_slices_plot", "save_structure_plot"]
+__all__ = ["save_appearance_plot", "save_cnn_patches_plot", "save_slices_plot", "save_structure_plot", "slice_layout"]
 
 _DPI = 72
+#: The slices picture: at most this many pixels per voxel, panels within about this width (pixels),
+#: gaps between them and room for the titles above (pixels).
+_MAX_SCALE = 4
+_SLICES_WIDTH = 1800
+_GAP = 12
+_TITLE = 34
 #: Patches shown per set in the CNN picture (a square number).
 _SHOWN = 16
 
@@ -103,31 +109,80 @@ def save_appearance_plot(source: Measurements, packs: Sequence[Measurements], pa
     return _save(fig, path)
 
 
+def slice_layout(
+    shapes: Sequence[tuple[int, int]], *, width: int = _SLICES_WIDTH, max_scale: int = _MAX_SCALE
+) -> tuple[float, tuple[int, int], list[tuple[float, float, float, float]]]:
+    """Boxes of slices side by side, all at one scale (pixels per voxel), for `save_slices_plot`.
+
+    Parameters
+    ----------
+    shapes : sequence of (int, int)
+        Each slice's ``(rows, columns)``, voxels.
+    width : int
+        The panels and the gaps between them fit into about this many pixels (unless
+        a scale of 1 pixel per voxel would still be wider: then the scale is below 1).
+    max_scale : int
+        At most this many pixels per voxel.
+
+    Returns
+    -------
+    scale : float
+        Pixels per voxel, the same for every panel; a whole number when at least 1.
+    size : (int, int)
+        Figure width and height, pixels.
+    boxes : list of (float, float, float, float)
+        Per slice, ``(left, bottom, width, height)`` in pixels from the figure's lower left
+        corner: ``width = scale * columns``, ``height = scale * rows``, tops aligned
+        below the titles.
+    """
+    columns = sum(shape[1] for shape in shapes)
+    scale = min(float(max_scale), (width - _GAP * (len(shapes) + 1)) / columns)
+    scale = float(np.floor(scale)) if scale >= 1 else scale
+    height = scale * max(shape[0] for shape in shapes)
+    size = (int(np.ceil(scale * columns + _GAP * (len(shapes) + 1))), int(np.ceil(height + _TITLE + _GAP)))
+    boxes, left = [], float(_GAP)
+    for rows, cols in shapes:
+        boxes.append((left, size[1] - _TITLE - scale * rows, scale * cols, scale * rows))
+        left += scale * cols + _GAP
+    return scale, size, boxes
+
+
 def save_slices_plot(
     source: Measurements, packs: Sequence[Measurements], window: tuple[float, float], path: str | os.PathLike
 ) -> Path:
-    """The middle z slice of each volume's bulk region, in one intensity window.
+    """One whole z slice of each volume side by side, at one scale and in one intensity window.
+
+    Each volume's slice is the middle of its bulk region's z range, shown whole (a
+    container, air, empty corners show as they are), its bulk region outlined. Every
+    panel has the same pixels per voxel (`slice_layout`), so a pack smaller or larger
+    than the source looks so, and the same window (the source's), so a pack brighter,
+    darker or of lower contrast does too.
 
     Parameters
     ----------
     source : Measurements
     packs : sequence of Measurements
     window : (float, float)
-        Intensities shown black and white.
+        Intensities shown black and white (the source's window).
     path : path-like
         Output PNG.
     """
     plt = pyplot()
     everyone = (source, *packs)
-    fig, axes = plt.subplots(1, len(everyone), figsize=(3.6 * len(everyone), 3.9), layout="constrained",
-                             squeeze=False)
-    for ax, measured in zip(axes[0], everyone):
-        where = np.argwhere(measured.specimen.region)
-        low, high = where.min(axis=0), where.max(axis=0) + 1
-        z = (low[0] + high[0]) // 2
-        image = measured.specimen.tomogram[z, low[1]:high[1], low[2]:high[2]]
-        ax.imshow(image, cmap="gray", vmin=window[0], vmax=window[1], origin="lower")
-        ax.set_title(f"{measured.specimen.name}, z = {z}", fontsize=10)
+    slices = []
+    for measured in everyone:
+        z = np.flatnonzero(measured.specimen.region.any(axis=(1, 2)))
+        z = int((z[0] + z[-1]) // 2) if len(z) else measured.specimen.region.shape[0] // 2
+        slices.append((z, measured.specimen.tomogram[z], measured.specimen.region[z]))
+    scale, size, boxes = slice_layout([image.shape for _, image, _ in slices])
+    fig = plt.figure(figsize=(size[0] / _DPI, size[1] / _DPI))
+    for measured, (z, image, region), (left, bottom, width, height) in zip(everyone, slices, boxes):
+        ax = fig.add_axes((left / size[0], bottom / size[1], width / size[0], height / size[1]))
+        ax.imshow(image, cmap="gray", vmin=window[0], vmax=window[1], origin="lower",
+                  interpolation="nearest" if scale >= 1 else "antialiased")
+        if region.any() and not region.all():
+            ax.contour(region.astype(np.float32), levels=[0.5], colors="tab:orange", linewidths=1)
+        ax.set_title(f"{measured.specimen.name}, z = {z}\n{image.shape[0]} x {image.shape[1]} voxels", fontsize=9)
         ax.set_axis_off()
     return _save(fig, path)
 

@@ -11,15 +11,30 @@ floor no pack can beat. Then it writes a report folder::
     realism.json      the same figures (and the distributions' summaries)
     structure.png     grain size, shape, contacts and orientation distributions
     appearance.png    phase histograms, edge profiles, noise power spectra
-    slices.png        one slice of each volume, in the same intensity window
+    slices.png        one whole slice of each volume, all at the same pixels per voxel and in
+                      the source's intensity window, the measured region outlined
     cnn_patches.png   per pack, the patches the CNN finds most synthetic next to random
                       real ones (when the CNN ran and there are packs)
 
+The report's sections (``realism.md``; the same figures in ``realism.json``):
+
+* **At a glance**, **Structure**, **Appearance**: the figures, source and packs;
+* **Targets**: per pack, each figure against its target with pass / fail
+  (`synthpack.realism.targets`: logistic and CNN AUC against the floor, W of each
+  phase, noise std per phase, the NPS in every ring, solid fraction, mean
+  coordination; every threshold a constant there), and, where the packs include a
+  ``postprocess: none`` pack of the same pour, a line per other post-processing mode
+  naming the target figures on which it is worse than ``none``;
+* **Noise power spectrum**: the ratio pack / source in every ring (from the lowest,
+  1/8 cycles per voxel, to the corner), per phase where measurable, and the worst ring;
+* **Classifiers**: the floor and each pack's AUCs, margins and timings;
+* the post-processing of each pack, and the pictures.
+
 Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
 same distribution, 1 = disjoint); W = Wasserstein (earth mover's) distance of the
-intensity histograms divided by the magnitude of the source's grain-pore contrast
-(0.05 = the histograms are 5 % of the contrast apart on average), for grains
-brighter or darker than pores.
+full-band intensity histograms (raw intensities of each phase, nothing filtered)
+divided by the magnitude of the source's grain-pore contrast (0.05 = the histograms
+are 5 % of the contrast apart on average), for grains brighter or darker than pores.
 """
 
 from __future__ import annotations
@@ -47,6 +62,7 @@ from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
 from ..measure.specimen import solid_fraction
 from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance
+from .targets import pack_targets, pour_key, worse_than_none
 
 logger = logging.getLogger(__name__)
 
@@ -181,7 +197,7 @@ class RealismReport:
         One per pack: the classifiers on the source against the pack.
     settings : dict
         How it was measured (window, patch size, slab, seed, CNN settings, pack paths,
-        manifests' post-processing).
+        manifests' post-processing and `~synthpack.realism.targets.pour_key`).
     """
 
     source: Measurements
@@ -197,16 +213,25 @@ class RealismReport:
         A pack's ``distances["classifier"]`` holds ``n_per_class``, ``folds`` and per
         classifier (``logistic``, ``cnn``) its ``auc``, ``auc_std``, ``seconds`` and
         ``margin`` (AUC minus the floor's); ``floor`` holds the same for the source
-        against itself, and ``slab``.
+        against itself, and ``slab``. A pack's ``targets`` are its figures against the
+        targets (`synthpack.realism.targets.pack_targets`); ``worse_than_none`` lists,
+        per pack with a ``postprocess: none`` pack of the same pour among the packs,
+        the target figures where it is worse than that pack
+        (`synthpack.realism.targets.worse_than_none`).
         """
         floor = None if self.floor is None else {"slab": self.settings.get("slab"), **self.floor.summary()}
+        source = {"name": self.source.specimen.name, "figures": self.source.figures()}
+        packs = [{"name": m.specimen.name, "figures": m.figures(),
+                  "distances": {**d, "classifier": t.summary(self.floor)}}
+                 for m, d, t in zip(self.packs, self.distances, self.tests)]
+        for pack in packs:
+            pack["targets"] = pack_targets(source, pack, floor)
         return {
             "settings": self.settings,
-            "source": {"name": self.source.specimen.name, "figures": self.source.figures()},
+            "source": source,
             "floor": floor,
-            "packs": [{"name": m.specimen.name, "figures": m.figures(),
-                       "distances": {**d, "classifier": t.summary(self.floor)}}
-                      for m, d, t in zip(self.packs, self.distances, self.tests)],
+            "packs": packs,
+            "worse_than_none": worse_than_none(packs, self.settings.get("packs", [])),
         }
 
     def markdown(self) -> str:
@@ -305,7 +330,7 @@ def compare(
         manifest = pack_manifests[directory]
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
                           "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
-                          "calibration": manifest.get("calibration")})
+                          "calibration": manifest.get("calibration"), "pour": pour_key(manifest)})
     settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "slab": slab,
                 "cnn": None if cnn is None else dataclasses.asdict(cnn), "packs": manifests}
     return RealismReport(reference, measured, [distances(reference, m) for m in measured], floor, tests, settings)
