@@ -9,12 +9,15 @@ made once per library grain in its own frame (`Surface.distance`):
 1. ``d``: the signed distance of the mask (voxels, positive inside, ``+-1/2`` on
    either side of a face: `synthpack.measure.edges.signed_distance`);
 2. ``g``: ``d`` convolved with a Gaussian of `sigma` voxels, which keeps a flat face
-   where it is (a linear function is its own average) and rounds the terraces;
-3. ``f = min(g - t, d + 1/2)``: the iso-level ``t`` restores the grain's volume
-   (smoothing a convex surface moves it inwards): the partial-volume volume
-   ``sum clip(f + 1/2, 0, 1)`` equals the mask's voxel count. The cap keeps ``f <= 0``
-   at every voxel outside the mask, so the smooth surface never passes the centres of
-   the mask's outer neighbours (a bound the render's boxes rely on, `Surface.reach`).
+   where it is (a linear function is its own average) and rounds the terraces. Its
+   slope is below 1 where the staircase's faces point different ways (they average),
+   so it is stretched back to a distance: ``g / |grad g|`` (at most by 1 / `MIN_SLOPE`);
+3. ``f = min((g - t) / |grad g|, d + 1/2)``: the iso-level ``t`` restores the grain's
+   volume (smoothing a convex surface moves it inwards), as a render in any pose
+   counts it: the voxels where the linearly interpolated ``f`` is positive, measured
+   on 8 points per crop voxel (`_volume_level`). The cap keeps ``f <= 0`` at every
+   voxel outside the mask, so the smooth surface never passes the centres of the
+   mask's outer neighbours (a bound the render's boxes rely on, `Surface.reach`).
 
 The render resamples ``f`` linearly with the pose; scaled to output voxels it is the
 signed distance of each output voxel from the grain's smooth surface. The grain's
