@@ -42,7 +42,7 @@ from .partial_volume import PAD, PartialVolume
 __all__ = ["SIGMA", "Surface"]
 
 #: The default smoothing of the grains' surfaces, voxels (Gaussian standard deviation).
-SIGMA = 0.7
+SIGMA = 0.5
 #: The least slope of the smoothed distance that is stretched to 1 (near a thin grain's middle it is less).
 MIN_SLOPE = 0.25
 
