@@ -16,7 +16,7 @@ It prints the seconds of reconstruct + post-process per million voxels of each a
 their ratio. The arms are built in turn (baseline, model, baseline, model, ...), so a busy
 machine slows both alike. A run's first model pack prepares the partial-volume crops of the
 grains it places; later packs of the run (in the same process) find them prepared
-(`synthpack.render.partial_volume.CACHE_BYTES`), so the model's first pack is reported apart and
+(`synthpack.render.crop_cache.CACHE_BYTES`), so the model's first pack is reported apart and
 the ratio is that of the best later packs against the best baseline. Target: model <= 1.5x
 baseline. The pour is the same in both arms and is not counted.
 """

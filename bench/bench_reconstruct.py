@@ -168,15 +168,16 @@ def ours(library: ParticleLibrary, placements: Placements, grid: Grid, order: in
          texture_and_wall: bool = True, seed: int = 0, partial_volume: bool = True):
     """pose_maps + reconstruct exactly as generate.build_pack calls them."""
     tube = placements.tube
-    fitted = ReconstructConfig(partial_volume=partial_volume).partial_volume_of(library.statistics)
+    config = ReconstructConfig(partial_volume=partial_volume)
+    fitted = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in library], placements.indices,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
-                     reach=fitted.reach if fitted else 1.0)
+                     reach=config.surface.reach(fitted))
     background = _background(library) if texture_and_wall else Background(library.statistics.pore_mean)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in library], maps, grid, background,
         tube=(tube.inner_radius, tube.outer_radius, -tube.base_thickness), order=order, seed=seed,
-        chunks=(64, 256, 256), partial_volume=fitted,
+        chunks=(64, 256, 256), partial_volume=fitted, surface=config.surface,
     )
     return maps, clean, labels, contested
 

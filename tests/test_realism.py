@@ -64,6 +64,9 @@ def test_grain_shape_size_orientation_and_contacts_of_known_grains():
     np.testing.assert_allclose(np.abs(table.long_axis[1]), [0, 0, 1], atol=1e-6)  # long axis along x
     assert table.coordination.tolist() == [0, 0, 1, 1]
     assert coordination_numbers(labels)[3] == 1
+    # the sections of 24 slices along z: discs, ellipses and rectangles (their corners are the roughest)
+    assert len(table.roughness) > 24 and np.median(table.roughness) < 1.08
+    assert np.all((table.roughness > 1.0) & (table.roughness < 1.15))
 
 
 def test_noise_level_and_spectrum_of_added_gaussian_noise():
@@ -217,13 +220,15 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     for pack in report["packs"]:
         assert 0.5 <= pack["distances"]["classifier"]["logistic"]["auc"] <= 1.0
         assert "cnn" not in pack["distances"]["classifier"]
-        assert 0 <= pack["distances"]["ks_diameter"] <= 1
+        assert 0 <= pack["distances"]["ks_diameter"] <= 1 and 0 <= pack["distances"]["ks_roughness"] <= 1
+        assert 1.0 < pack["figures"]["roughness_median"] < pack["figures"]["roughness_p90"] < 1.5
     assert report["floor"]["slab"] == 10 and "cnn" not in report["floor"] and report["settings"]["cnn"] is None
     assert "logistic AUC" in (out / "realism.md").read_text()
     # the two packs are of one pour (the same seed and config but the post-processing); no none pack: no flag
     assert report["settings"]["packs"][0]["pour"] == report["settings"]["packs"][1]["pour"]
     assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
     assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
+    assert "median section roughness" in (out / "realism.md").read_text()
     printed = capsys.readouterr().out
     assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed
     # without packs: the source and its floor only

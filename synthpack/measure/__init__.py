@@ -15,6 +15,7 @@ means the same on both. Modules, one job each:
 ``specimen``        `specimen_mask`: the specimen's voxels, without the container and the air
 ``scanner``         `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``lattice``         in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
+``roughness``       boundary roughness of grain sections: outline length over the smoothed outline's
 ==================  =========================================================================================
 """
 
@@ -24,6 +25,7 @@ from .phases import PhaseLevels, estimate_phases
 from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
 from .psf import EdgeSpread, fit_edge_spread
+from .roughness import section_roughness, volume_roughness
 from .scanner import ScannerArtefacts, measure_scanner
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
@@ -48,7 +50,9 @@ __all__ = [
     "PORE_SPECTRUM_SIZE",
     "QUANTILE_SCORES",
     "ScannerArtefacts",
+    "section_roughness",
     "signed_distance",
     "spectrum_on_grid",
     "volume_edge_width",
+    "volume_roughness",
 ]

@@ -235,17 +235,17 @@ def _render(
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in particles], placed,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
-                     reach=partial_volume.reach if partial_volume else 1.0)
+                     reach=config.surface.reach(partial_volume))
     renderer = None if device is None else TorchRenderer(device)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
         tube=(wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
-        partial_volume=partial_volume, renderer=renderer,
+        partial_volume=partial_volume, renderer=renderer, surface=config.surface,
     )
     if renderer is not None:
-        logger.info("rendered on %s: %d voxels within float rounding of the mask threshold", device,
+        logger.info("rendered on %s: %d voxels within float rounding of a grain's surface", device,
                     renderer.near_threshold)
     return _Render(grid, clean, labels, background, contested, partial_volume, wall)
 

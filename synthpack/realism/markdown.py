@@ -226,6 +226,9 @@ def report_markdown(report: dict) -> str:
         _row("median flatness c/b", "flatness_median", source, packs, ks="ks_flatness"),
         _row("mean coordination number", "coordination_mean", source, packs, ks="ks_coordination", digits=2),
         _row("mean abs cos(long axis, z) (0.5 isotropic)", "axis_cosine_mean", source, packs, ks="ks_axis_cosine"),
+        _row("median section roughness (outline / smoothed outline)", "roughness_median", source, packs,
+             ks="ks_roughness"),
+        _row("90th percentile of the section roughness", "roughness_p90", source, packs),
         ["fabric eigenvalues (1/3 each isotropic)",
          *[" / ".join(f"{v:.2f}" for v in (f["figures"]["fabric_eigenvalues"] or [])) or "n/a"
            for f in (source, *packs)]],

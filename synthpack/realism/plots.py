@@ -40,7 +40,7 @@ def _cdf(ax, values: np.ndarray, label: str) -> None:
 
 
 def save_structure_plot(source: Measurements, packs: Sequence[Measurements], path: str | os.PathLike) -> Path:
-    """Cumulative distributions of grain size, shape, contacts and long-axis orientation.
+    """Cumulative distributions of grain size, shape, contacts, long-axis orientation and section roughness.
 
     Parameters
     ----------
@@ -50,20 +50,22 @@ def save_structure_plot(source: Measurements, packs: Sequence[Measurements], pat
         Output PNG.
     """
     plt = pyplot()
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7), layout="constrained")
+    fig, axes = plt.subplots(2, 4, figsize=(17, 7), layout="constrained")
     unit = source.specimen.unit
     panels = [
         ("diameter", f"equivalent diameter [{unit}]"), ("sphericity", "sphericity"),
         ("elongation", "elongation b/a"), ("flatness", "flatness c/b"),
         ("coordination", "coordination number"), ("axis_cosine", "|cos(long axis, z)|"),
+        ("roughness", "section roughness (outline / smoothed outline)"),
     ]
     for ax, (name, label) in zip(axes.ravel(), panels):
         for measured in (source, *packs):
-            _cdf(ax, np.asarray(getattr(measured.grains, name), dtype=float),
-                 f"{measured.specimen.name} ({len(measured.grains)})")
+            values = np.asarray(getattr(measured.grains, name), dtype=float)
+            _cdf(ax, values, f"{measured.specimen.name} ({len(values)})")
         ax.set_xlabel(label)
-        ax.set_ylabel("fraction of grains")
-    axes[1, 2].plot([0, 1], [0, 1], "k:", lw=1, label="isotropic")
+        ax.set_ylabel("fraction of grain sections" if name == "roughness" else "fraction of grains")
+    axes[1, 1].plot([0, 1], [0, 1], "k:", lw=1, label="isotropic")
+    axes[1, 3].set_axis_off()
     axes[0, 0].legend(fontsize=8)
     return _save(fig, path)
 

@@ -112,6 +112,8 @@ class Measurements:
             "coordination_mean": float(g.coordination.mean()) if len(g) else None,
             "axis_cosine_mean": float(g.axis_cosine.mean()) if len(g) else None,
             "fabric_eigenvalues": fabric_eigenvalues(g.long_axis).tolist() if len(g) else None,
+            "roughness_median": _median(g.roughness),
+            "roughness_p90": float(np.percentile(g.roughness, 90)) if len(g.roughness) else None,
             "pore_level": a.profile.pore_level,
             "grain_level": a.profile.grain_level,
             "noise_grain": a.noise.grain_std,
@@ -168,7 +170,7 @@ def distances(source: Measurements, pack: Measurements) -> dict:
     contrast = abs(sa.contrast)
     result = {
         f"ks_{name}": _ks(getattr(sg, name), getattr(pg, name))
-        for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine")
+        for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine", "roughness")
     }
     for phase, values in sa.samples.items():
         result[f"wasserstein_{phase}"] = float(stats.wasserstein_distance(values, pa.samples[phase]) / contrast)

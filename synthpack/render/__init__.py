@@ -1,4 +1,4 @@
-"""Render: a new tomogram and label volume from the grains' voxels at their poured poses (paper 3.4).
+"""Render: a new tomogram and label volume from the grains' smooth surfaces at their poured poses (paper 3.4).
 
 Modules, one job each, from the whole render down:
 
@@ -13,8 +13,10 @@ Modules, one job each, from the whole render down:
 ``poses``           `pose_maps`: each placement's affine map into its crop and the box it reaches
 ``config``          `ReconstructConfig`: the render's settings
 ``grid``            `Grid`: the output voxel grid
-``partial_volume``  `PartialVolume`: each grain's occupancy from its crop, prepared once per grain
+``surface``         `Surface`: each grain's smooth surface (a smoothed signed distance), made once per grain
 ``pore_texture``    `PoreTextureConfig`: the pore phase's seeded, correlated texture
+``partial_volume``  `PartialVolume`: each grain's occupancy of the voxels, its intensities prepared once
+``crop_cache``      what is prepared once per library grain, kept for the next render in this process
 ==================  ================================================================================
 """
 
@@ -30,6 +32,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "PoreTextureConfig": ".pore_texture",
     "PoseMaps": ".poses",
     "ReconstructConfig": ".config",
+    "Surface": ".surface",
     "RenderCrop": ".crops",
     "TorchRenderer": ".torch_render",
     "background_values": ".background",

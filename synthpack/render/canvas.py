@@ -6,11 +6,14 @@ Written once against the array module (``xp``: numpy or torch), so the NumPy ren
 only in which voxels of a grain's box they visit and in how they interpolate its crop
 (a `Sampler`).
 
-Claims: placement ``i`` labels ``i + 1`` the voxels where its resampled mask exceeds 0.5;
-a voxel claimed by two goes to the larger mask value (the earlier placement on a tie),
-a rule that does not depend on the chunking. Intensities: where a grain wins a voxel its
-resampled crop is pasted (whole voxels), or every grain is composited over the
-background by its occupancy (`synthpack.render.partial_volume`),
+Each grain is drawn from its smooth surface (`synthpack.render.surface`): the signed
+distance ``s`` of every voxel from it, resampled linearly from the crop's and scaled to
+output voxels (positive inside). Claims: placement ``i`` labels ``i + 1`` the voxels
+where ``s > 0``; a voxel claimed by two goes to the larger ``s``, the grain it is deeper
+in (the earlier placement on a tie), a rule that does not depend on the chunking.
+Intensities: where a grain wins a voxel its resampled crop is pasted (whole voxels), or
+every grain is composited over the background by its occupancy, from the same ``s``
+(`synthpack.render.partial_volume`),
 
     out = (1 - min(O, 1)) background + V / max(O, 1),   O = sum_i o_i,   V = sum_i o_i g_i.
 """
@@ -33,7 +36,7 @@ class Sampler(Protocol):
     Parameters
     ----------
     volume : array
-        A crop array of `RenderCrop` (its mask, intensity or distance).
+        A crop array of `RenderCrop` (its intensity or distance).
     mapped : array of float64, shape (3, K)
         `~synthpack.render.poses.mapped` of the voxels.
     shift : ndarray of float64, shape (3,)
@@ -63,7 +66,7 @@ class Canvas:
     xp : module
         numpy or torch: the array module of `background`, `sample`'s values and the voxel indices.
     order : int
-        Spline order of the intensities (masks and signed distances are interpolated linearly).
+        Spline order of the intensities (signed distances are interpolated linearly).
     partial_volume : PartialVolume, optional
         Composite grains by their occupancy of each voxel; None: paste whole voxels (a hard step).
 
@@ -109,16 +112,18 @@ class Canvas:
         Returns
         -------
         array of float32, shape (K,)
-            The grain's resampled mask at the voxels (its claims are where it exceeds 0.5).
+            The signed distance of the voxels from the grain's smooth surface, output voxels
+            (its claims are where it is positive).
         """
-        weight = self._sample(crop.mask, mapped, offset + 1.0, 1, 0.0)  # the mask is padded by one voxel
-        wins = self._claim_voxels(label, index, weight)
+        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
+        distance = self._sample(crop.distance, mapped, offset + PAD, 1, FAR) * float(np.float32(scale))
+        wins = self._claim_voxels(label, index, distance)
         if self._partial_volume is None:
             self.tomogram.reshape(-1)[index[wins]] = self._sample(crop.intensity, mapped[:, wins], offset,
                                                                   self._order, None)
         else:
-            self._add(index, mapped, offset + PAD, crop, matrix)
-        return weight
+            self._add(index, mapped, offset + PAD, crop, distance)
+        return distance
 
     def finish(self) -> None:
         """Composite the grains onto the background (the partial volume's ``(1 - O) b + V``, ``V / O`` where ``O > 1``)."""
@@ -126,22 +131,21 @@ class Canvas:
             self.tomogram *= 1.0 - self._occupancy.clip(max=1.0)
             self.tomogram += self._value * (1.0 / self._occupancy.clip(min=1.0))
 
-    def _claim_voxels(self, label: int, index: Any, weight: Any) -> Any:
-        """Give `label` the voxels `index` where `weight` exceeds 0.5 and every earlier claim; which (bool, (K,))."""
-        inside = weight > 0.5
-        held = self._claim.reshape(-1)[index]
-        self.contested += int(self._xp.count_nonzero(inside & (held > 0.5)))
-        wins = inside & (weight > held)
+    def _claim_voxels(self, label: int, index: Any, distance: Any) -> Any:
+        """Give `label` the voxels `index` where `distance` is positive and above every earlier claim; which (bool, (K,))."""
+        inside = distance > 0
+        held = self._claim.reshape(-1)[index]  # 0 where unclaimed
+        self.contested += int(self._xp.count_nonzero(inside & (held > 0)))
+        wins = inside & (distance > held)
         won = index[wins]
         self.labels.reshape(-1)[won] = label
-        self._claim.reshape(-1)[won] = weight[wins]
+        self._claim.reshape(-1)[won] = distance[wins]
         return wins
 
-    def _add(self, index: Any, mapped: Any, shift: np.ndarray, crop: RenderCrop, matrix: np.ndarray) -> None:
-        """Add one grain's occupancy ``o`` and ``o g`` at the voxels `index` (crop coordinates ``mapped + shift``)."""
-        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
-        distance = self._sample(crop.distance, mapped, shift, 1, FAR)
-        occupancy = self._partial_volume.occupancy(distance * float(np.float32(scale)))
+    def _add(self, index: Any, mapped: Any, shift: np.ndarray, crop: RenderCrop, distance: Any) -> None:
+        """Add one grain's occupancy ``o`` (of its signed `distance`, output voxels) and ``o g`` at the voxels `index`
+        (crop coordinates ``mapped + shift``)."""
+        occupancy = self._partial_volume.occupancy(distance)
         some = occupancy > 0
         if not self._xp.count_nonzero(some):
             return

@@ -24,6 +24,7 @@ from .grid import Grid
 from .numpy_render import render_chunk
 from .partial_volume import PartialVolume
 from .poses import PoseMaps
+from .surface import Surface
 
 __all__ = ["reconstruct"]
 
@@ -42,6 +43,7 @@ def reconstruct(
     out: tuple[np.ndarray, np.ndarray] | None = None,
     partial_volume: PartialVolume | None = None,
     renderer: Callable[..., tuple[np.ndarray, np.ndarray, int]] | None = None,
+    surface: Surface = Surface(),
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see `~synthpack.render.numpy_render.render_chunk`).
 
@@ -54,7 +56,7 @@ def reconstruct(
     crops : sequence of (tomogram, mask)
         Clean crop (float32) and mask (bool) of every library particle.
     maps, grid, background, tube, order, seed, partial_volume
-        As in `render_chunk` (`maps` with ``reach=partial_volume.reach``).
+        As in `render_chunk` (`maps` with ``reach=surface.reach(partial_volume)``).
     chunks : tuple of 3 int
         Chunk shape in voxels.
     workers : int, optional
@@ -65,6 +67,8 @@ def reconstruct(
     renderer : callable, optional
         Renders one chunk, with `render_chunk`'s arguments and results; default
         `render_chunk` (NumPy), e.g. `synthpack.render.torch_render.TorchRenderer` on a GPU.
+    surface : Surface
+        How the grains' smooth surfaces are made (`synthpack.render.surface`).
 
     Returns
     -------
@@ -88,7 +92,7 @@ def reconstruct(
         scales = np.abs(np.linalg.det(maps.matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
         lowest = partial_volume.threshold(scales)
         thresholds = {int(k): float(lowest[maps.library_index == k].min()) for k in np.unique(maps.library_index)}
-    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers, thresholds)
+    prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers, thresholds, surface)
 
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box

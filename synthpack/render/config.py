@@ -8,6 +8,7 @@ from .._shared.schema import finite, non_negative, one_of, setting
 from ..source.statistics import SourceStatistics
 from .partial_volume import PartialVolume
 from .pore_texture import PoreTextureConfig
+from .surface import SIGMA, Surface
 
 __all__ = ["ReconstructConfig"]
 
@@ -29,6 +30,9 @@ class ReconstructConfig:
                                        "label boundary, voxels (> 0 inside); default: the source's fitted edge shift")
     rim: float | None = setting(None, non_negative, "partial volume: depth (voxels) of each crop's blurred rim "
                                 "replaced by its interior; default: from the source's fitted edge")
+    surface_sigma: float = setting(SIGMA, non_negative, "smoothing of each grain's surface, voxels: labels and "
+                                   "intensities are drawn from its Gaussian-smoothed signed distance, volume kept "
+                                   "(0: the voxel staircase)")
     pore_texture: PoreTextureConfig = field(default_factory=PoreTextureConfig)
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:
@@ -36,3 +40,8 @@ class ReconstructConfig:
         if not self.partial_volume:
             return None
         return PartialVolume.from_source(statistics, self.edge_shift, self.rim)
+
+    @property
+    def surface(self) -> Surface:
+        """How the grains' smooth surfaces are made (`synthpack.render.surface`)."""
+        return Surface(self.surface_sigma)

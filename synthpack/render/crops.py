@@ -1,4 +1,4 @@
-"""The library crops as the render takes them: padded, prepared for the partial volume, with their support."""
+"""The library crops as the render takes them: padded, with their smooth surface, prepared for the partial volume, with their support."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import numpy as np
 from scipy import ndimage
 
 from .._shared.chunks import bounded_map
-from .partial_volume import PAD, PartialVolume
+from .partial_volume import PartialVolume
+from .surface import Surface
 
 __all__ = ["RenderCrop", "prepare_crops"]
 
@@ -17,35 +18,29 @@ __all__ = ["RenderCrop", "prepare_crops"]
 class RenderCrop(NamedTuple):
     """One library particle as the render takes it (from `prepare_crops`).
 
-    The NumPy render reads these arrays; the torch render keeps copies of `mask`, `intensity`
+    The NumPy render reads these arrays; the torch render keeps copies of `intensity`
     and `distance` on its device (in a `RenderCrop` without `support`).
 
     Attributes
     ----------
-    mask : ndarray of float32, shape (nz + 2, ny + 2, nx + 2)
-        The mask, padded by one empty voxel: with the pad, SciPy's fast
-        ``"constant"`` boundary mode interpolates it towards 0 beyond its edge
-        exactly as the slower ``"grid-constant"`` would.
     intensity : ndarray of float32
-        The clean crop: as it is for whole voxels, or prepared and padded by
-        `~synthpack.render.partial_volume.PAD` for the partial volume
-        (`~synthpack.render.partial_volume.PreparedCrop`).
-    distance : ndarray of float32 or None
-        Signed distance from the mask's boundary (voxels, padded like `intensity`)
-        for the partial volume; None for whole voxels.
-    support : ndarray of uint8, shape (nz + 2 PAD, ny + 2 PAD, nx + 2 PAD), or None
+        The clean crop: as it is (shape (nz, ny, nx)) for whole voxels, or prepared and
+        padded by `~synthpack.render.partial_volume.PAD` for the partial volume
+        (`~synthpack.render.partial_volume.PartialVolume.prepare`).
+    distance : ndarray of float32, shape (nz + 2 PAD, ny + 2 PAD, nx + 2 PAD)
+        The signed distance of the grain's smooth surface (voxels, positive inside,
+        `~synthpack.render.surface.Surface.distance`): its labels and its occupancy.
+    support : ndarray of uint8, same shape as `distance`, or None
         1 on the crop voxels within one voxel (per axis) of a voxel that can give an
-        output voxel a label or an occupancy (a mask voxel, or one whose signed
-        distance exceeds the partial volume's threshold), padded by
-        `~synthpack.render.partial_volume.PAD`. A voxel whose linear interpolation reads any
-        such voxel has its nearest crop voxel in the support, so one cheap
+        output voxel a label or an occupancy (one whose signed distance exceeds 0 or the
+        partial volume's threshold). A voxel whose linear interpolation reads any such
+        voxel has its nearest crop voxel in the support, so one cheap
         nearest-neighbour resampling of it finds every output voxel the grain can
         change (see `~synthpack.render.numpy_render.render_chunk`). None in the torch render's copies.
     """
 
-    mask: np.ndarray
     intensity: np.ndarray
-    distance: np.ndarray | None
+    distance: np.ndarray
     support: np.ndarray | None
 
 
@@ -55,6 +50,7 @@ def prepare_crops(
     used: Sequence[int] | None = None,
     threads: int = 1,
     thresholds: dict[int, float] | None = None,
+    surface: Surface = Surface(),
 ) -> list[RenderCrop | None]:
     """Crops as the render takes them (see `RenderCrop`).
 
@@ -64,30 +60,31 @@ def prepare_crops(
         Clean crop (float32, shape (nz, ny, nx)) and mask (bool, same shape) of every
         library particle.
     partial_volume : PartialVolume, optional
-        Prepare the crops for the partial-volume render (`PartialVolume.prepare`, which
-        keeps them for the next render); None: whole voxels.
+        Prepare the intensities for the partial-volume render (`PartialVolume.prepare`,
+        which keeps them for the next render); None: whole voxels.
     used : sequence of int, optional
         Indices of the crops to prepare (e.g. those placed); the others are None. Default: all.
     threads : int
-        Threads preparing crops (SciPy's distance transforms release the GIL).
+        Threads preparing crops (SciPy's distance transforms and filters release the GIL).
     thresholds : dict of int to float, optional
         Partial volume: per crop, the lowest signed distance (crop voxels) at which any of
         its placements has a non-zero occupancy (`PartialVolume.threshold`); default:
         that of an unscaled placement.
+    surface : Surface
+        How each grain's smooth surface is made (`Surface.distance`, kept for the next render).
     """
     wanted = sorted(set(range(len(crops)) if used is None else (int(i) for i in used)))
     thresholds = thresholds or {}
 
     def prepare(index: int) -> RenderCrop:
         tomogram, mask = crops[index]
-        padded_mask = np.pad(mask.astype(np.float32), 1)
+        distance = surface.distance(mask)
         if partial_volume is None:
-            return RenderCrop(padded_mask, tomogram, None, _support(np.pad(mask, PAD)))
-        intensity, distance = partial_volume.prepare(tomogram, mask)
-        threshold = thresholds.get(index, partial_volume.threshold(1.0))
+            return RenderCrop(tomogram, distance, _support(distance > -_MARGIN))
+        threshold = min(0.0, thresholds.get(index, partial_volume.threshold(1.0)))
         # the margin keeps the support a superset whatever the float32 rounding of the occupancy
-        reached = (distance > np.float32(threshold - _MARGIN)) | np.pad(mask, PAD)
-        return RenderCrop(padded_mask, intensity, distance, _support(reached))
+        return RenderCrop(partial_volume.prepare(tomogram, distance), distance,
+                          _support(distance > np.float32(threshold - _MARGIN)))
 
     prepared: list[RenderCrop | None] = [None] * len(crops)
     for index, crop in bounded_map(prepare, wanted, threads):
@@ -95,7 +92,7 @@ def prepare_crops(
     return prepared
 
 
-#: Signed distance (crop voxels) by which the support reaches beyond the occupancy's threshold.
+#: Signed distance (crop voxels) by which the support reaches below the lowest level that labels or fills.
 _MARGIN = 0.01
 
 

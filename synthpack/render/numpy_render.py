@@ -2,8 +2,8 @@
 
 Each grain whose box reaches the chunk is drawn on the chunk's `~synthpack.render.canvas.Canvas`
 at only the voxels it can change: one cheap nearest-neighbour resampling of its crop's
-support (`~synthpack.render.crops.RenderCrop`) finds them, and its mask, signed distance and
-intensities are interpolated there with `scipy.ndimage.map_coordinates`, at the very
+support (`~synthpack.render.crops.RenderCrop`) finds them, and its smooth surface's signed
+distance and its intensities are interpolated there with `scipy.ndimage.map_coordinates`, at the very
 coordinates a dense ``affine_transform`` of its box would read.
 """
 
@@ -55,8 +55,8 @@ def render_chunk(
     tube : (inner_radius, outer_radius, base_z) or None
         Tube wall geometry in physical units (None: no wall).
     order : int
-        Spline order for intensities (1 linear, 3 cubic). Masks and signed
-        distances are always resampled linearly.
+        Spline order for intensities (1 linear, 3 cubic). Signed distances are
+        always resampled linearly.
     seed : int
         Seed of the pore texture.
     partial_volume : PartialVolume, optional
@@ -67,10 +67,11 @@ def render_chunk(
     -------
     tomogram : ndarray of float32, shape hi - lo
     labels : ndarray of int32, shape hi - lo
-        Placement ``i`` gets label ``i + 1`` where its resampled mask exceeds 0.5.
-        A voxel claimed by two particles goes to the one whose resampled mask
-        value is larger (the earlier placement on a tie), a deterministic rule
-        independent of the chunking (`~synthpack.render.canvas.Canvas`).
+        Placement ``i`` gets label ``i + 1`` inside its smooth surface (where its
+        resampled signed distance is positive). A voxel claimed by two particles goes
+        to the one it is deeper in (the larger signed distance; the earlier placement
+        on a tie), a deterministic rule independent of the chunking
+        (`~synthpack.render.canvas.Canvas`).
     contested : int
         Number of voxels claimed by more than one particle.
     """

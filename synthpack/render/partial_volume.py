@@ -1,9 +1,10 @@
-"""Partial volume: how much of each voxel a grain fills, and the grain crops that go with it (a render step).
+"""Partial volume: how much of each voxel a grain fills, and the grain intensities that go with it (a render step).
 
 A scanner's voxel on a grain boundary holds some grain and some pore, and shows
 the mixture. The render draws it so: each grain has an *occupancy* per output
-voxel, the fraction of the voxel it fills, from the signed distance ``s`` (voxels,
-positive inside) of its mask resampled with its pose,
+voxel, the fraction of the voxel it fills, from the signed distance ``s`` (output
+voxels, positive inside) of its smooth surface resampled with its pose
+(`synthpack.render.surface`: the same distance whose sign gives the labels),
 
     occupancy = clip(s - shift + 1/2, 0, 1),
 
@@ -12,62 +13,39 @@ intensity edge sits `shift` voxels inside its label boundary (< 0: outside), the
 offset measured in the source scan (`~synthpack.source.SourceStatistics.edge_shift`).
 Grains are composited over the background by their occupancies, ``out = (1 - O)
 background + sum_i o_i g_i`` with ``O = sum_i o_i`` (where grains overlap, ``O >
-1``, the values are normalised, ``out = sum_i o_i g_i / O``). Labels do not use the
-occupancy: they stay the resampled mask's > 0.5 rule.
+1``, the values are normalised, ``out = sum_i o_i g_i / O``).
 
 A grain's intensities ``g_i`` come from its clean crop, cut from the real scan, whose
 outermost voxels are already the scanner's blurred mixture of grain and pore.
 Used as they are, that rim would be blurred twice (by the scan, then by the pack's
-point-spread function). So the crop is prepared once: every voxel of its mask
-within `rim` voxels of the boundary, and every voxel outside it, takes the value
-of the nearest voxel deeper than `rim` (the grain's interior texture, extrapolated
-outwards); a grain too thin to have such voxels uses its deepest ones. The
-preparation is in the grain's own frame, before any pose, so a run prepares each
-library grain once: `PartialVolume.prepare` keeps what it made (up to
-`CACHE_BYTES`, found again by the crop's content) for the next pack.
+point-spread function). So the crop is prepared once: every voxel within `rim`
+voxels of the grain's surface, and every voxel outside it, takes the value of the
+nearest voxel deeper than `rim` (the grain's interior texture, extrapolated outwards);
+a grain too thin to have such voxels uses its deepest ones. The preparation is in the grain's own frame, before any pose, so a
+run prepares each library grain once: `PartialVolume.prepare` keeps what it made
+(`synthpack.render.crop_cache`) for the next pack.
 """
 
 from __future__ import annotations
 
-import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
-from ..measure.edges import signed_distance
 from ..source.statistics import SourceStatistics
+from .crop_cache import PREPARED
 
-__all__ = ["CACHE_BYTES", "FAR", "PAD", "PartialVolume", "PreparedCrop", "RIM_QUANTILE"]
+__all__ = ["FAR", "PAD", "PartialVolume", "RIM_QUANTILE"]
 
-#: Voxels of padding around each prepared crop, so the ramp and a shift of up to
-#: ``PAD - 1`` voxels outwards stay inside it.
+#: Voxels of padding around each prepared crop (intensities and smooth surface), so the ramp
+#: and a shift of up to ``PAD - 2`` voxels outwards stay inside it.
 PAD = 3
 #: The rim default: where the source's edge is within ``Phi(-RIM_QUANTILE)`` (5 %) of the grain level.
 RIM_QUANTILE = 1.645
 #: Signed distance (voxels) to read beyond a prepared crop: far outside.
 FAR = -float(PAD + 1)
-#: Bytes of prepared crops kept for later renders in this process (the least recently used go first).
-CACHE_BYTES = 1 << 28
-
-
-class PreparedCrop(NamedTuple):
-    """One grain's crop prepared for the partial-volume render, all float32 and padded by `PAD`.
-
-    Attributes
-    ----------
-    intensity : ndarray, shape (nz + 2 PAD, ny + 2 PAD, nx + 2 PAD)
-        The crop with its rim and its outside replaced by the interior (see the module docstring).
-    distance : ndarray, same shape
-        Signed distance of every voxel from the mask's boundary, voxels, positive inside
-        (``+-0.5`` for the voxels on either side of a face).
-    """
-
-    intensity: np.ndarray
-    distance: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -109,51 +87,39 @@ class PartialVolume:
                 if measured else 1.0
         return cls(float(shift), float(rim))
 
-    @property
-    def reach(self) -> float:
-        """Crop voxels (per axis) beyond the mask that the occupancy may reach: ``1 + ceil(max(0, -shift))``.
-
-        With ``shift >= 0`` an output voxel whose 8 interpolation neighbours are all
-        outside the mask reads a signed distance ``<= -1/2``, so occupancy 0.
-        """
-        return 1.0 + float(np.ceil(max(0.0, -self.shift)))
-
     def record(self) -> dict[str, float]:
         """For the pack manifest: ``{"shift": ..., "rim": ...}``, voxels."""
         return {"shift": self.shift, "rim": self.rim}
 
-    def prepare(self, tomogram: np.ndarray, mask: np.ndarray) -> PreparedCrop:
-        """A grain's crop prepared for the render (see `PreparedCrop`), read-only.
+    def prepare(self, tomogram: np.ndarray, distance: np.ndarray) -> np.ndarray:
+        """A grain's intensities prepared for the render (see the module docstring), read-only.
 
-        A crop prepared before in this process with the same partial volume (same
-        bytes of `tomogram` and `mask`) is returned from the cache (see `CACHE_BYTES`).
+        Intensities prepared before in this process with the same partial volume (same
+        bytes of `tomogram` and `distance`) are returned from the cache
+        (`~synthpack.render.crop_cache.PREPARED`).
 
         Parameters
         ----------
         tomogram : ndarray of float32, shape (nz, ny, nx)
             The grain's clean crop.
-        mask : ndarray of bool, same shape
-            Its mask (not empty).
-        """
-        key = (self, _digest(tomogram, mask))
-        prepared = _PREPARED.get(key)
-        if prepared is None:
-            prepared = self._prepare(tomogram, mask)
-            for array in prepared:
-                array.flags.writeable = False
-            _PREPARED.put(key, prepared)
-        return prepared
+        distance : ndarray of float32, shape (nz + 2 PAD, ny + 2 PAD, nx + 2 PAD)
+            The signed distance of its surface (voxels, positive inside, padded by `PAD`:
+            `~synthpack.render.surface.Surface.distance`), positive somewhere.
 
-    def _prepare(self, tomogram: np.ndarray, mask: np.ndarray) -> PreparedCrop:
+        Returns
+        -------
+        ndarray of float32, same shape as `distance`
+            The crop padded by `PAD`, its rim and its outside replaced by the interior.
+        """
+        return PREPARED.prepared(self, (tomogram, distance), lambda: (self._prepare(tomogram, distance),))[0]
+
+    def _prepare(self, tomogram: np.ndarray, distance: np.ndarray) -> np.ndarray:
         """`prepare` without the cache."""
-        padded = np.pad(mask, PAD)
-        distance = signed_distance(padded)
         interior = distance > self.rim
         if not interior.any():
             interior = distance >= distance.max()
         nearest = ndimage.distance_transform_edt(~interior, return_distances=False, return_indices=True)
-        intensity = np.pad(tomogram.astype(np.float32, copy=False), PAD, mode="edge")[tuple(nearest)]
-        return PreparedCrop(intensity, distance)
+        return np.pad(tomogram.astype(np.float32, copy=False), PAD, mode="edge")[tuple(nearest)]
 
     def threshold(self, scale: float | np.ndarray) -> float | np.ndarray:
         """The signed distance of a crop (crop voxels) at and below which a grain drawn `scale` output voxels per
@@ -167,45 +133,3 @@ class PartialVolume:
         share this formula); the occupancy is one of the same type and dtype, computed in float32.
         """
         return (distance - float(np.float32(self.shift - 0.5))).clip(0.0, 1.0)
-
-
-def _digest(*arrays: np.ndarray) -> bytes:
-    """A digest of the dtypes, shapes and bytes of `arrays` (the cache's key)."""
-    digest = hashlib.blake2b(digest_size=20)
-    for array in arrays:
-        array = np.ascontiguousarray(array)
-        digest.update(f"{array.dtype.str}{array.shape}".encode())
-        digest.update(array.view(np.uint8).reshape(-1) if array.size else b"")
-    return digest.digest()
-
-
-class _Cache:
-    """Prepared crops by key, the least recently used dropped beyond `limit` bytes; safe across threads."""
-
-    def __init__(self, limit: int) -> None:
-        self.limit = limit
-        self._entries: OrderedDict[tuple, PreparedCrop] = OrderedDict()
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    def get(self, key: tuple) -> PreparedCrop | None:
-        """The crop stored under `key` (now the most recently used), or None."""
-        with self._lock:
-            prepared = self._entries.get(key)
-            if prepared is not None:
-                self._entries.move_to_end(key)
-            return prepared
-
-    def put(self, key: tuple, prepared: PreparedCrop) -> None:
-        """Store `prepared` under `key`, then drop the least recently used beyond the limit."""
-        with self._lock:
-            if key in self._entries:
-                return
-            self._entries[key] = prepared
-            self._bytes += sum(array.nbytes for array in prepared)
-            while self._bytes > self.limit and self._entries:
-                _, dropped = self._entries.popitem(last=False)
-                self._bytes -= sum(array.nbytes for array in dropped)
-
-
-_PREPARED = _Cache(CACHE_BYTES)

@@ -77,8 +77,8 @@ def pose_maps(
         Output grid (same voxel size as the crops).
     reach : float
         The boxes hold every output voxel within this many crop voxels (per axis) of a
-        mask voxel: 1 for the resampled mask, more for a partial volume drawn outside
-        it (`PartialVolume.reach`).
+        mask voxel: as far as the grain's smooth surface and its partial volume reach
+        (`~synthpack.render.surface.Surface.reach`).
 
     Returns
     -------
@@ -105,9 +105,9 @@ def pose_maps(
     offset = np.einsum("nij,nj->ni", inverse, origin - t_zyx) / spacing + centre_index
     # The paper pads each crop to the box of its rotated corners (eqs. 5-11). The box
     # of the rotated MASK voxels is tighter (about 2.4x fewer voxels for sand grains)
-    # and still holds every output voxel whose interpolated mask value is non-zero:
-    # such a voxel maps to within one crop voxel (per axis) of a mask voxel, which
-    # the forward map stretches by at most the row sums of |forward|.
+    # and still holds every output voxel the grain can label or fill: such a voxel
+    # maps to within `reach` crop voxels (per axis) of a mask voxel, which the
+    # forward map stretches by at most the row sums of |forward|.
     forward = np.linalg.inv(matrix) if n else np.zeros((0, 3, 3))
     extent = reach * np.abs(forward).sum(axis=2)
     surfaces = {int(i): _surface_voxels(masks[int(i)]) for i in np.unique(library_index)}

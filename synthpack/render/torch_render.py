@@ -4,11 +4,11 @@
 the same code: the same pose maps, prepared crops and background, and the same
 `~synthpack.render.canvas.Canvas` for the claims and the partial-volume compositing, run
 on torch tensors. It visits every voxel of each grain's box (no support search) and
-interpolates the grains' mask, signed distance and intensity linearly on the device.
-Coordinates and interpolation weights are computed in float64, summed in the order
-SciPy's ``affine_transform`` sums them, so labels equal the NumPy render's except where
-a voxel's interpolated mask value lies within float rounding of the 0.5 threshold
-(`TorchRenderer.near_threshold` counts those voxels) and intensities agree within
+interpolates the grains' signed distance (of their smooth surface) and intensity
+linearly on the device. Coordinates and interpolation weights are computed in float64,
+summed in the order SciPy's ``affine_transform`` sums them, so labels equal the NumPy
+render's except where a voxel's interpolated signed distance lies within float rounding
+of 0 (`TorchRenderer.near_threshold` counts those voxels) and intensities agree within
 float32 rounding. Only linear interpolation of the intensities (``order: 1``, the
 default) is offered on the device: `resolve_device` keeps other orders on the CPU.
 
@@ -103,8 +103,8 @@ class TorchRenderer:
     Attributes
     ----------
     near_threshold : int
-        Voxels rendered so far whose interpolated mask value lies within 1e-6 of the
-        0.5 threshold: the only voxels whose label may differ from the NumPy render's.
+        Voxels rendered so far whose interpolated signed distance lies within 1e-6 voxels
+        of 0: the only voxels whose label may differ from the NumPy render's.
     """
 
     def __init__(self, device: str) -> None:
@@ -116,12 +116,12 @@ class TorchRenderer:
         self._crops: dict[int, RenderCrop] = {}
 
     def _crop(self, index: int, crop: RenderCrop) -> RenderCrop:
-        """The crop's mask, intensity and distance as float64 tensors on the device (kept for later chunks)."""
+        """The crop's intensity and distance as float64 tensors on the device (kept for later chunks)."""
         if index not in self._crops:
-            def tensor(array: np.ndarray | None) -> Any:
-                return None if array is None else self.torch.as_tensor(
+            def tensor(array: np.ndarray) -> Any:
+                return self.torch.as_tensor(
                     np.asarray(array, dtype=np.float64), device=self.device)
-            self._crops[index] = RenderCrop(tensor(crop.mask), tensor(crop.intensity), tensor(crop.distance), None)
+            self._crops[index] = RenderCrop(tensor(crop.intensity), tensor(crop.distance), None)
         return self._crops[index]
 
     def __call__(
@@ -147,9 +147,9 @@ class TorchRenderer:
         for i, sub_lo, sub_hi, offset in grain_boxes(maps, lo, hi):
             index = int(maps.library_index[i])
             voxels, where = self._box(sub_lo - lo, sub_hi - lo, shape)
-            weight = canvas.draw(i + 1, voxels, mapped(maps.matrix[i], where, torch), offset,
-                                 self._crop(index, crops[index]), maps.matrix[i])
-            self.near_threshold += int(torch.count_nonzero((weight - 0.5).abs() < 1e-6))
+            distance = canvas.draw(i + 1, voxels, mapped(maps.matrix[i], where, torch), offset,
+                                   self._crop(index, crops[index]), maps.matrix[i])
+            self.near_threshold += int(torch.count_nonzero(distance.abs() < 1e-6))
         canvas.finish()
         return canvas.tomogram.cpu().numpy(), canvas.labels.cpu().numpy(), canvas.contested
 
