@@ -51,8 +51,8 @@ its cost is fixed and vanishes per voxel on big packs.
    shows none (None in its statistics).
 
 4. **The guard** (`~synthpack.artefacts.guard`): the steps (the blur, the noise of each
-   phase, the cupping, the rings) are applied to the clean volume on the central slices of
-   the region, and the full-band histograms of grains, pores and edges (Wasserstein
+   phase, the cupping, the rings) are applied to the clean volume on the measured slices,
+   and the full-band histograms of grains, pores and edges (Wasserstein
    distance over the contrast, against the source's `~synthpack.source.SourceStatistics.histogram_grains`
    and the others) and the noise levels are measured: a step that makes any of them
    worse and none better is dropped, and then steps are dropped until no figure is worse
@@ -82,7 +82,7 @@ from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose, Transform
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
-from .guard import GUARD_VOXELS, guard_steps
+from .guard import guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
 
@@ -505,16 +505,15 @@ def calibrate(
 
 def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
            histograms: dict[str, Sequence[float] | None], halo: int) -> dict:
-    """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on `region`'s central slices.
+    """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
     The whole slices of `clean` (and `halo` more on each side, for the blur) are read,
     so that the artefacts about the slice centre lie where the pack's will.
     """
-    sample = central_slices(region, GUARD_VOXELS)
-    occupied = np.flatnonzero(sample.any(axis=(1, 2)))
+    occupied = np.flatnonzero(region.any(axis=(1, 2)))
     low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
     _, record = guard_steps(
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[low:high], dtype=np.float32),
-        np.asarray(labels[low:high]), sample[low:high], histograms=histograms,
+        np.asarray(labels[low:high]), region[low:high], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level)
     return record
