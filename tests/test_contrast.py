@@ -4,7 +4,8 @@ Neutron CT, doped brine and aggregates in cement paste show grains darker than
 their surroundings: `SourceStatistics.contrast` is then negative. The `large`
 sample inverted (same labels) must give the same edge width, calibrated packs
 with the source's noise, and a realism report; so must the real concrete scan
-(a neutron CT, read from ``../shared/data/concrete``, skipped where absent).
+(a neutron CT, read from ``../shared/data/concrete``, skipped where absent), where a calibrated
+pack must be no less like the scan than the same pour without post-processing.
 """
 
 from __future__ import annotations
@@ -15,14 +16,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
+from synthpack._shared.windows import intensity_window
+from synthpack.artefacts.guard import TOLERANCE
 from synthpack.cli import main
+from synthpack.io.read import read_scan
 from synthpack.pipeline.config import PackConfig, ReconstructConfig
 from synthpack.pipeline.generate import generate_packs
 from synthpack.io import write_tiff
 from synthpack.library.core import ParticleLibrary
 from synthpack.realism import Specimen
-from synthpack.realism.appearance import noise_levels
+from synthpack.realism.appearance import measure_appearance, noise_levels
+from synthpack.realism.discriminator import classifier_test, specimen_patches
 from synthpack.render import Background
 from synthpack.scan.core import Scan
 from synthpack.measure import estimate_noise
@@ -98,3 +104,34 @@ def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
     report = json.loads((tmp_path / "report" / "realism.json").read_text())
     assert report["source"]["figures"]["grain_level"] < report["source"]["figures"]["pore_level"]
     assert 0.5 <= report["packs"][0]["distances"]["classifier"]["logistic"]["auc"] <= 1.0
+
+
+@pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
+def test_calibration_leaves_a_pack_of_the_real_concrete_scan_no_less_like_it_than_no_post_processing(tmp_path):
+    scan = read_scan(CONCRETE / "concrete_neutron.tif", CONCRETE / "concrete_neutron_labels_watershed.tif", 1.0, "px")
+    library = ParticleLibrary.from_scan(scan, workers=1, progress=False)
+    config = PackConfig().replace(seed=2, pour={"n_particles": 60, "batch_size": 25, "tube_radius": 25.0})
+    (path,) = generate_packs(library, tmp_path, 1, config, progress=False)
+    manifest = json.loads((path / "manifest.json").read_text())
+    assert manifest["postprocess_mode"] == "calibrated"
+    assert set(manifest["calibration"]["guard"]["figures"]["applied"]) >= {"w_pores", "w_edges", "noise_pores"}
+    # one pour, calibrated (its tomogram) and without post-processing (its clean volume), measured as the report does
+    source = Specimen.from_scan(scan)
+    window = intensity_window([source.tomogram])
+    reference = measure_appearance(source)
+    source_patches, _ = specimen_patches(source, window)
+    figures = {}
+    for name, clean in (("calibrated", False), ("none", True)):
+        pack = Specimen.from_pack(path, clean=clean, name=name)
+        appearance = measure_appearance(pack)
+        figures[name] = {phase: stats.wasserstein_distance(values, appearance.samples[phase]) / abs(reference.contrast)
+                         for phase, values in reference.samples.items()}
+        test = classifier_test(source_patches, specimen_patches(pack, window)[0], seed=0, cnn=None)
+        figures[name]["auc"] = float(test.fold_auc["logistic"].mean())
+        figures[name]["pore_noise"] = appearance.noise.pore_std
+    for phase in ("grains", "pores", "edges"):
+        assert figures["calibrated"][phase] <= figures["none"][phase] + TOLERANCE[f"w_{phase}"], (phase, figures)
+    assert figures["calibrated"]["auc"] <= figures["none"]["auc"] + 0.01, figures
+    # the pores get the source's noise, where the clean volume has next to none
+    assert figures["none"]["pore_noise"] < 0.2 * library.statistics.noise_pore_std
+    assert figures["calibrated"]["pore_noise"] == pytest.approx(library.statistics.noise_pore_std, rel=0.2), figures

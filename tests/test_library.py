@@ -98,18 +98,18 @@ def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
         ParticleLibrary.load(out)
 
 
-@pytest.mark.parametrize("version", [None, 0, 3, 5, "4"])
+@pytest.mark.parametrize("version", [None, 0, 4, 6, "5"])
 def test_library_of_another_format_version_says_to_rebuild(large_library, tmp_path, version):
     out = large_library[:3].save(tmp_path / "lib")
     meta = json.loads((out / "library.json").read_text())
-    assert meta["version"] == 4
+    assert meta["version"] == 5
     if version is None:
         del meta["version"]
     else:
         meta["version"] = version
     (out / "library.json").write_text(json.dumps(meta))
     with pytest.raises(SynthpackInputError, match=f"format version {version!r}, but this synthpack reads "
-                                                  "version 4: rebuild it with `synthpack library build`"):
+                                                  "version 5: rebuild it with `synthpack library build`"):
         ParticleLibrary.load(out)
 
 
@@ -120,7 +120,8 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
     assert list(meta["phases"]) == ["pore_mean", "pore_std", "grain_mean", "noise_std", "edge_width", "edge_shift",
                                     "edge_sigma", "noise_grain_std", "noise_pore_std", "nps_grains", "nps_pores",
                                     "pore_spectrum", "pore_quantiles", "scan_axis", "cupping_error",
-                                    "solid_fraction"]  # the sample shows no scanner artefact
+                                    "solid_fraction", "histogram_grains", "histogram_pores",
+                                    "histogram_edges"]  # the sample shows no scanner artefact
     assert large_library[:2].statistics is large_library.statistics
 
 

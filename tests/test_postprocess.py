@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from synthpack.artefacts import recipes as postprocess_module
-from synthpack.artefacts import ColouredNoise, GaussianNoise, calibrate, generic_postprocessing
+from synthpack.artefacts import ColouredNoise, GaussianBlur, GaussianNoise, calibrate, generic_postprocessing
 from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
+from synthpack.artefacts.guard import TOLERANCE, guard_steps
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import POSTPROCESS_MODES, bulk_region, check_postprocess, resolve_postprocessing
 from synthpack.render import Grid
-from synthpack.measure import estimate_noise, fit_edge_spread, phase_spectra
-from synthpack.source import SourceStatistics
+from synthpack.measure import estimate_noise, fit_edge_spread, phase_masks, phase_quantiles, phase_spectra
+from synthpack.scan.core import Scan
+from synthpack.source import SourceStatistics, measure_source
 from synthpack.measure.edges import edge_profile, signed_distance
 from synthpack.measure.spectrum import white_ring_powers
 
@@ -250,6 +252,68 @@ def test_calibrated_adds_the_source_cupping_and_rings_about_the_tube_axis_and_re
     # the pack's levels are the source's averages already: the factor keeps the mean in the field of view
     assert factor[31, 31] == pytest.approx(0.95 / 0.975, abs=0.002)
     assert factor[np.hypot(*np.indices(factor.shape) - 31.5) < 32].mean() == pytest.approx(1.0, abs=0.003)
+
+
+@pytest.fixture(scope="module")
+def source_statistics(phantom):
+    """A source of the phantom's structure: blurred once more, white noise of std 0.02 (its ripple is no cupping)."""
+    clean, labels = phantom
+    statistics = measure_source(Scan(GaussianNoise(std=0.02)(GaussianBlur(sigma=0.8)(clean, 0), 1), labels))
+    return dataclasses.replace(statistics, cupping_strength=None, ring_radii=None, ring_amplitudes=None,
+                               ring_width=None)
+
+
+def test_the_guard_keeps_steps_that_make_the_pack_like_its_source(rendered, source_statistics):
+    resolved = _resolve("calibrated", rendered, source_statistics)
+    guard = resolved.record["calibration"]["guard"]
+    assert guard["dropped"] == [] and len(resolved.pipeline) == 2  # the blur and the noise of both phases
+    figures = guard["figures"]
+    assert set(figures["none"]) == {"w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores"}
+    assert figures["applied"] == figures["fitted"]
+    for name, value in figures["applied"].items():  # no less like the source than no post-processing
+        assert value <= figures["none"][name] + TOLERANCE[name], name
+    for phase in ("grains", "pores"):  # and the noise within 10 % of the source's, where the clean pack has half
+        assert figures["applied"][f"noise_{phase}"] < 0.1 < 0.4 < figures["none"][f"noise_{phase}"]
+    assert figures["applied"]["w_grains"] < figures["none"]["w_grains"] - TOLERANCE["w_grains"]
+
+
+def test_the_guard_drops_a_noise_step_fitted_to_structure_and_records_it(rendered, source_statistics, caplog):
+    # the source's pore noise 30 times too strong in the two lowest rings, as a patch estimate that
+    # counts the pores' structure as noise makes it
+    wrong = dataclasses.replace(source_statistics, nps_pores=tuple(
+        p * (30 if k < 2 else 1) for k, p in enumerate(source_statistics.nps_pores)))
+    with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.guard"):
+        resolved = _resolve("calibrated", rendered, wrong)
+    fit = resolved.record["calibration"]
+    # without the pore noise, the blur alone would make the pores' noise level less like the source's
+    assert fit["guard"]["dropped"] == ["blur", "pore_noise"]
+    assert "the pore_noise step is dropped" in caplog.text
+    (noise,) = resolved.pipeline
+    assert not any(noise.pore_power) and list(noise.grain_power) == fit["added_power"]["grains"]
+    assert any(fit["added_power"]["pores"])  # the fitted values are kept in the record
+    figures = fit["guard"]["figures"]
+    assert figures["fitted"]["w_pores"] > figures["none"]["w_pores"] + TOLERANCE["w_pores"]
+    assert all(figures["applied"][name] <= figures["none"][name] + TOLERANCE[name] for name in figures["none"])
+
+
+def test_the_guard_applies_the_admissible_steps_most_like_the_source(phantom):
+    clean, labels = phantom
+    source = GaussianNoise(std=0.02)(clean, 1)
+    region = np.ones(labels.shape, dtype=bool)
+    noise = estimate_noise(source, labels)
+    targets = {"histograms": phase_quantiles(source, phase_masks(signed_distance(labels), region)),
+               "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6}
+    steps = {"blur": GaussianBlur(sigma=2.0), "noise": GaussianNoise(std=0.02), "loud": GaussianNoise(std=0.1),
+             "idle": GaussianNoise(std=0.0)}
+
+    def build(kept):
+        return [steps[name] for name in kept]
+
+    kept, record = guard_steps(build, ("blur", "noise", "loud", "idle"), clean, labels, region, **targets)
+    assert kept == ("noise", "idle")  # a step that changes nothing is no worse
+    assert record["dropped"] == ["blur", "loud"]  # the wide blur and the loud noise make the pack less alike
+    kept, record = guard_steps(build, ("blur",), clean, labels, region, **targets)
+    assert kept == () and record["figures"]["applied"] == record["figures"]["none"]
 
 
 def _randomised(rendered, seed):

@@ -33,7 +33,8 @@ Every transform also has ``p``, the probability that it is applied at a call.
 ``[{"name": "gaussian_blur", "sigma": [0.5, 1.0]}, {"name": "gaussian_noise", "std": 0.05}]``
 and ``to_dict`` / ``Compose.to_config`` write it back. `generic_postprocessing` is
 a recipe scaled to the contrast alone; `noise_to_add` matches a source scan's noise level and
-`calibrate` fits the PSF and the noise spectrum to its edges and noise power spectrum.
+`calibrate` fits the PSF and the noise spectrum to its edges and noise power spectrum (measured on
+its noise alone), keeping only the steps that its guard (``guard``) finds make the pack more like it.
 """
 
 from ._base import Compose, Transform, available_transforms, from_config

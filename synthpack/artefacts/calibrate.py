@@ -1,4 +1,4 @@
-"""Post-processing fitted to a source scan: noise that matches its level; blur and noise that match its image formation.
+"""Post-processing fitted to a source scan: blur and noise that match its image formation, never making it less alike.
 
 The clean synthetic volume is rendered with partial-volume edges
 (`synthpack.render.partial_volume`) from grain crops that hold the source's noise
@@ -21,11 +21,16 @@ its cost is fixed and vanishes per voxel on big packs.
    and interpolation already blur. The edge's position (the render's occupancy
    shift) is not changed by a symmetric blur.
 2. **Noise.** The noise power spectrum of the grain and pore interiors of the
-   blurred volume (`~synthpack.measure.spectrum`) is measured, and
+   blurred volume, eroded by the PSF's reach (`~synthpack.measure.edges.interior_depth`
+   of the source's edge width), is measured on the noise alone
+   (`~synthpack.measure.spectrum.noise_power_spectrum`: the second difference across
+   slices, in which structure that varies smoothly over three slices cancels: the pore
+   texture and the grains' own texture are not counted as noise), as the source's was
+   (`~synthpack.source.SourceStatistics.nps_grains`), and
    `~synthpack.artefacts.ColouredNoise` adds, ring by ring and phase by phase, the
    power the source has beyond it (the deficit; none where the pack already has
    as much): the noise the crops and the pore texture carry is accounted for. In a
-   phase too thin for a patch (small grains, narrow pores) the clean spectrum is
+   phase too thin to measure (too few voxel pairs at a patch's lags) the clean spectrum is
    that of white noise at the phase's clean noise level, plus, in the pores, the
    expected spectrum of the render's pore texture after the blur (computed from
    its density, `~synthpack.render.pore_texture.PoreTextureConfig.density`). The
@@ -45,8 +50,18 @@ its cost is fixed and vanishes per voxel on big packs.
    per-slice radial table, so it costs one pass over the volume. Off where the source
    shows none (None in its statistics).
 
-The fit has no random part; with the pack's seed the noise realisation is
-reproducible too. It records the grid search and every value it matched or applied.
+4. **The guard** (`~synthpack.artefacts.guard`): the steps (the blur, the noise of each
+   phase, the cupping, the rings) are applied to the clean volume on the measured slices,
+   and the full-band histograms of grains, pores and edges (Wasserstein
+   distance over the contrast, against the source's `~synthpack.source.SourceStatistics.histogram_grains`
+   and the others) and the noise levels are measured: a step that makes any of them
+   worse and none better is dropped, and then steps are dropped until no figure is worse
+   than the clean volume's: calibration never makes a pack less like its source than no
+   post-processing. Each drop is a warning and is recorded (`Calibration.guard`).
+
+The fit has no random part (the guard draws from its own fixed stream); with the pack's
+seed the noise realisation is reproducible too. It records the grid search and every
+value it matched or applied.
 """
 
 from __future__ import annotations
@@ -60,20 +75,21 @@ import numpy as np
 
 from .._shared.text import sig
 from ..errors import SynthpackInputError
-from ..measure.edges import EdgeProfile, edge_profile, edge_width, signed_distance
+from ..measure.edges import EdgeProfile, edge_profile, edge_width, interior_depth, signed_distance
 from ..measure.noise_estimate import estimate_noise
 from ..measure.psf import EdgeSpread, fit_edge_spread
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
-from ._base import Compose
+from ._base import Compose, Transform
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
+from .guard import guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "calibrate", "calibration_halo", "central_slices", "measured_slices",
-           "noise_to_add"]
+__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "STEPS", "calibrate", "calibration_halo", "central_slices",
+           "measured_slices", "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
@@ -84,6 +100,8 @@ PSF_STEPS = 3
 CALIBRATION_VOXELS = 1 << 20
 #: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`).
 MIN_CALIBRATION_SLICES = 16
+#: The steps of a calibration, in the order they apply (`Calibration.transforms`).
+STEPS = ("blur", "grain_noise", "pore_noise", "cupping", "rings")
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -147,6 +165,11 @@ class Calibration:
         the tube axis (voxels) and signed peaks (intensity units); None: none applied.
     ring_width : float or None
         Their full width at half maximum, voxels.
+    guard : dict or None
+        What the guard (`~synthpack.artefacts.guard.guard_steps`) found: ``dropped``, the
+        steps of `STEPS` left out of the pipeline because they made the pack less like its
+        source (their fitted values are kept above), and the ``figures`` it measured; None:
+        not guarded.
     """
 
     blur_sigma: float
@@ -172,25 +195,50 @@ class Calibration:
     ring_radii: list[float] | None = None
     ring_amplitudes: list[float] | None = None
     ring_width: float | None = None
+    guard: dict | None = None
 
-    def pipeline(self) -> Compose:
-        """``Compose([GaussianBlur(blur_sigma), ColouredNoise(added_power, levels)])``, then the scanner's artefacts.
+    def fitted_steps(self) -> tuple[str, ...]:
+        """The steps of `STEPS` that do something: a blur wider than 0, noise added to a phase, the source's artefacts."""
+        adds = {phase: any(self.added_power[phase]) or bool(self.added_phase_noise[phase])
+                for phase in ("grains", "pores")}
+        does = {"blur": self.blur_sigma > 0, "grain_noise": adds["grains"], "pore_noise": adds["pores"],
+                "cupping": self.cupping_strength is not None, "rings": self.ring_radii is not None}
+        return tuple(step for step in STEPS if does[step])
 
-        `BeamHardening` where `cupping_strength` is set, `RingArtefacts` where `ring_radii` are.
+    def applied_steps(self) -> tuple[str, ...]:
+        """`fitted_steps` less those the guard dropped."""
+        dropped = () if self.guard is None else self.guard["dropped"]
+        return tuple(step for step in self.fitted_steps() if step not in dropped)
+
+    def transforms(self, steps: Sequence[str]) -> list[Transform]:
+        """The transforms of `steps` (names of `STEPS`), in pipeline order.
+
+        `GaussianBlur` (``blur``), one `ColouredNoise` holding the noise of the phases named
+        (``grain_noise``, ``pore_noise``; none in a phase not named), `BeamHardening`
+        (``cupping``) and `RingArtefacts` (``rings``).
         """
-        transforms = [
-            GaussianBlur(sigma=self.blur_sigma),
-            ColouredNoise(pore_power=self.added_power["pores"], grain_power=self.added_power["grains"],
-                          pore_level=self.pore_level, grain_level=self.grain_level,
-                          pore_std=self.added_phase_noise["pores"], grain_std=self.added_phase_noise["grains"]),
-        ]
-        if self.cupping_strength is not None:
+        transforms: list[Transform] = []
+        if "blur" in steps:
+            transforms.append(GaussianBlur(sigma=self.blur_sigma))
+        noisy = {phase: f"{phase[:-1]}_noise" in steps for phase in ("grains", "pores")}
+        if any(noisy.values()):
+            power = {phase: self.added_power[phase] if noisy[phase] else [0.0] * len(self.added_power[phase])
+                     for phase in noisy}
+            std = {phase: self.added_phase_noise[phase] if noisy[phase] else None for phase in noisy}
+            transforms.append(ColouredNoise(pore_power=power["pores"], grain_power=power["grains"],
+                                            pore_level=self.pore_level, grain_level=self.grain_level,
+                                            pore_std=std["pores"], grain_std=std["grains"]))
+        if "cupping" in steps:
             transforms.append(BeamHardening(strength=self.cupping_strength, keep="mean"))
-        if self.ring_radii is not None:
+        if "rings" in steps:
             transforms.append(RingArtefacts(amplitude=max(abs(a) for a in self.ring_amplitudes),
                                             n_rings=len(self.ring_radii), width=self.ring_width,
                                             radii=self.ring_radii, amplitudes=self.ring_amplitudes))
-        return Compose(transforms)
+        return transforms
+
+    def pipeline(self) -> Compose:
+        """The transforms of `applied_steps`: blur, coloured noise, then the scanner's artefacts."""
+        return Compose(self.transforms(self.applied_steps()))
 
     def to_dict(self) -> dict:
         """JSON-able dict of every field."""
@@ -334,6 +382,7 @@ def calibrate(
     pore_texture: np.ndarray | None = None,
     cupping_strength: float | None = None,
     rings: tuple[Sequence[float], Sequence[float], float] | None = None,
+    target_histograms: dict[str, Sequence[float] | None] | None = None,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
 ) -> Calibration:
@@ -373,6 +422,11 @@ def calibrate(
         The source's rings (`~synthpack.source.SourceStatistics.ring_radii`,
         ``ring_amplitudes``, ``ring_width``; voxels, intensity units, voxels), applied
         last; None: none.
+    target_histograms : dict, optional
+        ``"grains"``, ``"pores"``, ``"edges"``: the source's full-band histograms as quantiles
+        (`~synthpack.source.SourceStatistics.histogram_grains`), or None, which the guard
+        measures the pack against (with the noise levels); None: the guard judges the
+        noise levels only.
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
     max_voxels : int
@@ -381,6 +435,7 @@ def calibrate(
     Returns
     -------
     Calibration
+        Its `Calibration.guard` holds what the guard measured and dropped (step 4 of the module docstring).
     """
     if not (math.isfinite(target_sigma) and target_sigma > 0 and math.isfinite(target_shift)):
         raise SynthpackInputError(
@@ -408,8 +463,8 @@ def calibrate(
     if sigma == 0.0:
         logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
                        "no blur", fitted[0], target_sigma)
-    measured = phase_spectra(blurred, distance, box_region)
-    noise = estimate_noise(blurred, np.where(box_region, box_labels, -1))
+    measured = phase_spectra(blurred, distance, box_region, interior_depth(target_sigma))
+    noise = estimate_noise(blurred, np.where(box_region, box_labels.astype(np.int64), -1))
     clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
     textures = {"grains": None, "pores": None if pore_texture is None else _blurred(pore_texture, sigma)}
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
@@ -435,10 +490,30 @@ def calibrate(
         ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
         ring_width=None if rings is None else float(rings[2]),
     )
+    calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
+                               calibration_halo(target_sigma))
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in added_noise.items() if std is not None)
-    logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s",
+    dropped = calibration.guard["dropped"]
+    logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s%s",
                 sig(sigma, 2), sig(spread.sigma, 2), sig(target_sigma, 2), noise_text or "none",
                 "" if cupping_strength is None else f", cupping {sig(cupping_strength, 2)}",
-                "" if rings is None else f", {len(rings[0])} ring(s)")
+                "" if rings is None else f", {len(rings[0])} ring(s)",
+                f"; dropped by the guard: {', '.join(dropped)}" if dropped else "")
     logger.debug("%r", calibration)
     return calibration
+
+
+def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
+           histograms: dict[str, Sequence[float] | None], halo: int) -> dict:
+    """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
+
+    The whole slices of `clean` (and `halo` more on each side, for the blur) are read,
+    so that the artefacts about the slice centre lie where the pack's will.
+    """
+    occupied = np.flatnonzero(region.any(axis=(1, 2)))
+    low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
+    _, record = guard_steps(
+        calibration.transforms, calibration.fitted_steps(), np.asarray(clean[low:high], dtype=np.float32),
+        np.asarray(labels[low:high]), region[low:high], histograms=histograms,
+        noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level)
+    return record

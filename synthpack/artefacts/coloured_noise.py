@@ -2,9 +2,10 @@
 
 A reconstructed CT scan's noise is not white: the reconstruction filter and the
 detector shape its noise power spectrum (NPS), and grains and pores may differ.
-`ColouredNoise` adds noise whose in-slice NPS, measured as
-`synthpack.measure.spectrum.noise_power_spectrum` measures it (rings ``k = 1, 2,
-...`` at ``k / NPS_PATCH`` cycles per voxel), is ``pore_power`` in the pores and
+`ColouredNoise` adds noise whose NPS, as
+`synthpack.measure.spectrum.noise_power_spectrum` measures it (the in-slice patch
+spectrum of the second difference across slices, rings ``k = 1, 2, ...`` at
+``k / NPS_PATCH`` cycles per voxel), is ``pore_power`` in the pores and
 ``grain_power`` in the grains.
 
 **Synthesis.** Each phase's noise is white Gaussian noise filtered in Fourier space
@@ -12,9 +13,10 @@ by ``sqrt(S(|f|))`` on a periodic cube of `TILE` voxels: an isotropic 3D spectru
 ``S``, piecewise linear in ``|f|`` between knots at the ring frequencies (flat
 below the first ring, falling to 0 one ring beyond the last: the in-slice rings
 say little of the 3D corners of the spectrum, and a scanner's noise falls there). The knot values are the non-negative
-least-squares solution of the linear map from ``S`` to the expected ring powers of
-``NPS_PATCH``-voxel in-slice patches, computed exactly from the in-slice
-autocovariance (patch mean removed, as the measurement does), so the synthesized
+least-squares solution of the linear map from ``S`` to the expected ring powers
+(`ring_powers_of_spectrum`: the second difference's gain along z, then the
+``NPS_PATCH``-voxel in-slice patches computed exactly from the in-slice
+autocovariance, patch mean removed, as the measurement does), so the synthesized
 noise has the asked ring powers in expectation. A voxel's noise is the cube's value
 at its global index modulo `TILE`, so it does not depend on how the volume is cut
 into blocks. The cube's white noise is drawn once per volume from the call's seed.
@@ -40,7 +42,7 @@ from scipy import optimize
 
 from .._shared.arrays import float32_value as _f32
 from .._shared.arrays import periodic_indices, periodic_window
-from ..measure.spectrum import NPS_PATCH, ring_of
+from ..measure.spectrum import NPS_PATCH, patch_lags, patch_ring_powers, slice_difference_gain
 from ._base import BlockContext, Transform
 from ._param import Param
 
@@ -68,7 +70,12 @@ def _hats(n_knots: int, tile: int) -> np.ndarray:
 
 
 def ring_powers_of_spectrum(spectrum: np.ndarray, n_rings: int) -> np.ndarray:
-    """Expected in-slice patch NPS (rings 1 to `n_rings`) of noise with 3D spectrum `spectrum`.
+    """Expected noise power spectrum (rings 1 to `n_rings`) of noise with 3D spectrum `spectrum`.
+
+    What `~synthpack.measure.spectrum.noise_power_spectrum` measures: the in-slice
+    patch NPS of the second difference across slices, whose gain
+    (`~synthpack.measure.spectrum.slice_difference_gain`) weighs the spectrum along z
+    (axis 0), from its in-slice autocovariance (`~synthpack.measure.spectrum.patch_ring_powers`).
 
     Parameters
     ----------
@@ -79,19 +86,13 @@ def ring_powers_of_spectrum(spectrum: np.ndarray, n_rings: int) -> np.ndarray:
     Returns
     -------
     ndarray of float64, shape (n_rings,)
-        Intensity units squared, as `~synthpack.measure.spectrum.noise_power_spectrum` measures them.
+        Intensity units squared.
     """
-    size = NPS_PATCH
-    covariance = np.fft.ifft2(spectrum.mean(axis=0)).real  # in-slice autocovariance, lag (0, 0) = variance
-    lags = np.arange(-(size - 1), size)
-    lag_covariance = covariance[np.ix_(lags % covariance.shape[0], lags % covariance.shape[1])]
-    weight = (size - np.abs(lags))[:, None] * (size - np.abs(lags))[None, :]
-    k = np.arange(size)
-    phase = np.exp(-2j * np.pi * np.outer(k, lags) / size)  # (k, lag)
-    periodogram = (phase @ (lag_covariance * weight) @ phase.T).real / size**4
-    periodogram[0, 0] = 0.0  # the patch mean is removed
-    rings = np.bincount(ring_of(size).ravel(), weights=periodogram.ravel())
-    return rings[1 : n_rings + 1]
+    gain = slice_difference_gain(np.fft.fftfreq(spectrum.shape[0]))
+    covariance = np.fft.ifft2((spectrum * gain[:, None, None]).mean(axis=0)).real  # in-slice, lag (0, 0) first
+    lags = patch_lags()
+    return patch_ring_powers(covariance[np.ix_(lags % covariance.shape[0], lags % covariance.shape[1])])[
+        1 : n_rings + 1]
 
 
 def highpass_variance_of_spectrum(spectrum: np.ndarray) -> float:

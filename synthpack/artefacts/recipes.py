@@ -161,7 +161,7 @@ def _uncalibratable(statistics: SourceStatistics) -> str | None:
                 "needs grain and pore interiors of different levels; rebuild the library from such a scan")
     if statistics.nps_pores is None and statistics.nps_grains is None:
         return ("the source scan's noise spectrum could not be measured when the particle library was built: "
-                f"no phase holds a {NPS_PATCH} x {NPS_PATCH} patch of interior")
+                f"no phase interior holds enough voxel pairs at the lags of a {NPS_PATCH} x {NPS_PATCH} patch")
     return None
 
 
@@ -193,7 +193,9 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
             "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
             "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
-            "grain_level": statistics.grain_mean, "cupping_strength": statistics.cupping_strength, "rings": rings}
+            "grain_level": statistics.grain_mean, "cupping_strength": statistics.cupping_strength, "rings": rings,
+            "target_histograms": {"grains": statistics.histogram_grains, "pores": statistics.histogram_pores,
+                                  "edges": statistics.histogram_edges}}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:

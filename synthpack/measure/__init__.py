@@ -4,23 +4,24 @@ The source statistics (`synthpack.source`) measure a scan with them once; the re
 (`synthpack.realism`) measures the source and the packs with the same ones, so a figure
 means the same on both. Modules, one job each:
 
-==================  =========================================================================================
-``phases``          pore and grain intensity levels
-``noise_estimate``  `estimate_noise`: the one noise estimator (source, artefacts, realism)
-``edges``           signed distance from grain boundaries, edge profile and 10-90 width
-``psf``             `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
-``spectrum``        noise power spectrum of the grain and pore interiors
-``pore_spectrum``   the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
-``pore_histogram``  the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
-``specimen``        `specimen_mask`: the specimen's voxels, without the container and the air
-``scanner``         `measure_scanner`: cupping, rings and the container wall, about the rotation axis
-``lattice``         in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
-``roughness``       boundary roughness of grain sections: outline length over the smoothed outline's
-==================  =========================================================================================
+``phases``            pore and grain intensity levels
+``noise_estimate``    `estimate_noise`: the one noise estimator (source, artefacts, realism)
+``edges``             signed distance from grain boundaries, edge profile and 10-90 width
+``psf``               `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
+``spectrum``          noise power spectrum of the grain and pore interiors, on their noise only (differences across slices)
+``phase_histograms``  full-band intensity histograms (quantiles) of grains, pores and edges, and their distance
+``pore_spectrum``     the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
+``pore_histogram``    the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
+``specimen``          `specimen_mask`: the specimen's voxels, without the container and the air
+``scanner``           `measure_scanner`: cupping, rings and the container wall, about the rotation axis
+``lattice``           in-slice patches wholly inside a mask (the realism judge's)
+``roughness``         boundary roughness of grain sections: outline length over the smoothed outline's
+====================  =====================================================================================================
 """
 
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
 from .noise_estimate import NoiseEstimate, estimate_noise
+from .phase_histograms import phase_masks, phase_quantiles, quantile_distance
 from .phases import PhaseLevels, estimate_phases
 from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
@@ -45,9 +46,12 @@ __all__ = [
     "NoiseEstimate",
     "NoiseSpectrum",
     "NPS_PATCH",
+    "phase_masks",
+    "phase_quantiles",
     "phase_spectra",
     "PhaseLevels",
     "PORE_SPECTRUM_SIZE",
+    "quantile_distance",
     "QUANTILE_SCORES",
     "ScannerArtefacts",
     "section_roughness",

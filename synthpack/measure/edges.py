@@ -24,13 +24,16 @@ from scipy import ndimage
 
 from ..errors import SynthpackInputError
 
-__all__ = ["EdgeProfile", "INTERIOR", "REACH", "edge_profile", "edge_width", "half_height", "signed_distance",
-           "volume_edge_width"]
+__all__ = ["EdgeProfile", "INTERIOR", "PSF_REACH", "REACH", "edge_profile", "edge_width", "half_height",
+           "interior_depth", "signed_distance", "volume_edge_width"]
 
 #: Voxels within this distance of the boundary make up the edge profile.
 REACH = 4.0
 #: Voxels at least this far from the boundary are the grain and pore interiors.
 INTERIOR = 2.5
+#: How far (in its sigmas) a Gaussian PSF carries one phase into the other: beyond it less than 0.14 %
+#: of the contrast is left, below the noise of any scan.
+PSF_REACH = 3.0
 #: A distance needs this many voxels to be a point of the profile.
 _MIN_COUNT = 20
 
@@ -60,6 +63,18 @@ def signed_distance(labels: np.ndarray) -> np.ndarray:
     squared = np.where(grain, _squared_distance(grain), _squared_distance(~grain))
     distance = np.sqrt(squared, dtype=np.float64)
     return np.where(grain, distance - 0.5, 0.5 - distance).astype(np.float32)
+
+
+def interior_depth(edge_sigma: float | None) -> float:
+    """Voxels from the boundary beyond which a scan's edges no longer reach: ``max(INTERIOR, PSF_REACH * edge_sigma)``.
+
+    Parameters
+    ----------
+    edge_sigma : float or None
+        The scan's fitted edge width (Gaussian sigma, voxels; `~synthpack.measure.psf.fit_edge_spread`);
+        None: not measured (`INTERIOR`).
+    """
+    return INTERIOR if edge_sigma is None else max(INTERIOR, PSF_REACH * float(edge_sigma))
 
 
 def _squared_distance(region: np.ndarray) -> np.ndarray:

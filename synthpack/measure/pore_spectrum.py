@@ -1,7 +1,7 @@
 """The pore phase's power spectrum over scales from a voxel to the pore bodies: what the pore texture reproduces.
 
-The noise power spectrum (`~synthpack.measure.spectrum`) sees an ``8 x 8`` in-slice
-patch, minus its mean: nothing of a pore phase's variation on larger scales, which
+The noise power spectrum (`~synthpack.measure.spectrum`) sees the noise alone, in
+``8 x 8`` in-slice patches: nothing of a pore phase's structure, which
 in a real scan is most of its spread (a cement paste's spread is ten times its
 noise: sand, voids and moisture in it). This module measures the whole 3D
 spectrum of the pore interior's intensity fluctuations, on every scale up to

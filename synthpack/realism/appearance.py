@@ -6,7 +6,8 @@ phases defined by the signed distance from the grain-pore boundary
 
 * **grains**: voxels at least `~synthpack.measure.edges.INTERIOR` voxels inside a grain;
 * **pores**: voxels at least as far inside the pore space;
-* **edges**: the voxels within one voxel of the boundary, on either side.
+* **edges**: the voxels within one voxel of the boundary, on either side
+  (`~synthpack.measure.phase_histograms.phase_masks`).
 
 Figures:
 
@@ -17,16 +18,18 @@ Figures:
 * noise standard deviation in grains and pores, by
   `synthpack.measure.estimate_noise` (second differences inside each label, away from
   boundaries, robust spread: a high-pass figure, blind to low frequencies);
-* noise power spectrum (NPS) of grains and pores: the radially averaged power of
-  ``NPS_PATCH x NPS_PATCH`` in-slice patches wholly inside a phase's interior,
-  each minus its mean, so that the powers of all frequency rings add up to the
-  variance within a patch. Its centroid (the power-weighted mean frequency, in
-  cycles per voxel) is high for white noise and low for smooth, correlated noise
-  and texture. Against the source's, a pack's spectrum is read ring by ring: the
-  ratio pack / source of the power in every ring from the lowest (ring 1,
-  ``1 / NPS_PATCH`` cycles per voxel) to the corner of the spectrum (ring 6 of
-  an 8x8 patch, 0.75) (`nps_ratio`; 1 = the same power at that frequency, 2 = twice
-  as much), so low-frequency blotches and high-frequency periodic texture both show;
+* noise power spectrum (NPS) of grains and pores (`synthpack.measure.spectrum`): the
+  radially averaged power of ``NPS_PATCH x NPS_PATCH`` in-slice patches, each minus
+  its mean, of a phase interior's noise (its second differences across slices, so
+  that structure is not counted), so that the powers of all frequency rings add up to
+  the noise variance within a patch. Its centroid (the power-weighted mean frequency,
+  in cycles per voxel) is high for white noise and low for smooth, correlated noise.
+  Against the source's, a pack's spectrum is read ring by ring: the ratio pack /
+  source of the power in every ring from the lowest (ring 1, ``1 / NPS_PATCH``
+  cycles per voxel) to the corner of the spectrum (ring 6 of an 8x8 patch, 0.75)
+  (`nps_ratio`; 1 = the same power at that frequency, 2 = twice as much), so noise
+  too smooth or too fine shows in its ring; structure (blotches) shows in the
+  full-band histograms (W);
 * the edge profile, its 10-90 width and its half-height position (where it
   crosses half-way from the pore to the grain level, voxels of signed distance
   from the label boundary; `synthpack.measure.edges`).
@@ -43,7 +46,8 @@ import numpy as np
 from ..errors import SynthpackInputError
 from ..measure.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
 from ..measure.noise_estimate import NoiseEstimate, estimate_noise
-from ..measure.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_interiors
+from ..measure.phase_histograms import phase_masks
+from ..measure.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
@@ -84,23 +88,6 @@ def nps_ratio(spectrum: NoiseSpectrum, reference: NoiseSpectrum) -> dict:
     return {"frequency": reference.frequency[ring].tolist(), "ratio": ratio.tolist(),
             "max_abs_log2": float(abs(np.log2(ratio[worst]))),
             "worst_frequency": float(reference.frequency[ring][worst]), "worst_ratio": float(ratio[worst])}
-
-
-def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
-    """Boolean masks of the grain interior, pore interior and edge voxels in `region`.
-
-    Parameters
-    ----------
-    distance : ndarray of float32, shape (Z, Y, X)
-        From `~synthpack.measure.edges.signed_distance`.
-    region : ndarray of bool, same shape
-
-    Returns
-    -------
-    dict
-        ``"grains"``, ``"pores"``, ``"edges"``: ndarray of bool, same shape.
-    """
-    return {**phase_interiors(distance, region), "edges": region & (np.abs(distance) <= 1.0)}
 
 
 def noise_levels(specimen: Specimen) -> NoiseEstimate:

@@ -16,8 +16,8 @@ source's distributions (0 = the same, 1 = disjoint). W is the Wasserstein distan
 between intensity histograms, as a fraction of the source's grain-pore contrast. Noise
 is the standard deviation of the white noise with the same high-frequency content
 (`synthpack.measure.estimate_noise`); the NPS centroid is the power-weighted mean
-frequency of the noise power spectrum in 8x8 in-slice patches (cycles/voxel: lower =
-smoother noise and texture). The edge width is the 10-90 % rise distance of the mean
+frequency of the noise power spectrum in 8x8 in-slice patches of the noise alone (second
+differences across slices; cycles/voxel: lower = smoother noise). The edge width is the 10-90 % rise distance of the mean
 profile across grain-pore boundaries (voxels); its half height is the signed distance
 from the label boundary (voxels, + into the grains) where that profile crosses half-way
 from the pore to the grain level: 0 when the edge is centred on the boundary. The NPS

@@ -9,13 +9,14 @@ from dataclasses import asdict, dataclass
 from .._shared.text import fraction, sig
 from ..errors import SynthpackInputError
 from ..scan.core import Scan
-from ..measure.edges import edge_profile, edge_width, signed_distance
+from ..measure.edges import edge_profile, edge_width, interior_depth, signed_distance
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phases import estimate_phases
 from ..measure.psf import fit_edge_spread
 from ..measure.pore_histogram import measure_pore_quantiles
 from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
+from ..measure.phase_histograms import phase_masks, phase_quantiles
 from ..measure.specimen import solid_fraction, specimen_mask
 from ..measure.spectrum import phase_interiors, phase_spectra
 
@@ -67,12 +68,13 @@ class SourceStatistics:
         The noise level of each phase (`~synthpack.measure.noise_estimate.estimate_noise`), intensity
         units; None where the phase has too few interior voxels.
     nps_grains, nps_pores : tuple of float or None
-        Noise power spectrum of the grain and of the pore interior
-        (`~synthpack.measure.spectrum.noise_power_spectrum`): the power in rings
-        ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles per voxel, intensity units
-        squared (their sum is the variance within an in-slice patch of
-        `~synthpack.measure.spectrum.NPS_PATCH` voxels); None where no patch fits
-        in that phase.
+        Noise power spectrum of the grain and of the pore interior, eroded by the edges'
+        reach (`~synthpack.measure.edges.interior_depth` of `edge_sigma`), measured on the
+        noise alone (`~synthpack.measure.spectrum.noise_power_spectrum`: second differences
+        across slices): the power in rings ``k = 1, 2, ...`` at ``k / NPS_PATCH`` cycles
+        per voxel, intensity units squared (their sum is the noise variance within an
+        in-slice patch of `~synthpack.measure.spectrum.NPS_PATCH` voxels); None where the
+        phase is too thin to measure.
     pore_spectrum : tuple of float or None
         Power spectral density of the pore interior's intensity fluctuations on
         every scale up to `~synthpack.measure.pore_spectrum.PORE_SPECTRUM_SIZE`
@@ -108,6 +110,12 @@ class SourceStatistics:
         (`~synthpack.measure.specimen.solid_fraction`), dimensionless; the default
         target of a pour (``pour.target_solid_fraction: source``). None for a
         library of an older synthpack.
+    histogram_grains, histogram_pores, histogram_edges : tuple of float or None
+        The full-band intensity histogram of the specimen's grain interior, pore interior
+        and edge voxels (`~synthpack.measure.phase_histograms.phase_masks`), as quantiles
+        (`~synthpack.measure.phase_histograms.phase_quantiles`), intensity units: what the
+        calibration's guard (`~synthpack.artefacts.guard`) measures a pack against. None
+        where a phase has too few voxels.
     """
 
     pore_mean: float
@@ -133,6 +141,9 @@ class SourceStatistics:
     wall_thickness: float | None = None
     wall_gap: float | None = None
     solid_fraction: float | None = None
+    histogram_grains: tuple[float, ...] | None = None
+    histogram_pores: tuple[float, ...] | None = None
+    histogram_edges: tuple[float, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -214,8 +225,13 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     except SynthpackInputError as error:
         logger.warning("the source's edge width cannot be measured (%s): packs of 'postprocess: calibrated' "
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
+    depth = interior_depth(edges.get("edge_sigma"))
     spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
-               for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen).items() if spectrum is not None}
+               for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen, depth).items()
+               if spectrum is not None}
+    spectra.update({f"histogram_{phase}": tuple(float(q) for q in quantiles)
+                    for phase, quantiles in phase_quantiles(scan.tomogram, phase_masks(distance, specimen)).items()
+                    if quantiles is not None})
     pore_interior = phase_interiors(distance, specimen)["pores"]
     pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
     if pore_spectrum is None:

@@ -1,0 +1,202 @@
+"""The calibration's guard: a step of the fitted post-processing stays only where it makes the pack more like its source.
+
+`~synthpack.artefacts.calibrate` fits its steps (the PSF, the noise of each phase)
+and adds the source's scanner artefacts; a fit can still go wrong on a scan it does
+not suit. `guard_steps` applies the steps to the clean volume, on the region the
+calibration measured (whole slices, so that the artefacts about the slice centre are
+where they will be), and measures there, against the source's figures (`figures`):
+
+* ``w_grains``, ``w_pores``, ``w_edges``: the Wasserstein distance of the phase's full-band
+  intensity histogram from the source's (`~synthpack.measure.phase_histograms`), over the
+  magnitude of the grain-pore contrast, as the realism report measures it;
+* ``noise_grains``, ``noise_pores``: the relative error of the phase's noise level
+  (`~synthpack.measure.noise_estimate.estimate_noise`), ``|noise / source's - 1|``.
+
+Lower is more like the source. Every subset of the steps (kept in their order) is
+measured. A subset is *admissible* when it leaves the pack no less like the source
+than the clean volume (no post-processing) on any figure, to the figure's tolerance
+(`TOLERANCE`), or, where a figure does get worse, still within its realism target
+(`TARGET`: the issue-26 targets, a W of 5 % of the contrast, the noise level within
+10 %): a blur that halves the edges' distance from the source's and leaves the grains'
+within target is kept, one that moves a figure beyond its target and beyond no
+post-processing's is not. The empty subset, the clean volume itself, is always
+admissible, so calibration never makes a pack less like its source than no
+post-processing on a figure it misses. The subset applied is an admissible one with the most steps (ties: the
+lowest sum of the figures, then the first in the steps' order); then, one at a time, a
+step whose leaving out makes some figure better and none worse (beyond the
+tolerances) is left out too. A step left out is dropped: it made the pack less like
+its source.
+
+Every drop is logged as a warning. The guard is deterministic, and its cost fixed (at
+most ``2^5`` subsets of the calibration's at most
+`~synthpack.artefacts.calibrate.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
+(``calibration_guard``, keyed by the step's kind), so that the figures with and without
+a step compare the same noise realisation.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+
+from .._shared.seeds import generator
+from .._shared.text import sig
+from ..errors import SynthpackInputError
+from ..measure.edges import signed_distance
+from ..measure.noise_estimate import estimate_noise
+from ..measure.phase_histograms import phase_masks, phase_quantiles, quantile_distance
+from ._base import Transform
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["FIGURES", "TARGET", "TOLERANCE", "figures", "guard_steps"]
+
+#: The guard's figures, each lower = more like the source (see the module docstring).
+FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
+#: How much a figure must change to count as better or worse: W as a fraction of the contrast, noise relative.
+TOLERANCE = {"w_grains": 0.002, "w_pores": 0.002, "w_edges": 0.002, "noise_grains": 0.02, "noise_pores": 0.02}
+#: The realism target of each figure (issue 26): a figure within it may get worse, to the benefit of others.
+TARGET = {"w_grains": 0.05, "w_pores": 0.05, "w_edges": 0.05, "noise_grains": 0.1, "noise_pores": 0.1}
+#: The kinds of transform a calibration holds, in pipeline order: each draws from its own key of the guard's stream.
+_KINDS = ("gaussian_blur", "coloured_noise", "beam_hardening", "ring_artefacts")
+#: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
+_MARGIN = 3
+
+Figures = dict[str, float]
+
+
+def figures(
+    volume: np.ndarray, masks: Mapping[str, np.ndarray], noise_labels: np.ndarray, *,
+    histograms: Mapping[str, Sequence[float] | None], noise: Mapping[str, float | None], contrast: float,
+) -> Figures:
+    """The guard's figures of `volume` against the source's (see the module docstring).
+
+    Parameters
+    ----------
+    volume : ndarray of float32, shape (Z, Y, X)
+    masks : dict of str to ndarray of bool, same shape
+        ``"grains"``, ``"pores"``, ``"edges"`` (`~synthpack.measure.phase_histograms.phase_masks`).
+    noise_labels : ndarray of int, same shape
+        The labels, -1 outside the measured region (`~synthpack.measure.noise_estimate.estimate_noise`).
+    histograms : dict
+        Per phase: the source's quantiles (`~synthpack.source.SourceStatistics.histogram_grains`), or None.
+    noise : dict
+        ``"grains"``, ``"pores"``: the source's noise level, intensity units, or None.
+    contrast : float
+        The source's grain-pore contrast, intensity units (signed; its magnitude is used).
+
+    Returns
+    -------
+    dict of str to float
+        The figures of `FIGURES` that can be measured (a phase without the source's figure,
+        or too small in `volume`, has none).
+    """
+    result: Figures = {}
+    for phase, quantiles in phase_quantiles(volume, masks).items():
+        reference = histograms.get(phase)
+        if quantiles is not None and reference is not None:
+            result[f"w_{phase}"] = quantile_distance(quantiles, reference) / abs(contrast)
+    try:
+        estimate = estimate_noise(volume, noise_labels)
+    except SynthpackInputError:
+        return result
+    for phase, level in (("grains", estimate.grain_std), ("pores", estimate.pore_std)):
+        target = noise.get(phase)
+        if level is not None and target:
+            result[f"noise_{phase}"] = abs(level / target - 1.0)
+    return result
+
+
+def _excess(figures_: Figures, reference: Figures) -> dict[str, float]:
+    """Per figure measured in both: how much `figures_` is above `reference`, less the tolerance (> 0: worse)."""
+    return {name: figures_[name] - reference[name] - TOLERANCE[name] for name in FIGURES
+            if name in figures_ and name in reference}
+
+
+def _admissible(figures_: Figures, none: Figures) -> bool:
+    """Whether no figure is worse than `none` (no post-processing) beyond its tolerance, unless within target."""
+    return all(excess <= 0 or figures_[name] <= TARGET[name] for name, excess in _excess(figures_, none).items())
+
+
+def _better(figures_: Figures, reference: Figures) -> bool:
+    """Whether `figures_` is better than `reference` on some figure and worse on none, beyond the tolerances."""
+    return (all(v <= 0 for v in _excess(figures_, reference).values())
+            and any(v > 0 for v in _excess(reference, figures_).values()))
+
+
+def _text(figures_: Figures) -> str:
+    return ", ".join(f"{name} {sig(value, 2)}" for name, value in figures_.items())
+
+
+def guard_steps(
+    build: Callable[[tuple[str, ...]], list[Transform]],
+    steps: Sequence[str],
+    volume: np.ndarray,
+    labels: np.ndarray,
+    region: np.ndarray,
+    *,
+    histograms: Mapping[str, Sequence[float] | None],
+    noise: Mapping[str, float | None],
+    contrast: float,
+) -> tuple[tuple[str, ...], dict]:
+    """The steps to keep: the admissible subset most like the source (see the module docstring).
+
+    Parameters
+    ----------
+    build : callable
+        ``build(steps)``: the transforms that apply the named steps (a subset of `steps`), in order.
+    steps : sequence of str
+        The fitted steps, in order.
+    volume : ndarray of float32, shape (Z, Y, X)
+        The clean volume: whole slices, around `region` (with the blur's halo).
+    labels : ndarray of int, same shape
+        Its labels (0 = pore).
+    region : ndarray of bool, same shape
+        Where to measure.
+    histograms, noise, contrast
+        The source's figures, as `figures` takes them.
+
+    Returns
+    -------
+    kept : tuple of str
+        The steps kept, in order.
+    record : dict
+        ``dropped`` (the steps left out), ``figures`` (``none``: the clean volume's,
+        ``fitted``: with every step, ``applied``: with those kept), ``tolerance``, ``target``, ``voxels``.
+    """
+    where = np.argwhere(region)
+    box = tuple(slice(max(0, int(lo) - _MARGIN), int(hi) + 1 + _MARGIN)
+                for lo, hi in zip(where.min(axis=0), where.max(axis=0)))  # what is measured: region and margin
+    masks = phase_masks(signed_distance(labels[box]), region[box])
+    noise_labels = np.where(region[box], np.asarray(labels[box], dtype=np.int64), -1)
+
+    def at(kept: tuple[str, ...]) -> Figures:
+        out = volume
+        for transform in build(kept):
+            kind = _KINDS.index(transform.name) if transform.name in _KINDS else len(_KINDS)
+            out = transform(out, generator(0, "calibration_guard", kind))
+        return figures(out[box], masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast)
+
+    steps = tuple(steps)
+    subsets = [tuple(s for i, s in enumerate(steps) if chosen >> i & 1) for chosen in range(2 ** len(steps))]
+    measured = {subset: at(subset) for subset in subsets}
+    none, fitted = measured[()], measured[steps]
+    admissible = [s for s in subsets if _admissible(measured[s], none)]
+    kept = min(admissible, key=lambda s: (-len(s), sum(measured[s].values()), subsets.index(s)))
+    while True:
+        better = next((w for w in (tuple(k for k in kept if k != s) for s in kept) if _better(measured[w], measured[kept])),
+                      None)
+        if better is None:
+            break
+        kept = better
+    dropped = [s for s in steps if s not in kept]
+    for step in dropped:
+        logger.warning("calibration: the %s step is dropped: it makes the pack less like its source "
+                       "(with every step: %s; applied: %s; no post-processing: %s)", step, _text(fitted),
+                       _text(measured[kept]), _text(none))
+    record = {"dropped": dropped, "figures": {"none": none, "fitted": fitted, "applied": measured[kept]},
+              "tolerance": dict(TOLERANCE), "target": dict(TARGET), "voxels": int(np.count_nonzero(region))}
+    logger.info("calibration guard: %s (no post-processing: %s)", _text(measured[kept]), _text(none))
+    return kept, record
