@@ -51,21 +51,34 @@ from __future__ import annotations
 
 import functools
 import logging
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import fft
+from scipy import fft, special
 
 from .._shared.arrays import periodic_window
 from .._shared.schema import non_negative, one_of, positive, setting
 from .._shared.seeds import generator
 from .._shared.text import sig
 from ..measure.pore_histogram import map_to_quantiles
-from ..measure.pore_spectrum import frequency_radius, spectrum_on_grid
+from ..measure.pore_spectrum import PORE_SPECTRUM_SIZE, frequency_radius, smooth_spectrum, spectrum_on_grid
 
-__all__ = ["PoreTextureConfig"]
+__all__ = ["BAND_ITERATIONS", "NYQUIST", "PoreTextureConfig"]
 
 logger = logging.getLogger(__name__)
+
+#: The measured texture's band ends here at most, cycles/voxel: the sphere the frequency grid holds in every direction.
+NYQUIST = 0.5
+#: The mapped texture alternates this many times between its band and the source's histogram (ending in the band).
+BAND_ITERATIONS = 10
+#: The mapped texture's histogram is matched at this many quantiles (between its band steps).
+_LEVELS = 1024
+#: ... read off at most this many of its values.
+_SAMPLE = 1 << 21
+#: ... and applied through a table of this many values, evenly spaced from the least to the greatest.
+_TABLE = 1 << 14
+
 
 @dataclass(frozen=True)
 class PoreTextureConfig:
@@ -79,11 +92,12 @@ class PoreTextureConfig:
     cutoff : float
         Measured model: highest frequency of the source's pore spectrum kept whole, cycles/voxel.
     rolloff : float
-        Measured model: width of the raised-cosine roll-off above `cutoff`, cycles/voxel (0: a sharp cut).
+        Measured model: width of the raised-cosine roll-off above `cutoff`, cycles/voxel (at least one shell of
+        the measured spectrum, ``1 / PORE_SPECTRUM_SIZE``, is used).
     sigma : float
         Gaussian model: correlation length, Gaussian sigma, voxels (0: white noise).
     tile : int
-        Period of the texture along each axis, voxels.
+        Largest period of the texture along each axis, voxels (a pack up to this size never repeats it).
     histogram : bool
         Measured model: map the values onto the source's pore histogram shape (see the module docstring).
     """
@@ -94,10 +108,11 @@ class PoreTextureConfig:
     cutoff: float = setting(0.1, non_negative, "measured model: the source's pore spectrum is kept up to this "
                             "frequency, cycles/voxel")
     rolloff: float = setting(0.1, non_negative, "measured model: width of the raised-cosine roll-off above cutoff, "
-                             "cycles/voxel")
+                             "cycles/voxel (at least 1/64)")
     sigma: float = setting(0.8, non_negative, "gaussian model: correlation length of the pore texture, Gaussian "
                            "sigma, voxels")
-    tile: int = setting(128, positive, "period of the pore texture, voxels (beyond the largest scale it holds)")
+    tile: int = setting(256, positive, "largest period of the pore texture, voxels: it covers a pack up to this "
+                        "size, and repeats in larger ones")
     histogram: bool = setting(True, None, "measured model: map the texture's values onto the source's pore "
                               "histogram (its quantiles; false: Gaussian values)")
 
@@ -110,8 +125,30 @@ class PoreTextureConfig:
         """Whether the texture drawn for a source is mapped onto its pore histogram (measured model, quantiles)."""
         return self.histogram and pore_quantiles is not None and self.model_for(pore_spectrum) == "measured"
 
-    def density(self, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
-        """The texture's power spectral density on the FFT grid of its tile.
+    def period(self, extent: Sequence[int] | None = None) -> int:
+        """The side of the periodic cube drawn for a volume of shape `extent`, voxels.
+
+        The smallest fast FFT length that covers the volume's largest side, at least
+        `~synthpack.measure.pore_spectrum.PORE_SPECTRUM_SIZE` (the measured spectrum's
+        largest scale) and at most `tile`; `tile` where `extent` is None.
+        """
+        if extent is None:
+            return self.tile
+        return min(self.tile, max(fft.next_fast_len(int(max(extent)), real=True), PORE_SPECTRUM_SIZE))
+
+    def band(self) -> tuple[float, float]:
+        """The measured model's roll-off, cycles/voxel: from 1 at the first frequency to 0 at the second.
+
+        ``(cutoff, cutoff + rolloff)``, the roll-off at least one shell
+        (``1 / PORE_SPECTRUM_SIZE``) wide and ending at `NYQUIST` at most.
+        """
+        shell = 1.0 / PORE_SPECTRUM_SIZE
+        end = min(self.cutoff + max(self.rolloff, shell), NYQUIST)
+        return min(self.cutoff, end - shell), end
+
+    def density(self, pore_std: float, pore_spectrum: tuple[float, ...] | None,
+                extent: Sequence[int] | None = None) -> np.ndarray:
+        """The texture's power spectral density on the FFT grid of its periodic cube.
 
         Parameters
         ----------
@@ -119,18 +156,20 @@ class PoreTextureConfig:
             The source's pore spread, intensity units: the Gaussian model's standard deviation.
         pore_spectrum : tuple of float or None
             The source's pore spectrum (`~synthpack.source.SourceStatistics.pore_spectrum`).
+        extent : sequence of 3 int, optional
+            The shape of the volume the texture is drawn for (see `period`).
 
         Returns
         -------
-        ndarray of float64, shape (tile, tile, tile)
+        ndarray of float64, shape (P, P, P), P = ``period(extent)``
             Intensity units squared times voxels cubed, 0 at frequency 0; its mean is the texture's variance.
-            Read-only (computed once per texture and source, then shared).
+            Read-only (computed once per texture, source and period, then shared).
         """
-        return _density(self, float(pore_std), pore_spectrum)
+        return _density(self, float(pore_std), pore_spectrum, self.period(extent))
 
     def sample(
         self, lo: np.ndarray, hi: np.ndarray, seed: int, pore_std: float, pore_spectrum: tuple[float, ...] | None,
-        pore_quantiles: tuple[float, ...] | None = None,
+        pore_quantiles: tuple[float, ...] | None = None, extent: Sequence[int] | None = None,
     ) -> np.ndarray:
         """The texture over the global index box ``[lo, hi)``, intensity units.
 
@@ -145,33 +184,39 @@ class PoreTextureConfig:
         pore_quantiles : tuple of float, optional
             The source's pore histogram shape (`~synthpack.source.SourceStatistics.pore_quantiles`);
             None: Gaussian values.
+        extent : sequence of 3 int, optional
+            The shape of the whole volume drawn (every box of it with the same `extent`): the period (`period`).
 
         Returns
         -------
         ndarray of float32, shape hi - lo
-            Zero mean (Gaussian values) or median 0 (mapped onto the histogram) over a period; a new array.
+            Zero mean (Gaussian values) or median about 0 (mapped onto the histogram) over a period; a new array.
         """
-        field = _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed)
+        field = _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed, self.period(extent))
         return periodic_window(field, lo, np.asarray(hi) - np.asarray(lo))
 
     def record(
         self, pore_std: float, pore_spectrum: tuple[float, ...] | None, seed: int,
-        pore_quantiles: tuple[float, ...] | None = None,
+        pore_quantiles: tuple[float, ...] | None = None, extent: Sequence[int] | None = None,
     ) -> dict:
         """What was drawn, for the manifest: settings, the model drawn, whether its values were mapped onto the
-        source's histogram, amplitude (std, intensity units), seed."""
-        amplitude = float(np.sqrt(self.density(pore_std, pore_spectrum).mean()))
+        source's histogram, amplitude (std, intensity units), period (voxels), seed."""
+        amplitude = float(np.sqrt(self.density(pore_std, pore_spectrum, extent).mean()))
         return {**asdict(self), "model": self.model_for(pore_spectrum),
-                "histogram": self.maps_histogram(pore_spectrum, pore_quantiles), "amplitude": amplitude, "seed": seed}
+                "histogram": self.maps_histogram(pore_spectrum, pore_quantiles), "amplitude": amplitude,
+                "period": self.period(extent), "seed": seed}
 
 
 @functools.lru_cache(maxsize=4)
-def _density(texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None) -> np.ndarray:
-    """`PoreTextureConfig.density`, computed once per argument and read-only."""
-    radius = frequency_radius((texture.tile,) * 3)
+def _density(texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None,
+             period: int) -> np.ndarray:
+    """`PoreTextureConfig.density` on a cube of `period`, computed once per argument and read-only."""
+    radius = frequency_radius((period,) * 3)
     if texture.model_for(pore_spectrum) == "measured":
-        ramp = np.clip((radius - texture.cutoff) / max(texture.rolloff, np.finfo(float).tiny), 0.0, 1.0)
-        density = spectrum_on_grid(np.asarray(pore_spectrum), texture.tile) * 0.5 * (1.0 + np.cos(np.pi * ramp))
+        start, end = texture.band()
+        ramp = np.clip((radius - start) / (end - start), 0.0, 1.0)
+        density = spectrum_on_grid(smooth_spectrum(np.asarray(pore_spectrum)), period)
+        density *= 0.5 * (1.0 + np.cos(np.pi * ramp))
         density[0, 0, 0] = 0.0
     else:
         density = np.exp(-4.0 * np.pi**2 * texture.sigma**2 * radius**2)
@@ -181,29 +226,70 @@ def _density(texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[f
     return density
 
 
+def _onto_histogram(values: np.ndarray, sigma: float, quantiles: np.ndarray) -> np.ndarray:
+    """`values` mapped monotonically onto the histogram of `quantiles`: the quantile of each one's rank.
+
+    The ranks are read off `_LEVELS` quantiles of at most `_SAMPLE` of the values (every
+    k-th) and the least and greatest value, with linear interpolation between them; a
+    rank's quantile is `~synthpack.measure.pore_histogram.map_to_quantiles` of its
+    normal score (standard deviation `sigma`).
+    """
+    flat = values.ravel()
+    sample = np.sort(flat[:: max(1, flat.size // _SAMPLE)])
+    levels = (np.arange(_LEVELS) + 0.5) / _LEVELS
+    observed = np.concatenate([[flat.min()], sample[(levels * len(sample)).astype(np.int64)], [flat.max()]])
+    ends = 0.5 / flat.size
+    scores = sigma * special.ndtri(np.concatenate([[ends], levels, [1.0 - ends]]))
+    low, high = float(observed[0]), float(observed[-1])
+    if high <= low:
+        return np.zeros_like(values)
+    table = np.interp(np.linspace(low, high, _TABLE), observed, map_to_quantiles(scores, sigma, quantiles))
+    table, slope = table.astype(values.dtype), np.diff(table).astype(values.dtype)
+    position = (values - values.dtype.type(low)) * values.dtype.type((_TABLE - 1) / (high - low))
+    index = np.minimum(position.astype(np.int32), _TABLE - 2)  # a table lookup: np.interp's search is slow
+    position -= index
+    return table[index] + position * slope[index]
+
+
+def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """The Gaussian `field` (standard deviation `sigma`) with the histogram of `quantiles` and no power outside
+    `band` (bool, the rfftn grid's frequencies kept): the map onto the histogram, then `BAND_ITERATIONS` times the
+    band's frequencies alone and, but for the last time, the histogram again (by the values' ranks)."""
+    values = map_to_quantiles(field, sigma, quantiles)
+    for step in range(BAND_ITERATIONS):
+        spectrum = fft.rfftn(values.astype(np.float32))
+        spectrum[~band] = 0.0
+        values = fft.irfftn(spectrum, s=field.shape)
+        if step < BAND_ITERATIONS - 1:
+            values = _onto_histogram(values, sigma, quantiles)
+    return values.astype(np.float64)
+
+
 @functools.lru_cache(maxsize=8)
 def _periodic_field(
     texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None,
-    pore_quantiles: tuple[float, ...] | None, seed: int,
+    pore_quantiles: tuple[float, ...] | None, seed: int, period: int,
 ) -> np.ndarray:
-    """A periodic cube of the texture (`PoreTextureConfig.density`) from the white noise of `seed`, its values
-    mapped onto `pore_quantiles` where `PoreTextureConfig.maps_histogram`.
+    """A periodic cube of `period` voxels of the texture (`PoreTextureConfig.density`) from the white noise of
+    `seed`, its values mapped onto `pore_quantiles` in its band where `PoreTextureConfig.maps_histogram`.
 
-    Read-only float32, shape ``(tile,) * 3``; its standard deviation is exactly the expected one.
+    Read-only float32, shape ``(period,) * 3``; its standard deviation is exactly the expected one.
     """
     if texture.model == "measured" and pore_spectrum is None:
         logger.warning("the source has no measured pore spectrum: Gaussian pore texture of sigma %s voxels",
                        sig(texture.sigma))
-    shape = (texture.tile,) * 3
-    density = texture.density(pore_std, pore_spectrum)
+    shape = (period,) * 3
+    density = _density(texture, pore_std, pore_spectrum, period)[..., : period // 2 + 1]
     white = generator(seed, "pore_texture").standard_normal(shape)
-    field = fft.irfftn(fft.rfftn(white) * np.sqrt(density[..., : texture.tile // 2 + 1]), s=shape)
-    expected = np.sqrt(density.mean())
+    field = fft.irfftn(fft.rfftn(white) * np.sqrt(density), s=shape)
+    expected = np.sqrt(_density(texture, pore_std, pore_spectrum, period).mean())
     realised = field.std()
     if realised > 0:
         field *= expected / realised
         if texture.maps_histogram(pore_spectrum, pore_quantiles):
-            field = map_to_quantiles(field, expected, np.asarray(pore_quantiles))
+            band = density > 0
+            band[0, 0, 0] = True  # the mapped values' mean
+            field = _mapped_in_band(field, expected, np.asarray(pore_quantiles), band)
             field *= expected / field.std()
     field = field.astype(np.float32)
     field.flags.writeable = False
