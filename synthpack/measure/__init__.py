@@ -4,18 +4,19 @@ The source statistics (`synthpack.source`) measure a scan with them once; the re
 (`synthpack.realism`) measures the source and the packs with the same ones, so a figure
 means the same on both. Modules, one job each:
 
-==================  =========================================================================================
-``phases``          pore and grain intensity levels
-``noise_estimate``  `estimate_noise`: the one noise estimator (source, artefacts, realism)
-``edges``           signed distance from grain boundaries, edge profile and 10-90 width
-``psf``             `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
-``spectrum``        noise power spectrum of the grain and pore interiors
-``pore_spectrum``   the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
-``pore_histogram``  the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
-``specimen``        `specimen_mask`: the specimen's voxels, without the container and the air
-``scanner``         `measure_scanner`: cupping, rings and the container wall, about the rotation axis
-``lattice``         in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
-==================  =========================================================================================
+====================  =========================================================================================
+``phases``            pore and grain intensity levels
+``noise_estimate``    `estimate_noise`: the one noise estimator (source, artefacts, realism)
+``edges``             signed distance from grain boundaries, edge profile and 10-90 width
+``psf``               `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
+``spectrum``          noise power spectrum of the grain and pore interiors
+``pore_spectrum``     the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
+``pore_histogram``    the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
+``spectral_spikes``   `spectral_spikes`: periodic patterns in a phase, as narrow peaks of its in-slice spectrum
+``specimen``          `specimen_mask`: the specimen's voxels, without the container and the air
+``scanner``           `measure_scanner`: cupping, rings and the container wall, about the rotation axis
+``lattice``           in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
+====================  =========================================================================================
 """
 
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
@@ -25,6 +26,7 @@ from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quan
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
 from .psf import EdgeSpread, fit_edge_spread
 from .scanner import ScannerArtefacts, measure_scanner
+from .spectral_spikes import SpectralSpikes, spectral_spikes
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
 __all__ = [
@@ -49,6 +51,8 @@ __all__ = [
     "QUANTILE_SCORES",
     "ScannerArtefacts",
     "signed_distance",
+    "SpectralSpikes",
+    "spectral_spikes",
     "spectrum_on_grid",
     "volume_edge_width",
 ]

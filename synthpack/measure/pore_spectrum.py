@@ -25,6 +25,12 @@ transformed on a ``PORE_SPECTRUM_SIZE^3`` grid: the power spectral density (Wien
 Khinchin), which is averaged over shells of ``|f|`` of width ``1 /
 PORE_SPECTRUM_SIZE`` cycles per voxel (negative values, from the taper, set to 0).
 
+**Smoothing.** The estimate scatters from shell to shell, most where the density
+is lowest (the corners of the grid, beyond 0.5 cycles per voxel, are measured along
+the diagonals alone), and its spikes there would draw periodic patterns in a
+texture. `smooth_spectrum` makes it fit to draw from: smooth in the logarithm, no
+spikes, nothing beyond 0.5 cycles per voxel. The estimate itself is kept as measured.
+
 **Units.** Density in intensity units squared times voxels cubed: on the FFT grid
 of any periodic cube, the mean of the density is the variance (white noise of
 variance ``s^2`` has the flat density ``s^2``).

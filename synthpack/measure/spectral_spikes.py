@@ -1,35 +1,47 @@
 """Spectral spikes: periodic patterns in a phase, as narrow peaks of its in-slice power spectrum.
 
-A periodic artefact (a checkerboard, stripes, a repeating tile) puts its power
-into a few frequencies; noise and texture spread theirs smoothly. This module
-finds the few: the 2D in-slice power spectrum of a phase's interior, averaged
-over slices, against a smoothed version of itself.
+A periodic artefact (a checkerboard, stripes) puts its power into a few
+frequencies; noise and texture spread theirs smoothly. This module finds the
+few: the 2D in-slice power spectrum of a phase's interior, averaged over slices,
+against a smoothed version of itself.
 
-**The spectrum.** In each slice (along `axis`) with at least `MIN_SLICE_VOXELS`
-voxels of the mask, the intensities minus their mean over the mask, times the
-mask and a 2D Hann window (so the slice's borders do not wrap into an edge), are
-Fourier transformed; the squared moduli are summed over slices and divided by
-the sum of the squared weights: a masked, tapered periodogram whose mean over
-the frequency grid is the variance inside the mask (intensity units squared).
+**The spectrum** (`slice_power_spectrum`). In each slice (normal to `axis`), the
+Laplacian of the intensities (the five-point stencil) is taken where the mask
+holds a voxel and its four neighbours, minus its mean there, times that mask and
+a 2D Hann window (so the slice's borders do not wrap into an edge), and Fourier
+transformed; the squared moduli are summed over the slices that have at least
+`MIN_SLICE_VOXELS` such voxels, and divided by the sum of the squared weights. The
+Laplacian whitens the spectrum: it takes the steep large-scale power of a pore
+phase down by ``|H(f)|^2 = (4 sin^2 pi f_row + 4 sin^2 pi f_column)^2`` (0 at
+frequency 0, 64 at the corner), which would otherwise leak, through the mask's
+edges, over the whole spectrum and bury a spike at high frequencies under it.
 
-**The baseline and the spikes.** The logarithm of the spectrum is median filtered
-over a square of `WINDOW` frequencies (the spectrum wrapped, as it is periodic
-in frequency): a peak a few frequencies wide does not move the median. A
-frequency's *height* is its power over the baseline's. Its spread over all
-frequencies tested (the robust spread of the log heights: 1.4826 times their
-median absolute deviation) says how much a smooth spectrum scatters about its
-baseline (less for more slices); a *spike* is a frequency whose log height is
-more than `SPIKE_SPREADS` spreads above the median and whose height is at least
-`MIN_HEIGHT`. The frequencies within the window's half width of 0 are not
-tested: there the spectrum of a pore phase rises steeply (its large scales and
-the mask's shape), which a median over the window cannot follow. Of the two
-frequencies ``f`` and ``-f`` of a real image, which have the same power, only
-one is reported.
+**The baseline** (`spectral_spikes`). In the logarithm of the spectrum: its
+isotropic part, the median over rings `WINDOW` frequencies wide (up to 0.5 cycles
+per voxel, the rings the grid holds whole; held beyond, in the corners),
+interpolated linearly in ``|f|``, is taken off; the rest is median filtered over
+a square of `WINDOW` by `WINDOW` frequencies (wrapped: the spectrum is periodic in
+frequency). A frequency's *height* is its power over that baseline: a peak a few
+frequencies wide does not move the medians, a smooth slope, even a steep one,
+is followed. How far heights scatter about 1 depends on the frequency (on how
+many independent slices the average holds there, fewer where the phase's
+variation is smooth): the *spread* is 1.4826 times the median absolute log
+height, over the same rings, interpolated likewise.
 
-**Limits.** Averaged over slices, a spike must be there in many slices to stand
-out. A period the slice's frequency grid does not hold exactly spreads over
-neighbouring frequencies (the mask's and the window's leakage), each of them
-lower: a thin, fragmented mask (pores a few voxels wide) spreads it more.
+**The spikes.** A frequency whose log height is more than `SPIKE_SPREADS` spreads,
+and its height more than `MIN_HEIGHT`; the frequencies within ``(WINDOW // 2 +
+1)`` steps of 0 are not tested (the mask's own shape). Of the two frequencies
+``f`` and ``-f`` of a real image, which have the same power, one is reported.
+On smooth and white Gaussian random fields, through holes or not, none is found;
+a checkerboard of 1 % of the field's standard deviation is (the tests).
+
+**Limits.** Averaged over slices, a pattern must be there in many slices to stand
+out. A period that the slice's frequency grid does not hold exactly spreads over
+the neighbouring frequencies (the window's and the mask's leakage), each lower:
+a thin, fragmented mask (pores a few voxels wide) spreads it more, and a strong
+spike is reported at several neighbouring frequencies. A texture that repeats
+itself every few tens of voxels or more (a tile) puts its power on a comb finer
+than the window resolves: look at its autocorrelation instead.
 """
 
 from __future__ import annotations
@@ -48,15 +60,14 @@ WINDOW = 9
 SPIKE_SPREADS = 6.0
 #: A spike's power is at least this factor above the baseline.
 MIN_HEIGHT = 1.5
-#: A slice needs at least this many mask voxels to be used.
+#: A slice needs at least this many mask voxels with their four neighbours in the mask.
 MIN_SLICE_VOXELS = 64
-
 
 _CROSS = ndimage.generate_binary_structure(2, 1)
 
 
 def _hann(n: int) -> np.ndarray:
-    """Periodic-free Hann window of `n` samples (0 at both ends only for n > 1), float64."""
+    """A Hann window of `n` samples without its two zeros at the ends, float64."""
     return np.hanning(n + 2)[1:-1]
 
 
@@ -71,7 +82,9 @@ def _ring_profile(values: np.ndarray, position: np.ndarray, width: int, end: flo
 
 
 def slice_power_spectrum(volume: np.ndarray, mask: np.ndarray, axis: int = 0) -> tuple[np.ndarray, int]:
-    """The masked, tapered in-slice power spectrum of `volume` inside `mask`, averaged over slices.
+    """The whitened, masked, tapered in-slice power spectrum of `volume` inside `mask`, averaged over slices.
+
+    See the module docstring: the spectrum of the slices' Laplacian.
 
     Parameters
     ----------
@@ -86,8 +99,9 @@ def slice_power_spectrum(volume: np.ndarray, mask: np.ndarray, axis: int = 0) ->
     -------
     power : ndarray of float64, shape (the slice's shape)
         Power on the slice's FFT grid (`numpy.fft.fftfreq` order, frequency 0 first),
-        intensity units squared; its mean is the weighted variance inside the mask. All
-        zeros when no slice has `MIN_SLICE_VOXELS` mask voxels.
+        intensity units squared: the power spectrum times ``|H(f)|^2``; its mean is the
+        Laplacian's weighted variance inside the mask (20 for white noise of variance 1).
+        All zeros when no slice has `MIN_SLICE_VOXELS` voxels to measure.
     slices : int
         How many slices were used.
     """
@@ -99,8 +113,6 @@ def slice_power_spectrum(volume: np.ndarray, mask: np.ndarray, axis: int = 0) ->
     weight = 0.0
     slices = 0
     for image, inside in zip(volume, mask):
-        if np.count_nonzero(inside) < MIN_SLICE_VOXELS:
-            continue
         core = ndimage.binary_erosion(inside, _CROSS)
         if np.count_nonzero(core) < MIN_SLICE_VOXELS:
             continue
@@ -125,7 +137,7 @@ class SpectralSpikes:
     height : ndarray of float64, shape (N,)
         Power over the baseline at each spike (> 1).
     threshold : float
-        The least height a spike needed here (the robust spread rule and `MIN_HEIGHT`).
+        The height a spike needed, the median over the frequencies tested (each has its own, from its spread).
     slices : int
         How many slices the spectrum averages.
     """
@@ -173,22 +185,21 @@ def spectral_spikes(
     axis : int
         The axis the slices are normal to.
     window : int
-        Side of the median filter's square, frequencies (odd).
+        Width of the rings and side of the median filter's square, frequencies (odd).
     spreads : float
-        A spike's log height exceeds the median by this many robust spreads.
+        A spike's log height is more than this many spreads.
     min_height : float
-        And its height is at least this.
+        And its height more than this (> 0).
 
     Returns
     -------
     SpectralSpikes
-        Empty where no slice has `MIN_SLICE_VOXELS` mask voxels.
+        Empty (`~SpectralSpikes.threshold` infinite) where no slice has `MIN_SLICE_VOXELS` voxels to measure.
     """
     power, slices = slice_power_spectrum(volume, mask, axis)
     shape = power.shape
-    empty = SpectralSpikes(np.zeros((0, 2)), np.zeros(0), np.inf, slices)
     if slices == 0 or not np.any(power > 0):
-        return empty
+        return SpectralSpikes(np.zeros((0, 2)), np.zeros(0), np.inf, slices)
     logarithm = np.log(np.maximum(power, np.finfo(float).tiny))
     frequencies = np.meshgrid(np.fft.fftfreq(shape[0]), np.fft.fftfreq(shape[1]), indexing="ij")
     radius = np.hypot(*frequencies)
