@@ -26,9 +26,9 @@ def test_replace_merges_sections():
 
 def test_pore_texture_is_a_sub_section_of_reconstruct():
     assert PackConfig().to_dict()["reconstruct"]["pore_texture"] == {
-        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "histogram": True}
+        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 256, "histogram": True}
     config = PackConfig().replace(reconstruct={"pore_texture": {"sigma": 1.5}})
-    assert (config.reconstruct.pore_texture.sigma, config.reconstruct.pore_texture.tile) == (1.5, 128)
+    assert (config.reconstruct.pore_texture.sigma, config.reconstruct.pore_texture.tile) == (1.5, 256)
     assert PackConfig.from_dict(config.to_dict()) == config
 
 

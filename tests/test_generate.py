@@ -54,10 +54,14 @@ def test_pack_sits_in_the_tube_with_wall_and_noise(small_pack, large_library):
 def test_pore_texture_is_configured_and_recorded(small_pack, large_library):
     assert small_pack.manifest["config"]["reconstruct"]["pore_texture"] == dataclasses.asdict(PoreTextureConfig())
     statistics = large_library.statistics
+    shape = small_pack.labels.shape
+    period = PoreTextureConfig().period(shape)
+    assert max(shape) <= period < 2 * max(shape)  # the texture does not repeat within the pack
     assert small_pack.manifest["pore_texture"] == {
-        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 128, "histogram": True, "seed": 11,
+        "model": "measured", "cutoff": 0.1, "rolloff": 0.1, "sigma": 0.8, "tile": 256, "histogram": True, "seed": 11,
+        "period": period,
         "amplitude": pytest.approx(float(np.sqrt(PoreTextureConfig().density(statistics.pore_std,
-                                                                       statistics.pore_spectrum).mean())))}
+                                                                       statistics.pore_spectrum, shape).mean())))}
     smoother = build_pack(large_library, SMALL.replace(reconstruct={"pore_texture": {"cutoff": 0.05}}), seed=11,
                           progress=False)
     assert smoother.manifest["pore_texture"]["cutoff"] == 0.05

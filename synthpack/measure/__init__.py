@@ -12,12 +12,12 @@ means the same on both. Modules, one job each:
 ``phase_histograms``  full-band intensity histograms (quantiles) of grains, pores and edges, and their distance
 ``pore_spectrum``     the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
 ``pore_histogram``    the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
+``spectral_spikes``   `spectral_spikes`: periodic patterns in a phase, as narrow peaks of its in-slice spectrum
 ``specimen``          `specimen_mask`: the specimen's voxels, without the container and the air
 ``scanner``           `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``lattice``           in-slice patches wholly inside a mask (the realism judge's)
 ``roughness``         boundary roughness of grain sections: outline length over the smoothed outline's
-====================  =====================================================================================================
-"""
+====================  =============================================================================================="""
 
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
 from .noise_estimate import NoiseEstimate, estimate_noise
@@ -28,6 +28,7 @@ from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_o
 from .psf import EdgeSpread, fit_edge_spread
 from .roughness import section_roughness, volume_roughness
 from .scanner import ScannerArtefacts, measure_scanner
+from .spectral_spikes import SpectralSpikes, spectral_spikes
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
 __all__ = [
@@ -56,6 +57,8 @@ __all__ = [
     "ScannerArtefacts",
     "section_roughness",
     "signed_distance",
+    "SpectralSpikes",
+    "spectral_spikes",
     "spectrum_on_grid",
     "volume_edge_width",
     "volume_roughness",

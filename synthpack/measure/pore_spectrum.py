@@ -25,6 +25,12 @@ transformed on a ``PORE_SPECTRUM_SIZE^3`` grid: the power spectral density (Wien
 Khinchin), which is averaged over shells of ``|f|`` of width ``1 /
 PORE_SPECTRUM_SIZE`` cycles per voxel (negative values, from the taper, set to 0).
 
+**Smoothing.** The estimate scatters from shell to shell, most where the density
+is lowest (the corners of the grid, beyond 0.5 cycles per voxel, are measured along
+the diagonals alone), and its spikes there would draw periodic patterns in a
+texture. `smooth_spectrum` makes it fit to draw from: smooth in the logarithm, no
+spikes, nothing beyond 0.5 cycles per voxel. The estimate itself is kept as measured.
+
 **Units.** Density in intensity units squared times voxels cubed: on the FFT grid
 of any periodic cube, the mean of the density is the variance (white noise of
 variance ``s^2`` has the flat density ``s^2``).
@@ -49,12 +55,12 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy import fft
+from scipy import fft, ndimage
 
 from .._shared.chunks import chunk_boxes
 
-__all__ = ["BLOCK", "MAX_BLOCKS", "MIN_PAIRS", "MIN_VOXELS", "PORE_SPECTRUM_SIZE", "frequency_radius",
-           "measure_pore_spectrum", "shell_frequencies", "spectrum_on_grid"]
+__all__ = ["BLOCK", "MAX_BLOCKS", "MIN_PAIRS", "MIN_VOXELS", "PORE_SPECTRUM_SIZE", "SMOOTH_SHELLS", "frequency_radius",
+           "measure_pore_spectrum", "shell_frequencies", "smooth_spectrum", "spectrum_on_grid"]
 
 logger = logging.getLogger(__name__)
 
@@ -68,6 +74,8 @@ MAX_BLOCKS = 16
 MIN_PAIRS = 2000
 #: No spectrum is measured from fewer interior voxels.
 MIN_VOXELS = 2000
+#: `smooth_spectrum`'s running median spans this many shells.
+SMOOTH_SHELLS = 5
 
 
 def shell_frequencies(n_shells: int, size: int = PORE_SPECTRUM_SIZE) -> np.ndarray:
@@ -182,3 +190,43 @@ def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_S
     grid = np.exp(np.interp(radius, shell_frequencies(len(density), size), logarithm))
     grid[radius > shell_frequencies(len(density), size)[-1]] = 0.0
     return grid
+
+
+def smooth_spectrum(density: np.ndarray, size: int = PORE_SPECTRUM_SIZE) -> np.ndarray:
+    """A measured shell spectrum made fit to draw a texture from: smooth, without the estimate's spikes.
+
+    The estimate (`measure_pore_spectrum`) scatters from shell to shell, most where
+    the density is lowest: its negative values (the taper's leakage and the noise of
+    the long lags) are set to 0, and the shells beyond ``size / 2`` (more than 0.5
+    cycles per voxel: only the corners of the frequency grid, the diagonals) hold
+    spikes of such noise. A texture drawn from such shells gets their spikes as
+    periodic patterns. Here, in the logarithm of the density and on the shells up to
+    0.5 cycles per voxel: shells of 0 are filled by linear interpolation from their
+    positive neighbours (held at the first and last positive one beyond them), a
+    running median over `SMOOTH_SHELLS` shells takes out spikes up to two shells
+    wide (a monotonic stretch is kept as it is), and a running mean with weights
+    ``1/4, 1/2, 1/4`` smooths what is left. The shells beyond 0.5 cycles per voxel are 0.
+
+    Parameters
+    ----------
+    density : array of float, shape (K,)
+        From `measure_pore_spectrum` (intensity units squared times voxels cubed, >= 0).
+    size : int
+        The lag window it was measured with (shells of ``1 / size`` cycles per voxel).
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+        > 0 up to shell ``size / 2``, 0 beyond; all 0 where no shell is positive.
+    """
+    density = np.asarray(density, dtype=np.float64)
+    kept = density[: size // 2 + 1]
+    smooth = np.zeros_like(density)
+    positive = np.flatnonzero(kept > 0)
+    if not len(positive):
+        return smooth
+    logarithm = np.interp(np.arange(len(kept)), positive, np.log(kept[positive]))
+    logarithm = ndimage.median_filter(logarithm, size=SMOOTH_SHELLS, mode="nearest")
+    logarithm = ndimage.convolve1d(logarithm, [0.25, 0.5, 0.25], mode="nearest")
+    smooth[: len(kept)] = np.exp(logarithm)
+    return smooth

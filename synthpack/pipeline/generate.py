@@ -232,6 +232,7 @@ def _render(
     wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
     grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
                          library.voxel_size, margin=config.margin)
+    background = dataclasses.replace(background, extent=grid.shape)  # the pore texture's period covers the pack
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in particles], placed,
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,

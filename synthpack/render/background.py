@@ -36,6 +36,9 @@ class Background:
         Intensity of the tube wall; None draws no wall.
     wall_thickness : float or None
         Thickness of the drawn wall, voxels (the source's measured wall); None: the tube's own.
+    extent : tuple of 3 int or None
+        The shape of the volume drawn: the pore texture's period covers it (`PoreTextureConfig.period`);
+        None: the texture's `~PoreTextureConfig.tile`.
     texture : PoreTextureConfig
         The pore texture's settings.
     pore_spectrum : tuple of float or None
@@ -53,6 +56,7 @@ class Background:
     pore_spectrum: tuple[float, ...] | None = None
     pore_quantiles: tuple[float, ...] | None = None
     wall_thickness: float | None = None
+    extent: tuple[int, int, int] | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
@@ -91,19 +95,20 @@ class Background:
 
     def texture_values(self, lo: np.ndarray, hi: np.ndarray, seed: int) -> np.ndarray:
         """The pore texture over the global index box ``[lo, hi)``, intensity units (see `PoreTextureConfig.sample`)."""
-        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum, self.pore_quantiles)
+        return self.texture.sample(lo, hi, seed, self.pore_std, self.pore_spectrum, self.pore_quantiles, self.extent)
 
     def texture_density(self) -> np.ndarray:
         """The pore texture's power spectral density on its tile's FFT grid (see `PoreTextureConfig.density`).
 
-        Float64, shape ``(tile,) * 3``, intensity units squared times voxels cubed; zeros for flat pores.
+        Float64, shape ``(period,) * 3`` (`PoreTextureConfig.period` of `extent`), intensity units squared times
+        voxels cubed; zeros for flat pores.
         """
-        density = self.texture.density(self.pore_std, self.pore_spectrum)
+        density = self.texture.density(self.pore_std, self.pore_spectrum, self.extent)
         return density if self.pore_std > 0 else np.zeros_like(density)
 
     def texture_record(self, seed: int) -> dict:
         """The pore texture drawn with render seed `seed`, for the manifest (see `PoreTextureConfig.record`)."""
-        return self.texture.record(self.pore_std, self.pore_spectrum, seed, self.pore_quantiles)
+        return self.texture.record(self.pore_std, self.pore_spectrum, seed, self.pore_quantiles, self.extent)
 
 
 def background_values(
