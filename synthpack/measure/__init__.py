@@ -17,7 +17,8 @@ means the same on both. Modules, one job each:
 ``scanner``           `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``lattice``           in-slice patches wholly inside a mask (the realism judge's)
 ``roughness``         boundary roughness of grain sections: outline length over the smoothed outline's
-====================  =============================================================================================="""
+====================  ==============================================================================================
+"""
 
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
 from .noise_estimate import NoiseEstimate, estimate_noise
