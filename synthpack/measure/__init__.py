@@ -15,9 +15,11 @@ means the same on both. Modules, one job each:
 ``specimen``        `specimen_mask`: the specimen's voxels, without the container and the air
 ``scanner``         `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``lattice``         in-slice patches wholly inside a mask (the spectrum's and the realism judge's)
+``contacts``        grain contacts: coordination numbers of the complete grains centred in a region
 ==================  =========================================================================================
 """
 
+from .contacts import centred_grains, coordination_numbers, mean_coordination
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
 from .noise_estimate import NoiseEstimate, estimate_noise
 from .phases import PhaseLevels, estimate_phases
@@ -28,6 +30,8 @@ from .scanner import ScannerArtefacts, measure_scanner
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
 __all__ = [
+    "centred_grains",
+    "coordination_numbers",
     "edge_profile",
     "edge_width",
     "EdgeProfile",
@@ -38,6 +42,7 @@ __all__ = [
     "map_to_quantiles",
     "measure_pore_quantiles",
     "measure_pore_spectrum",
+    "mean_coordination",
     "measure_scanner",
     "noise_power_spectrum",
     "NoiseEstimate",
