@@ -34,6 +34,7 @@ PURPOSES: tuple[str, ...] = (
     "patch_origins",      # a patch dataset's patch corners (keys: epoch, item, draw)
     "augment",            # a dataset's artefact transforms (keys: epoch, item, and its slice or corner)
     "plots",              # subsamples drawn for figures
+    "shells",             # which grains of a spaced pour collide without a spacing shell
 )
 
 

@@ -29,12 +29,17 @@ costs a pour of its own at every size (the per-grain pour time must stay within 
 of a free pour), and what a batch reaches depends on the bed it falls on. So the
 pour steers itself: :class:`PackingController` measures, after each batch is locked,
 the solid fraction of the new bulk layer (the region the pour's checks measure:
-one median diameter from the wall and the floor, two below the pack top; by Monte
-Carlo against the grains' meshes, :func:`synthpack.physics.checks.solid_fraction_of`),
+one median diameter from the wall and the floor, two below the pack top, and one
+below the median height of the pack's surface, so a layer is measured once the grains
+cover it and no later grain falls into it; by Monte Carlo against the grains' meshes,
+:func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
 (:func:`prior_fraction`), scaled by the ratio measured so far, aiming the next layer
 so that the cumulative bulk fraction comes back to the target (integral action).
-The first batches, before there is a bulk, use the prior alone.
+The first batches, before there is a bulk, use the prior alone. A target looser
+than a free pour is never compacted (the knob stays <= 0): a batch the control would
+compact pours freely instead. Which grains of a spaced batch collide bare, for a
+target coordination, is :mod:`synthpack.physics.shells`' (``PackingController.bare``).
 """
 
 from __future__ import annotations
@@ -89,6 +94,7 @@ PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
 _MAX_CORRECTION = 0.06
 _SAMPLES_PER_UNIT_VOLUME = 600  # Monte-Carlo points per cubic simulation unit of a layer
 _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
+_SURFACE_CELL = 0.5  # side of the columns the pack's surface height is taken in, in margins
 
 
 def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str | None:
@@ -190,6 +196,9 @@ class PackingController:
         one median grain diameter, i.e. 1 simulation unit.
     seed : int
         Seed of the Monte-Carlo points.
+    bare : numpy.ndarray, optional
+        (N,) bool: the bodies that collide without a spacing shell in a spaced batch
+        (:func:`synthpack.physics.shells.bare_grains`); None: none does.
     """
 
     target: float
@@ -198,6 +207,7 @@ class PackingController:
     inner_radius: float
     margin: float = 1.0
     seed: int = 0
+    bare: np.ndarray | None = None
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
     #: Measured bulk layers: (z0, z1, packing fraction, knob of the batch that completed it).
@@ -234,6 +244,8 @@ class PackingController:
             wanted = self.target + (self.target - reached) * len(heights)
             wanted = float(np.clip(wanted, self.target - _MAX_CORRECTION, self.target + _MAX_CORRECTION))
         knob = _prior_knob(wanted / ratio)
+        if self.target < PRIOR_FREE:
+            knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
         self.knobs.append(knob)
         return BatchCompaction.from_knob(knob, self.friction)
 
@@ -256,9 +268,12 @@ class PackingController:
             self._grains[int(k)] = (vertices, faces, hull.equations, np.asarray(position, dtype=float),
                                     rotation, 1.0, world, convexity)
         top = max(float(g[6][:, 2].max()) for g in self._grains.values())
-        z0, z1 = self._measured_to, top - 2 * self.margin
         radius = self.inner_radius - self.margin
-        if z1 - z0 < _MIN_LAYER or radius <= 0:
+        if radius <= 0:
+            return
+        z0 = self._measured_to
+        z1 = min(top - 2 * self.margin, self._surface_height(radius) - self.margin)
+        if z1 - z0 < _MIN_LAYER:
             return
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
         n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * np.pi * radius**2 * (z1 - z0)))
@@ -267,13 +282,33 @@ class PackingController:
         self._measured_to = z1
         logger.debug("Bulk layer %.2f..%.2f: packing fraction %.3f (knob %.3f)", z0, z1, fraction, self.knobs[-1])
 
+    def _surface_height(self, radius: float) -> float:
+        """Median height of the pack's surface within `radius` of the axis (0 where the floor shows).
+
+        The surface is the highest grain point over each column of :data:`_SURFACE_CELL`
+        margins across (the grains' true mesh vertices), 0 in a column no grain covers.
+        """
+        cell = _SURFACE_CELL * self.margin
+        n = max(1, int(np.ceil(radius / cell)))
+        heights = np.zeros((2 * n, 2 * n))
+        for grain in self._grains.values():
+            world = grain[6]
+            columns = np.clip(np.floor(world[:, :2] / cell).astype(np.int64) + n, 0, 2 * n - 1)
+            np.maximum.at(heights, (columns[:, 0], columns[:, 1]), world[:, 2])
+        centres = (np.arange(2 * n) - n + 0.5) * cell
+        inside = np.hypot(centres[:, None], centres[None, :]) <= radius
+        return float(np.median(heights[inside])) if inside.any() else 0.0
+
     def record(self) -> dict[str, Any]:
-        """The knob of every batch and the measured bulk layers, JSON-able."""
-        return {
+        """The knob of every batch, the measured bulk layers and the number of bare grains, JSON-able."""
+        record: dict[str, Any] = {
             "knobs": [round(k, 4) for k in self.knobs],
             "layers": [{"z0": z0, "z1": z1, "packing_fraction": f, "knob": round(k, 4)}
                        for z0, z1, f, k in self.layers],
         }
+        if self.bare is not None:
+            record["bare_grains"] = int(np.count_nonzero(self.bare))
+        return record
 
 
 def resolve_target(target: Any, library: Any, engine: Any) -> float | None:
