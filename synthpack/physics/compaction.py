@@ -90,7 +90,8 @@ MAX_INFLATION = 0.6
 MAX_TARGET = 0.8
 #: Prior model: packing fraction of a free pour and of a fully compacted one.
 PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
-#: The next layer aims at most this far from the target to make up for past layers.
+#: The next layer aims at most this far from the target to make up for past layers (a target looser
+#: than a free pour: this times target / PRIOR_FREE, the same share of the target).
 _MAX_CORRECTION = 0.06
 _SAMPLES_PER_UNIT_VOLUME = 600  # Monte-Carlo points per cubic simulation unit of a layer
 _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
@@ -242,7 +243,8 @@ class PackingController:
             ratio = float(heights @ fractions / (heights @ priors))
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
-            wanted = float(np.clip(wanted, self.target - _MAX_CORRECTION, self.target + _MAX_CORRECTION))
+            correction = _MAX_CORRECTION * min(1.0, self.target / PRIOR_FREE)
+            wanted = float(np.clip(wanted, self.target - correction, self.target + correction))
         knob = _prior_knob(wanted / ratio)
         if self.target < PRIOR_FREE:
             knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
