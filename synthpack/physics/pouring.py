@@ -140,7 +140,7 @@ def pour(
     logger.info("Pouring %d grains in %d batches with %s (seed %d)%s",
                 n_particles, plan.n_batches, chosen.name, seed,
                 "" if target is None else f", to a packing fraction of {target:.3f}")
-    bare = bare_grains(len(bodies), bare_fraction(coordination), seed)
+    bare = bare_grains(plan.batches, bare_fraction(coordination), seed)
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
         controller = None if target is None else PackingController(
             target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed,

@@ -8,8 +8,8 @@ shells never (0.5 contacts per grain, the few grains whose rendered voxels meet 
 the shell's gap). ``pour.target_coordination`` asks for a mean coordination number
 ``C`` (contacts per grain; ``"source"``: the source scan's, ``SourceStatistics.coordination``):
 
-* a fraction ``b`` of the grains, drawn once per pour from the ``"shells"`` random
-  stream, collides **bare** (its true hull). Two bare grains touch where they rest on
+* a fraction ``b`` of the grains of each batch, chosen once per pour from the ``"shells"``
+  random stream, collides **bare** (its true hull). Two bare grains touch where they rest on
   each other; a bare grain and a shelled one stay the shell's width apart. In a pack
   where a grain rests against about :data:`FREE_COORDINATION` others (a free pour's
   coordination, face contacts of the rendered labels), a bare grain has about
@@ -106,14 +106,35 @@ def bare_fraction(coordination: float | None) -> float:
     return min(math.sqrt(max(float(coordination), 0.0) / FREE_COORDINATION), MAX_BARE)
 
 
-def bare_grains(n: int, fraction: float, seed: int) -> np.ndarray | None:
-    """Which of a pour's `n` grains collide bare: (n,) bool, each with probability `fraction`; None when 0.
+def bare_grains(batches: np.ndarray, fraction: float, seed: int) -> np.ndarray | None:
+    """Which of a pour's grains collide bare: in each batch, the nearest whole number to `fraction` of its grains.
 
-    Drawn from the ``"shells"`` stream of `seed`, so the other draws of a pour stay as they were.
+    Parameters
+    ----------
+    batches : numpy.ndarray
+        (N,) int, the batch of each grain, in pouring order.
+    fraction : float
+        The share of bare grains, in [0, 1].
+    seed : int
+        The pour's seed: the grains are chosen at random from its ``"shells"`` stream, so the
+        other draws of a pour stay as they were.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (N,) bool; None when `fraction` is 0. A fixed count per batch rather than a draw per
+        grain: the coordination follows the share of bare grains, and a binomial draw would
+        move it by 10% in a pour of 300.
     """
     if fraction <= 0:
         return None
-    return generator(seed, "shells").random(n) < fraction
+    batches = np.asarray(batches)
+    draws = generator(seed, "shells").random(len(batches))
+    bare = np.zeros(len(batches), dtype=bool)
+    for batch in np.unique(batches):
+        members = np.flatnonzero(batches == batch)
+        bare[members[np.argsort(draws[members])[:int(round(fraction * len(members)))]]] = True
+    return bare
 
 
 def shell_inflations(inflation: float, bare: np.ndarray) -> np.ndarray:
