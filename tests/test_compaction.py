@@ -220,3 +220,23 @@ def test_a_target_looser_than_a_free_pour_is_never_compacted():
     dense = PackingController(0.58, 0.6, [tetrahedron], inner_radius=3.0)
     dense.layers.append((1.0, 2.0, 0.5, dense.next_batch().knob))
     assert dense.next_batch().knob > 0
+
+
+def test_a_bulk_layer_is_measured_only_once_the_grains_cover_the_floor():
+    """A heap in one corner reaches high but leaves the floor bare: no layer until a batch covers it."""
+    import trimesh
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0)).subdivide().subdivide()
+    centres = np.array([(x, y, z + 0.5) for z in range(5) for y in range(-3, 4) for x in range(-3, 4)], float)
+    controller = PackingController(0.3, 0.6, [(cube.vertices, cube.faces)] * len(centres), inner_radius=3.0)
+    identity = np.tile([1.0, 0, 0, 0], (len(centres), 1))
+    heap = np.flatnonzero((centres[:, 0] == 3) & (centres[:, 1] == 3))  # a column of 5 in a corner
+    controller.next_batch()
+    controller.observe(heap, centres[heap], identity[heap])
+    assert controller.layers == []  # 5 high, but the floor shows: measured later
+    rest = np.setdiff1d(np.arange(len(centres)), heap)
+    controller.next_batch()
+    controller.observe(rest, centres[rest], identity[rest])
+    ((z0, z1, fraction, _),) = controller.layers
+    assert z0 == 1.0 and z1 == pytest.approx(3.0)  # two below the top (5), one below the surface
+    assert fraction == pytest.approx(1.0, abs=0.05)  # solid cubes

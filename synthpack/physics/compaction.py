@@ -34,7 +34,8 @@ below the median height of the pack's surface, so a layer is measured once the g
 cover it and no later grain falls into it; by Monte Carlo against the grains' meshes,
 :func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
-(:func:`prior_fraction`), scaled by the ratio measured so far, aiming the next layer
+(:func:`prior_fraction`), scaled by the ratio measured so far (each layer against the
+prior of the grains centred in it: a layer holds grains of several batches), aiming the next layer
 so that the cumulative bulk fraction comes back to the target (integral action).
 The first batches, before there is a bulk, use the prior alone. A target looser
 than a free pour is never compacted (the knob stays <= 0): a batch the control would
@@ -211,11 +212,13 @@ class PackingController:
     bare: np.ndarray | None = None
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
-    #: Measured bulk layers: (z0, z1, packing fraction, knob of the batch that completed it).
+    #: Measured bulk layers: (z0, z1, packing fraction, knob of its grains: the one whose prior fraction is
+    #: the mean of theirs, volume-weighted, for the grains centred in it; else of the batch that completed it).
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
+    _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
 
     def __post_init__(self) -> None:
         self._measured_to = float(self.margin)
@@ -266,9 +269,10 @@ class PackingController:
             rotation = Rotation.from_quat(quaternion, scalar_first=True)
             world = rotation.apply(vertices) + position
             hull = ConvexHull(vertices)
-            convexity = float(trimesh.Trimesh(vertices, faces, process=False).volume / hull.volume)
+            volume = float(trimesh.Trimesh(vertices, faces, process=False).volume)
             self._grains[int(k)] = (vertices, faces, hull.equations, np.asarray(position, dtype=float),
-                                    rotation, 1.0, world, convexity)
+                                    rotation, 1.0, world, volume / hull.volume)
+            self._knob_of[int(k)] = (self.knobs[-1], volume)
         top = max(float(g[6][:, 2].max()) for g in self._grains.values())
         radius = self.inner_radius - self.margin
         if radius <= 0:
@@ -280,9 +284,24 @@ class PackingController:
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
         n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * np.pi * radius**2 * (z1 - z0)))
         fraction = solid_fraction_of(grains, radius, z0, z1, n_samples, self._rng, exact=False)
-        self.layers.append((z0, z1, fraction, self.knobs[-1]))
+        knob = self._layer_knob(z0, z1)
+        self.layers.append((z0, z1, fraction, knob))
         self._measured_to = z1
-        logger.debug("Bulk layer %.2f..%.2f: packing fraction %.3f (knob %.3f)", z0, z1, fraction, self.knobs[-1])
+        logger.debug("Bulk layer %.2f..%.2f: packing fraction %.3f (knob %.3f)", z0, z1, fraction, knob)
+
+    def _layer_knob(self, z0: float, z1: float) -> float:
+        """The knob of the grains centred in ``z0 <= z < z1``: a layer holds grains of several batches.
+
+        The knob whose prior fraction is the volume-weighted mean of theirs, so the measured
+        ratio to the prior compares like with like; the last batch's where none is centred there.
+        """
+        placed = [self._knob_of[k] for k, g in self._grains.items() if z0 <= float(g[6][:, 2].mean()) < z1]
+        if not placed:
+            return self.knobs[-1]
+        knobs, volumes = (np.array(column) for column in zip(*placed))
+        if np.ptp(knobs) == 0:
+            return float(knobs[0])
+        return _prior_knob(float(volumes @ [prior_fraction(k) for k in knobs] / volumes.sum()))
 
     def _surface_height(self, radius: float) -> float:
         """Median height of the pack's surface within `radius` of the axis (0 where the floor shows).
