@@ -41,7 +41,8 @@ _ENGINE_CHOICES = tuple(ENGINES)
 
 
 def _target_option(text: str) -> float | str:
-    """A ``--target-solid-fraction`` value: a number as a float, 'source' or 'none' as given (checked by PourConfig)."""
+    """A ``--target-solid-fraction`` or ``--target-coordination`` value: a number as a float, 'source' or 'none'
+    as given (checked by PourConfig)."""
     try:
         return float(text)
     except ValueError:
@@ -50,7 +51,8 @@ def _target_option(text: str) -> float | str:
 
 #: The options of `pour` and `generate` that are `PourConfig` settings (validated by it), with their types.
 _POUR_OPTIONS = (("n_particles", int), ("batch_size", int), ("engine", str), ("collision_shape", str),
-                 ("tube_radius", float), ("tube_height", float), ("target_solid_fraction", _target_option))
+                 ("tube_radius", float), ("tube_height", float), ("target_solid_fraction", _target_option),
+                 ("target_coordination", _target_option))
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack.io.atomic.check_output`).

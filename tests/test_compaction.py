@@ -8,13 +8,17 @@ import sys
 import numpy as np
 import pytest
 
+from synthpack.artefacts.recipes import bulk_region
 from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import build_pack
 from synthpack.errors import SynthpackInputError
 from synthpack.library.core import ParticleLibrary
 from synthpack.physics import PourConfig, Tube, get_engine, pour
 from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
                                           resolve_target)
+from synthpack.physics.shells import MAX_BARE, bare_fraction, bare_grains, resolve_coordination, shell_inflations
 from synthpack.scan.samples import sample_scan
+from synthpack.measure.contacts import centred_grains, coordination_numbers
 from synthpack.measure.specimen import solid_fraction, specimen_mask
 
 
@@ -48,7 +52,7 @@ def test_a_target_above_the_free_pour_is_reached(sample, target, batch, large_li
 
 def test_a_target_below_the_free_pour_is_reached_with_spaced_grains(large_library):
     tube = _narrow_tube(large_library, 150, 2.5)
-    config = PourConfig(n_particles=150, batch_size=30, target_solid_fraction=0.30)
+    config = PourConfig(n_particles=150, batch_size=30, target_solid_fraction=0.30, target_coordination=None)
     packed = pour(large_library, config, 1, container=tube, progress=False)
     assert abs(packed.checks.packing_fraction - 0.30) <= TARGET_TOLERANCE
     assert packed.checks.target_reached is True
@@ -148,3 +152,91 @@ def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_ne
     assert "not judged (no bulk" in line
     needed = int(re.search(r"pour about (\d+) grains", line).group(1))
     assert needed > 4
+
+
+def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tuple[float, float, dict]:
+    """Solid fraction and mean coordination of a rendered pack's bulk (the realism report's measures), and its record."""
+    config = PackConfig().replace(postprocess="none", pour={"n_particles": 150, "batch_size": 30, **pour_settings})
+    pack = build_pack(library, config, seed, progress=False)
+    labels, checks = np.asarray(pack.labels), pack.placements.checks
+    region = bulk_region(labels.shape, pack.grid.origin, library.voxel_size, checks.packing_region)
+    grains = centred_grains(labels, region)
+    assert len(grains) >= 30  # enough grains for a mean
+    return solid_fraction(labels, region), float(coordination_numbers(labels)[grains].mean()), checks.compaction
+
+
+def test_a_spaced_pour_reaches_the_target_coordination_and_still_the_solid_fraction(large_library):
+    """Equal shells keep every grain apart; with some grains bare, they touch about as often as asked."""
+    settings = {"target_solid_fraction": 0.3, "tube_radius": 3.2 * float(np.median(large_library.equivalent_diameters))}
+    apart = _bulk_structure(large_library, 1, target_coordination="none", **settings)
+    touching = _bulk_structure(large_library, 1, target_coordination=1.5, **settings)
+    assert apart[1] < 0.75  # equal shells: the few grains whose voxels meet across a thin shell
+    assert "bare_grains" not in apart[2]
+    assert touching[1] == pytest.approx(1.5, rel=0.3)
+    assert touching[2]["bare_grains"] == 5 * round(30 * bare_fraction(1.5))
+    for fraction, _, _ in (apart, touching):
+        assert fraction == pytest.approx(0.3, abs=0.03)
+
+
+@pytest.mark.parametrize("value, expected", [("source", "source"), (None, None), ("none", None), (1.5, 1.5), (0, 0.0)])
+def test_the_config_takes_a_target_coordination(value, expected):
+    assert PackConfig.from_dict({"pour": {"target_coordination": value}}).pour.target_coordination == expected
+
+
+@pytest.mark.parametrize("value", [-0.5, "many", True, float("inf")])
+def test_a_bad_target_coordination_is_refused_with_the_key(value):
+    with pytest.raises(SynthpackInputError, match="target_coordination"):
+        PackConfig.from_dict({"pour": {"target_coordination": value}})
+
+
+def test_the_source_coordination_is_the_source_scans(large_library):
+    assert resolve_coordination("source", large_library) == large_library.statistics.coordination > 3  # a dense pack
+    assert resolve_coordination(None, large_library) is None and resolve_coordination(0.5, large_library) == 0.5
+
+
+def test_the_bare_grains_are_a_share_that_grows_with_the_target_and_keeps_the_mean_collision_volume():
+    assert bare_fraction(None) == bare_fraction(0.0) == 0.0
+    assert 0 < bare_fraction(0.5) < bare_fraction(1.0) < bare_fraction(2.0) < MAX_BARE == bare_fraction(50.0)
+    batches = np.repeat(np.arange(40), 50)
+    assert bare_grains(batches, 0.0, seed=3) is None
+    drawn = bare_grains(batches, 0.4, seed=3)
+    assert (np.bincount(batches[drawn]) == 20).all()  # 40% of each batch: no binomial spread
+    np.testing.assert_array_equal(drawn, bare_grains(batches, 0.4, seed=3))  # the seed's own stream
+    assert not np.array_equal(drawn, bare_grains(batches, 0.4, seed=4))
+    shells = shell_inflations(0.3, drawn[:50])
+    assert (shells[drawn[:50]] == 0).all() and (shells[~drawn[:50]] > 0.3).all()
+    assert np.mean((1 + shells) ** 3) == pytest.approx(1.3**3)
+    np.testing.assert_array_equal(shell_inflations(0.3, np.zeros(5, bool)), 0.3)  # no bare grain: equal shells
+    np.testing.assert_array_equal(shell_inflations(0.0, drawn[:50]), 0.0)  # a free or compacted batch
+
+
+def test_a_target_looser_than_a_free_pour_is_never_compacted():
+    tetrahedron = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                   np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    controller = PackingController(0.45, 0.6, [tetrahedron], inner_radius=3.0)
+    first = controller.next_batch()
+    controller.layers.append((1.0, 2.0, 0.2, first.knob))  # far looser than aimed at
+    assert controller.next_batch().knob == 0.0  # a free batch, not a compacted one
+    dense = PackingController(0.58, 0.6, [tetrahedron], inner_radius=3.0)
+    dense.layers.append((1.0, 2.0, 0.5, dense.next_batch().knob))
+    assert dense.next_batch().knob > 0
+
+
+def test_a_bulk_layer_is_measured_only_once_the_grains_cover_the_floor():
+    """A heap in one corner reaches high but leaves the floor bare: no layer until a batch covers it."""
+    import trimesh
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0)).subdivide().subdivide()
+    centres = np.array([(x, y, z + 0.5) for z in range(5) for y in range(-3, 4) for x in range(-3, 4)], float)
+    controller = PackingController(0.3, 0.6, [(cube.vertices, cube.faces)] * len(centres), inner_radius=3.0)
+    identity = np.tile([1.0, 0, 0, 0], (len(centres), 1))
+    heap = np.flatnonzero((centres[:, 0] == 3) & (centres[:, 1] == 3))  # a column of 5 in a corner
+    controller.next_batch()
+    controller.observe(heap, centres[heap], identity[heap])
+    assert controller.layers == []  # 5 high, but the floor shows: measured later
+    rest = np.setdiff1d(np.arange(len(centres)), heap)
+    controller.next_batch()
+    controller.observe(rest, centres[rest], identity[rest])
+    ((z0, z1, fraction, _),) = controller.layers
+    assert z0 == 1.0 and z1 == pytest.approx(3.0)  # two below the top (5), one below the surface
+    assert fraction == pytest.approx(1.0, abs=0.05)  # solid cubes

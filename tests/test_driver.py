@@ -44,15 +44,15 @@ class ToyWorld(World):
         half = int(np.ceil(scene.tube.inner_radius / CELL))
         self.half, self.heights = half, np.zeros((2 * half, 2 * half))
         n = len(scene.bodies)
-        self.positions, self.quaternions = np.zeros((n, 3)), np.zeros((n, 4))
+        self.positions, self.quaternions, self.inflations = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n)
         self.surfaces = [_surface_points(b.vertices) for b in scene.bodies]  # points on each grain's hull
         self.in_world: set[int] = set()
         self.batch: list[int] = []
 
     def _world(self, i: int, points: np.ndarray) -> np.ndarray:
-        """Points of grain `i` (local frame) in the world, its shell inflated by the batch's inflation."""
+        """Points of grain `i` (local frame) in the world, its shell inflated by its own inflation."""
         body = self.scene.bodies[i]
-        local = body.center_mass + (points - body.center_mass) * (1 + self.inflation)
+        local = body.center_mass + (points - body.center_mass) * (1 + self.inflations[i])
         return Rotation.from_quat(self.quaternions[i], scalar_first=True).apply(local) + self.positions[i]
 
     def _world_hull(self, i: int) -> np.ndarray:
@@ -60,7 +60,8 @@ class ToyWorld(World):
 
     def add_batch(self, members, positions, friction, inflation):
         self.calls.append(("add_batch", members.tolist(), friction, inflation, positions.copy()))
-        self.batch, self.inflation, self.friction, self.dropped = [int(i) for i in members], inflation, friction, False
+        self.batch, self.friction, self.dropped = [int(i) for i in members], friction, False
+        self.inflations[members] = inflation
         self.positions[members] = positions
         self.quaternions[members] = [self.scene.bodies[i].orientation for i in members]
         self.in_world.update(self.batch)
@@ -96,7 +97,7 @@ class ToyWorld(World):
     def _rest(self, i: int, position: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """How far grain `i` at `position` falls until a column of it meets the height map (-inf: it leaves the tube)."""
         body = self.scene.bodies[i]
-        local = body.center_mass + (self.surfaces[i] - body.center_mass) * (1 + self.inflation)
+        local = body.center_mass + (self.surfaces[i] - body.center_mass) * (1 + self.inflations[i])
         points = Rotation.from_quat(self.quaternions[i], scalar_first=True).apply(local) + position
         if np.hypot(points[:, 0], points[:, 1]).max() > self.scene.tube.inner_radius:
             return -np.inf, np.empty(0, int), points
@@ -242,10 +243,26 @@ def test_the_knob_reaches_the_toy_engine_spaced_looser_compacted_denser():
         (_, _, friction, inflation, _), *_ = engine.calls
         heights[target] = result.positions[:, 2].mean()
         if target == 0.25:
-            assert inflation > 0 and friction == MATERIAL.friction
+            assert (inflation > 0).all() and friction == MATERIAL.friction
         if target == 0.6:
-            assert inflation == 0 and friction < MATERIAL.friction
+            assert (inflation == 0).all() and friction < MATERIAL.friction
     assert heights[0.25] > 1.2 * heights[None] > 1.2 * heights[0.6]
+
+
+def test_bare_grains_of_a_spaced_batch_get_no_shell_and_the_others_thicker_ones():
+    """The same batch, all in equal shells or with every third grain bare: the mean collision volume is kept."""
+    scene = toy_scene(1, 30, radius=2.5)
+    calls = {}
+    for bare in (None, np.arange(30) % 3 == 0):
+        engine, packing = ToyEngine(), controller(scene, 0.25)
+        packing.bare = bare
+        engine.simulate(scene, compaction=packing)
+        calls[bare is None] = engine.calls[0][3]
+    equal, mixed = calls[True], calls[False]
+    assert np.ptp(equal) == 0 and equal[0] > 0
+    np.testing.assert_array_equal(mixed[::3], 0.0)
+    assert (np.delete(mixed, np.s_[::3]) > equal[0]).all()
+    assert np.mean((1 + mixed) ** 3) == pytest.approx((1 + equal[0]) ** 3)
 
 
 def test_an_engine_without_compaction_is_refused_a_target_and_pours_freely_for_source(large_library, caplog):

@@ -17,7 +17,8 @@ from synthpack.realism import CnnConfig, RealismReport, Specimen, compare
 from synthpack.realism.appearance import measure_appearance, noise_levels, noise_power_spectrum
 from synthpack.realism.discriminator import classifier_test
 from synthpack.measure.lattice import patch_corners, take_patches
-from synthpack.realism.structure import coordination_numbers, grain_table, ks_distance
+from synthpack.measure.contacts import coordination_numbers
+from synthpack.realism.structure import grain_table, ks_distance
 from synthpack.measure.specimen import solid_fraction
 
 # A pack narrow and deep enough to have a bulk region (radius ~17, height ~130 voxels).

@@ -35,6 +35,7 @@ PURPOSES: tuple[str, ...] = (
     "augment",            # a dataset's artefact transforms (keys: epoch, item, and its slice or corner)
     "plots",              # subsamples drawn for figures
     "calibration_guard",  # the calibration guard's trial of the fitted steps (key: the step's kind)
+    "shells",             # which grains of a spaced pour collide without a spacing shell
 )
 
 

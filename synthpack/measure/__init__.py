@@ -17,9 +17,10 @@ means the same on both. Modules, one job each:
 ``scanner``           `measure_scanner`: cupping, rings and the container wall, about the rotation axis
 ``lattice``           in-slice patches wholly inside a mask (the realism judge's)
 ``roughness``         boundary roughness of grain sections: outline length over the smoothed outline's
-====================  ==============================================================================================
-"""
+``contacts``          grain contacts: coordination numbers of the complete grains centred in a region
+====================  ======================================================================================="""
 
+from .contacts import centred_grains, coordination_numbers, mean_coordination
 from .edges import EdgeProfile, edge_profile, edge_width, signed_distance, volume_edge_width
 from .noise_estimate import NoiseEstimate, estimate_noise
 from .phase_histograms import phase_masks, phase_quantiles, quantile_distance
@@ -33,6 +34,8 @@ from .spectral_spikes import SpectralSpikes, spectral_spikes
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
 __all__ = [
+    "centred_grains",
+    "coordination_numbers",
     "edge_profile",
     "edge_width",
     "EdgeProfile",
@@ -43,6 +46,7 @@ __all__ = [
     "map_to_quantiles",
     "measure_pore_quantiles",
     "measure_pore_spectrum",
+    "mean_coordination",
     "measure_scanner",
     "noise_power_spectrum",
     "NoiseEstimate",

@@ -8,6 +8,7 @@ Modules, one job each, in the order a pour runs them:
 ``plan``               the seeded pour plan: which grains, at what scale, orientation and drop height
 ``container``          `Tube`: the container, sized for the pour
 ``compaction``         packing to a target solid fraction, steered by the bulk after each locked batch
+``shells``             a target coordination: which grains of a spaced pour collide bare, the others' shells
 ``scene``              `Scene`: the grains, tube, material, settle criteria and options every engine pours
 ``driver``             the one batch loop (spawn, settle, lock, retire, snapshot) over an engine's hooks
 ``engine``             the `Engine` base class every engine subclasses

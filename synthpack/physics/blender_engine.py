@@ -354,9 +354,9 @@ class _BlenderWorld(World):
             f"Last {len(self._tail)} lines of its output:\n{output}"
         )
 
-    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: float) -> None:
+    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: np.ndarray) -> None:
         self._call("add_batch", members=np.asarray(members).tolist(), positions=np.asarray(positions).tolist(),
-                   friction=float(friction), inflation=float(inflation))
+                   friction=float(friction), inflation=np.asarray(inflation, dtype=float).tolist())
 
     def settle(self, criteria: SettleCriteria, fixed_steps: int | None) -> tuple[int, bool]:
         reply = self._call("settle", criteria=asdict(criteria), fixed_steps=fixed_steps)

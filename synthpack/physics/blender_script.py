@@ -21,8 +21,8 @@ calls, all lengths in simulation units, z up, gravity -z:
     ``{"blender_version"}``.
 ``add_batch(members, positions, friction, inflation)``
     Each grain of ``members`` becomes an ACTIVE rigid body with a CONVEX_HULL collision
-    shape built from its hull (inflated by ``inflation`` of its size about the centre of
-    mass), shifted so that the object ORIGIN is the grain's centre of mass (Blender's
+    shape built from its hull (inflated by its entry of ``inflation`` of its size about the
+    centre of mass), shifted so that the object ORIGIN is the grain's centre of mass (Blender's
     rigid bodies rotate about the origin), its particle-local origin at ``positions``,
     turned by its orientation, at ``friction``. The wall is raised when the batch
     reaches above it, so no grain escapes over the rim while it falls.
@@ -465,8 +465,8 @@ class World:
     def add_batch(self, members, positions, friction, inflation):
         tube, material = self.spec["tube"], self.spec["material"]
         self.batch = [self.grains[i] for i in members]
-        for grain, origin in zip(self.batch, positions):
-            grain.spawn(origin, inflation)
+        for grain, origin, shell in zip(self.batch, positions, inflation):
+            grain.spawn(origin, shell)
         reach = max(float(g.world_hull()[:, 2].max()) for g in self.batch)
         if reach > self.wall_top:  # raise the wall so no grain escapes over the rim
             self.wall_top = reach + 1.0

@@ -29,12 +29,18 @@ costs a pour of its own at every size (the per-grain pour time must stay within 
 of a free pour), and what a batch reaches depends on the bed it falls on. So the
 pour steers itself: :class:`PackingController` measures, after each batch is locked,
 the solid fraction of the new bulk layer (the region the pour's checks measure:
-one median diameter from the wall and the floor, two below the pack top; by Monte
-Carlo against the grains' meshes, :func:`synthpack.physics.checks.solid_fraction_of`),
+one median diameter from the wall and the floor, two below the pack top, and one
+below the median height of the pack's surface, so a layer is measured once the grains
+cover it and no later grain falls into it; by Monte Carlo against the grains' meshes,
+:func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
-(:func:`prior_fraction`), scaled by the ratio measured so far, aiming the next layer
+(:func:`prior_fraction`), scaled by the ratio measured so far (each layer against the
+prior of the grains centred in it: a layer holds grains of several batches), aiming the next layer
 so that the cumulative bulk fraction comes back to the target (integral action).
-The first batches, before there is a bulk, use the prior alone.
+The first batches, before there is a bulk, use the prior alone. A target looser
+than a free pour is never compacted (the knob stays <= 0): a batch the control would
+compact pours freely instead. Which grains of a spaced batch collide bare, for a
+target coordination, is :mod:`synthpack.physics.shells`' (``PackingController.bare``).
 """
 
 from __future__ import annotations
@@ -85,10 +91,12 @@ MAX_INFLATION = 0.6
 MAX_TARGET = 0.8
 #: Prior model: packing fraction of a free pour and of a fully compacted one.
 PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
-#: The next layer aims at most this far from the target to make up for past layers.
+#: The next layer aims at most this far from the target to make up for past layers (a target looser
+#: than a free pour: this times target / PRIOR_FREE, the same share of the target).
 _MAX_CORRECTION = 0.06
 _SAMPLES_PER_UNIT_VOLUME = 600  # Monte-Carlo points per cubic simulation unit of a layer
 _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
+_SURFACE_CELL = 0.5  # side of the columns the pack's surface height is taken in, in margins
 
 
 def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str | None:
@@ -190,6 +198,9 @@ class PackingController:
         one median grain diameter, i.e. 1 simulation unit.
     seed : int
         Seed of the Monte-Carlo points.
+    bare : numpy.ndarray, optional
+        (N,) bool: the bodies that collide without a spacing shell in a spaced batch
+        (:func:`synthpack.physics.shells.bare_grains`); None: none does.
     """
 
     target: float
@@ -198,13 +209,16 @@ class PackingController:
     inner_radius: float
     margin: float = 1.0
     seed: int = 0
+    bare: np.ndarray | None = None
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
-    #: Measured bulk layers: (z0, z1, packing fraction, knob of the batch that completed it).
+    #: Measured bulk layers: (z0, z1, packing fraction, knob of its grains: the one whose prior fraction is
+    #: the mean of theirs, volume-weighted, for the grains centred in it; else of the batch that completed it).
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
+    _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
 
     def __post_init__(self) -> None:
         self._measured_to = float(self.margin)
@@ -232,8 +246,11 @@ class PackingController:
             ratio = float(heights @ fractions / (heights @ priors))
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
-            wanted = float(np.clip(wanted, self.target - _MAX_CORRECTION, self.target + _MAX_CORRECTION))
+            correction = _MAX_CORRECTION * min(1.0, self.target / PRIOR_FREE)
+            wanted = float(np.clip(wanted, self.target - correction, self.target + correction))
         knob = _prior_knob(wanted / ratio)
+        if self.target < PRIOR_FREE:
+            knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
         self.knobs.append(knob)
         return BatchCompaction.from_knob(knob, self.friction)
 
@@ -252,28 +269,67 @@ class PackingController:
             rotation = Rotation.from_quat(quaternion, scalar_first=True)
             world = rotation.apply(vertices) + position
             hull = ConvexHull(vertices)
-            convexity = float(trimesh.Trimesh(vertices, faces, process=False).volume / hull.volume)
+            volume = float(trimesh.Trimesh(vertices, faces, process=False).volume)
             self._grains[int(k)] = (vertices, faces, hull.equations, np.asarray(position, dtype=float),
-                                    rotation, 1.0, world, convexity)
+                                    rotation, 1.0, world, volume / hull.volume)
+            self._knob_of[int(k)] = (self.knobs[-1], volume)
         top = max(float(g[6][:, 2].max()) for g in self._grains.values())
-        z0, z1 = self._measured_to, top - 2 * self.margin
         radius = self.inner_radius - self.margin
-        if z1 - z0 < _MIN_LAYER or radius <= 0:
+        if radius <= 0:
+            return
+        z0 = self._measured_to
+        z1 = min(top - 2 * self.margin, self._surface_height(radius) - self.margin)
+        if z1 - z0 < _MIN_LAYER:
             return
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
         n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * np.pi * radius**2 * (z1 - z0)))
         fraction = solid_fraction_of(grains, radius, z0, z1, n_samples, self._rng, exact=False)
-        self.layers.append((z0, z1, fraction, self.knobs[-1]))
+        knob = self._layer_knob(z0, z1)
+        self.layers.append((z0, z1, fraction, knob))
         self._measured_to = z1
-        logger.debug("Bulk layer %.2f..%.2f: packing fraction %.3f (knob %.3f)", z0, z1, fraction, self.knobs[-1])
+        logger.debug("Bulk layer %.2f..%.2f: packing fraction %.3f (knob %.3f)", z0, z1, fraction, knob)
+
+    def _layer_knob(self, z0: float, z1: float) -> float:
+        """The knob of the grains centred in ``z0 <= z < z1``: a layer holds grains of several batches.
+
+        The knob whose prior fraction is the volume-weighted mean of theirs, so the measured
+        ratio to the prior compares like with like; the last batch's where none is centred there.
+        """
+        placed = [self._knob_of[k] for k, g in self._grains.items() if z0 <= float(g[6][:, 2].mean()) < z1]
+        if not placed:
+            return self.knobs[-1]
+        knobs, volumes = (np.array(column) for column in zip(*placed))
+        if np.ptp(knobs) == 0:
+            return float(knobs[0])
+        return _prior_knob(float(volumes @ [prior_fraction(k) for k in knobs] / volumes.sum()))
+
+    def _surface_height(self, radius: float) -> float:
+        """Median height of the pack's surface within `radius` of the axis (0 where the floor shows).
+
+        The surface is the highest grain point over each column of :data:`_SURFACE_CELL`
+        margins across (the grains' true mesh vertices), 0 in a column no grain covers.
+        """
+        cell = _SURFACE_CELL * self.margin
+        n = max(1, int(np.ceil(radius / cell)))
+        heights = np.zeros((2 * n, 2 * n))
+        for grain in self._grains.values():
+            world = grain[6]
+            columns = np.clip(np.floor(world[:, :2] / cell).astype(np.int64) + n, 0, 2 * n - 1)
+            np.maximum.at(heights, (columns[:, 0], columns[:, 1]), world[:, 2])
+        centres = (np.arange(2 * n) - n + 0.5) * cell
+        inside = np.hypot(centres[:, None], centres[None, :]) <= radius
+        return float(np.median(heights[inside])) if inside.any() else 0.0
 
     def record(self) -> dict[str, Any]:
-        """The knob of every batch and the measured bulk layers, JSON-able."""
-        return {
+        """The knob of every batch, the measured bulk layers and the number of bare grains, JSON-able."""
+        record: dict[str, Any] = {
             "knobs": [round(k, 4) for k in self.knobs],
             "layers": [{"z0": z0, "z1": z1, "packing_fraction": f, "knob": round(k, 4)}
                        for z0, z1, f, k in self.layers],
         }
+        if self.bare is not None:
+            record["bare_grains"] = int(np.count_nonzero(self.bare))
+        return record
 
 
 def resolve_target(target: Any, library: Any, engine: Any) -> float | None:

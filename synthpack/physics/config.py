@@ -12,6 +12,7 @@ from .compaction import MAX_TARGET, TARGET_SOURCE, expected_fraction, parse_targ
 from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
+from .shells import parse_coordination
 
 __all__ = ["PourConfig"]
 
@@ -35,6 +36,15 @@ def _target(value: Any) -> bool:
 
 _target.__doc__ = (f"'source', a number in (0, {MAX_TARGET:g}] (no pour of rigid grains packs denser), "
                    "or none")
+
+
+def _coordination(value: Any) -> bool:
+    """'source', a number >= 0 (contacts per grain), or none"""
+    try:
+        parse_coordination(value)
+    except SynthpackInputError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -69,6 +79,10 @@ class PourConfig:
     target_solid_fraction: float | str | None = setting(
         TARGET_SOURCE, _target,
         "bulk solid fraction to pack to, batch by batch: 'source' (the source scan's), a number, or none (free pour)")
+    target_coordination: float | str | None = setting(
+        TARGET_SOURCE, _coordination,
+        "mean contacts per grain a pour looser than a free one aims at, by leaving some grains without a spacing "
+        "shell: 'source' (the source scan's), a number, or none (every grain in an equal shell)")
     engine_options: dict = setting({}, None, "options of the engine that differ from its defaults, "
                                               "e.g. {max_hull_vertices: 32}")
 
@@ -78,6 +92,8 @@ class PourConfig:
                      engine.options(self.engine_options, prefix="pour.engine_options."))
         target = parse_target(self.target_solid_fraction, "pour.target_solid_fraction")
         object.__setattr__(self, "target_solid_fraction", target)  # 'none' -> None, '0.5' -> 0.5
+        object.__setattr__(self, "target_coordination",
+                           parse_coordination(self.target_coordination, "pour.target_coordination"))
         if isinstance(target, float) and not engine.supports_compaction:
             raise SynthpackInputError(
                 f"config key 'pour.target_solid_fraction': the {self.engine} engine cannot pack to "

@@ -22,7 +22,8 @@ settled, change their friction, lock them, remove locked ones, read poses), and
 Packing to a target (:mod:`synthpack.physics.compaction`) attaches here, so every engine
 gets it: before a batch spawns, the :class:`~synthpack.physics.compaction.PackingController`
 gives its knob; the batch spawns at the knob's friction with collision shells inflated
-by its inflation (:meth:`World.add_batch`); a compacted batch falls at that friction
+by its inflation, each grain's own where some grains of a spaced pour are bare
+(:func:`~synthpack.physics.shells.shell_inflations`, :meth:`World.add_batch`); a compacted batch falls at that friction
 until nearly still, gets the material's friction back (:meth:`World.set_friction`) and
 settles; once it is locked, the controller measures the bulk it completed.
 """
@@ -40,6 +41,7 @@ import numpy as np
 from .burial import buried, largest_diameter
 from .compaction import FALL_QUIET, FALL_STEPS, BatchCompaction, PackingController
 from .scene import Body, Scene, SettleCriteria
+from .shells import shell_inflations
 
 logger = logging.getLogger(__name__)
 
@@ -106,7 +108,7 @@ class World(abc.ABC):
     """
 
     @abc.abstractmethod
-    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: float) -> None:
+    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: np.ndarray) -> None:
         """Add the bodies `members` as moving bodies, at rest.
 
         Parameters
@@ -119,10 +121,11 @@ class World(abc.ABC):
         friction : float
             Their friction coefficient until :meth:`set_friction` or :meth:`lock` (the
             material's, or lower for a compacted batch).
-        inflation : float
-            >= 0: they collide as their hulls inflated by this fraction of their size
-            about their centre of mass (:mod:`~synthpack.physics.compaction`); their mass
-            stays that of the true grain. The wall must reach above every spawned body.
+        inflation : numpy.ndarray
+            (M,) float64 >= 0: each collides as its hull inflated by this fraction of its
+            size about its centre of mass (:mod:`~synthpack.physics.compaction`,
+            :mod:`~synthpack.physics.shells`); its mass stays that of the true grain. The
+            wall must reach above every spawned body.
         """
 
     @abc.abstractmethod
@@ -207,7 +210,7 @@ def drive(
         plan = None if compaction is None else compaction.next_batch()
         friction = scene.material.friction if plan is None else plan.settle_friction
         world.add_batch(members, np.array([_spawn_position(bodies[i], top) for i in members]).reshape(-1, 3),
-                        friction, 0.0 if plan is None else plan.inflation)
+                        friction, _inflations(members, plan, compaction))
         if plan is not None and plan.compacts and options.fixed_steps is None:
             steps, settled = _compact(world, plan, scene)
         else:
@@ -243,6 +246,15 @@ def _spawn_position(body: Body, top: float) -> np.ndarray:
     """World position (3,) of a body's local origin at spawn: ``(x, y, top + dz)``."""
     x, y, dz = np.asarray(body.spawn_offset, dtype=float)
     return np.array([x, y, top + dz])
+
+
+def _inflations(members: np.ndarray, plan: BatchCompaction | None,
+                compaction: PackingController | None) -> np.ndarray:
+    """(M,) shell inflation of each body of a batch: 0 in a free pour, else its share of the knob's."""
+    if plan is None or compaction is None:
+        return np.zeros(len(members))
+    bare = np.zeros(len(members), dtype=bool) if compaction.bare is None else compaction.bare[members]
+    return shell_inflations(plan.inflation, bare)
 
 
 def _compact(world: World, plan: BatchCompaction, scene: Scene) -> tuple[int, bool]:

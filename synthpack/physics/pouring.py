@@ -43,6 +43,7 @@ from .scene import Body, EngineConfig, Material, Scene, SettleCriteria, TubeSpec
 from .placements import Placements
 from .plan import PourPlan, make_plan, parse_scale
 from .registry import get_engine
+from .shells import bare_fraction, bare_grains, resolve_coordination
 
 logger = logging.getLogger(__name__)
 
@@ -79,6 +80,9 @@ def pour(
         (``library.statistics.solid_fraction``), which an engine without compaction ignores
         (a free pour). The reached value is in the checks (``target_reached`` False, and a
         warning, when it is more than :data:`~synthpack.physics.compaction.TARGET_TOLERANCE` away).
+        ``target_coordination``, the mean contacts per grain a spaced pour aims at by leaving
+        some grains bare (:mod:`synthpack.physics.shells`; ``"source"``:
+        ``library.statistics.coordination``), applies to a pour with a target.
     seed : int
         Seed of every random choice (grains, orientations, scales, spawn points).
     container : Tube, optional
@@ -118,6 +122,7 @@ def pour(
     settle = SettleCriteria() if settle is None else settle
     chosen.check(material, settle, options)
     target = resolve_target(config.target_solid_fraction, library, chosen)
+    coordination = None if target is None else resolve_coordination(config.target_coordination, library)
     chosen.check_available()
     tube = config.tube(library) if container is None else container
     if not isinstance(tube, Tube):
@@ -135,9 +140,11 @@ def pour(
     logger.info("Pouring %d grains in %d batches with %s (seed %d)%s",
                 n_particles, plan.n_batches, chosen.name, seed,
                 "" if target is None else f", to a packing fraction of {target:.3f}")
+    bare = bare_grains(plan.batches, bare_fraction(coordination), seed)
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
         controller = None if target is None else PackingController(
-            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed)
+            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed,
+            bare=bare)
         result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
                                controller)
         positions = np.asarray(result.positions, dtype=float) * length
@@ -159,6 +166,7 @@ def pour(
         "length_scale": length,
         "mass_unit": mass_unit,
         "target_solid_fraction": target,
+        "target_coordination": coordination,
         "engine_options": {name: getattr(options, name) for name in config.engine_options},
     }
     return _placements(library, plan, positions, result, tube, chosen.name, seed, parameters, checks)

@@ -191,14 +191,14 @@ class _PybulletWorld(World):
         return _shape_for(self.client, body, self._shapes, self.scene.material,
                           self.scene.options.max_hull_vertices, inflation)
 
-    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: float) -> None:
+    def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: np.ndarray) -> None:
         client, scene, bodies = self.client, self.scene, self.scene.bodies
         reach = max(pos[2] + float(np.linalg.norm(bodies[i].vertices, axis=1).max())
                     for i, pos in zip(members, positions))
         if reach > self._wall_top:
             self._wall_top = _build_tube(client, scene.tube, scene.material, self._wall_top, reach + 1.0, self._inset)
-        for i, position in zip(members, positions):
-            shape = self._body_shapes[i] if inflation == 0 else self._shape(bodies[i], inflation)
+        for i, position, shell in zip(members, positions, np.asarray(inflation, dtype=float)):
+            shape = self._body_shapes[i] if shell == 0 else self._shape(bodies[i], float(shell))
             orientation = np.asarray(bodies[i].orientation, dtype=float)
             body_id = _create_dynamic(client, shape, bodies[i].mass, position, orientation, scene.material)
             if friction != scene.material.friction:

@@ -1,9 +1,9 @@
 """Structure of a labelled pack: solid fraction, grain size and shape, contacts, fabric, section roughness.
 
 Every per-grain figure is measured on the *complete grains centred in the bulk
-region*: grains whose voxels do not touch a face of the volume (so their shape is
-not cut) and whose centroid lies in the specimen's region (see
-`synthpack.realism.region`). In a source scan measured over its whole field of
+region* (`synthpack.measure.contacts.centred_grains`): grains whose voxels do not
+touch a face of the volume (so their shape is not cut) and whose centroid lies in
+the specimen's region (see `synthpack.realism.region`). In a source scan measured over its whole field of
 view those are the grains not cut by the border, as in the particle library.
 
 * **Equivalent diameter**: of the sphere with the grain's voxel volume.
@@ -21,7 +21,8 @@ view those are the grains not cut by the border, as in the particle library.
   for isotropic orientations, mean 0.5); the fabric tensor ``<n n^T>`` has
   eigenvalues (1/3, 1/3, 1/3) when isotropic.
 * **Coordination number**: the number of other grains a grain shares at least
-  one voxel face with.
+  one voxel face with (`synthpack.measure.contacts`, the count the source
+  statistics make too).
 * **Section roughness**: per grain section in evenly spaced slices along z (sections of
   at least 30 pixels centred in the region, any grain, complete or not), its outline's
   length over its smoothed outline's (`synthpack.measure.roughness`): about 1.05 for a
@@ -42,13 +43,13 @@ from scipy import ndimage, stats
 from ..library.meshing import mesh_from_mask
 from ..library.particles import equivalent_diameter
 from ..measure.roughness import volume_roughness
+from ..measure.contacts import centred_grains, coordination_numbers
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "GrainTable",
-    "coordination_numbers",
     "fabric_eigenvalues",
     "grain_table",
     "ks_distance",
@@ -69,32 +70,6 @@ def ks_distance(a: np.ndarray, b: np.ndarray) -> float:
         In [0, 1]: 0 for identical samples, 1 for samples that do not overlap.
     """
     return float(stats.ks_2samp(np.asarray(a, dtype=float), np.asarray(b, dtype=float)).statistic)
-
-
-def coordination_numbers(labels: np.ndarray) -> np.ndarray:
-    """Number of distinct grains each label shares at least one voxel face with.
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (Z, Y, X)
-        0 = pore.
-
-    Returns
-    -------
-    ndarray of int64, shape (labels.max() + 1,)
-        Entry ``k`` is the coordination number of label ``k`` (entry 0 is unused, 0).
-    """
-    labels = np.asarray(labels, dtype=np.int64)
-    n = int(labels.max()) + 1
-    codes = []
-    for axis in range(labels.ndim):
-        a = np.moveaxis(labels, axis, 0)[:-1].ravel()
-        b = np.moveaxis(labels, axis, 0)[1:].ravel()
-        touching = (a != b) & (a > 0) & (b > 0)
-        low, high = np.minimum(a[touching], b[touching]), np.maximum(a[touching], b[touching])
-        codes.append(low * n + high)
-    pairs = np.unique(np.concatenate(codes))
-    return np.bincount(np.concatenate([pairs // n, pairs % n]), minlength=n).astype(np.int64)
 
 
 def fabric_eigenvalues(axes: np.ndarray) -> np.ndarray:
@@ -153,12 +128,11 @@ class GrainTable:
 
 
 def _moments(mask: np.ndarray, voxel_size: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid (voxels, in the crop) and the covariance eigen-decomposition (physical units)."""
+    """Eigenvalues (largest first) and eigenvectors (columns) of the voxel positions' covariance, physical units."""
     coords = np.argwhere(mask).astype(np.float64)
-    centroid = coords.mean(axis=0)
-    physical = (coords - centroid) * np.asarray(voxel_size)
+    physical = (coords - coords.mean(axis=0)) * np.asarray(voxel_size)
     values, vectors = np.linalg.eigh(physical.T @ physical / len(coords))
-    return centroid, (values[::-1], vectors[:, ::-1])
+    return values[::-1], vectors[:, ::-1]
 
 
 def grain_table(specimen: Specimen) -> GrainTable:
@@ -178,16 +152,11 @@ def grain_table(specimen: Specimen) -> GrainTable:
     coordination = coordination_numbers(labels)
     roughness = volume_roughness(labels, region)
     voxel_volume = float(np.prod(voxel_size))
+    boxes = ndimage.find_objects(labels)
     rows: list[tuple] = []
-    for index, box in enumerate(ndimage.find_objects(labels)):
-        if box is None or any(s.start == 0 or s.stop == n for s, n in zip(box, labels.shape)):
-            continue
-        label = index + 1
-        mask = labels[box] == label
-        centroid, (values, vectors) = _moments(mask, voxel_size)
-        centre = tuple(int(round(c)) + s.start for c, s in zip(centroid, box))
-        if not region[centre]:
-            continue
+    for label in centred_grains(labels, region):
+        mask = labels[boxes[label - 1]] == label
+        values, vectors = _moments(mask, voxel_size)
         mesh = mesh_from_mask(mask, voxel_size, target_faces=None)
         sphericity = np.pi ** (1 / 3) * (6 * mesh.volume) ** (2 / 3) / mesh.area
         l1, l2, l3 = np.maximum(values, 1e-12)

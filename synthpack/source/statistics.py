@@ -6,9 +6,12 @@ import logging
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
+import numpy as np
+
 from .._shared.text import fraction, sig
 from ..errors import SynthpackInputError
 from ..scan.core import Scan
+from ..measure.contacts import mean_coordination
 from ..measure.edges import edge_profile, edge_width, interior_depth, signed_distance
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phases import estimate_phases
@@ -116,6 +119,12 @@ class SourceStatistics:
         (`~synthpack.measure.phase_histograms.phase_quantiles`), intensity units: what the
         calibration's guard (`~synthpack.artefacts.guard`) measures a pack against. None
         where a phase has too few voxels.
+    coordination : float or None
+        Mean coordination number: contacts per grain of the complete grains centred in
+        the specimen (`~synthpack.measure.contacts.mean_coordination`, the count the
+        realism report makes), dimensionless; the default target of a pour
+        (``pour.target_coordination: source``). None where no complete grain is centred
+        in the specimen.
     """
 
     pore_mean: float
@@ -144,6 +153,7 @@ class SourceStatistics:
     histogram_grains: tuple[float, ...] | None = None
     histogram_pores: tuple[float, ...] | None = None
     histogram_edges: tuple[float, ...] | None = None
+    coordination: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -156,7 +166,7 @@ class SourceStatistics:
         return self.grain_mean - self.pore_mean
 
     def summary(self) -> str:
-        """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction.
+        """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction, contacts.
 
         Intensities to 3 significant figures, lengths in voxels (``vx``); the scanner's
         figures (cupping, rings, wall) are `ScannerArtefacts.summary`'s; all of them are
@@ -167,6 +177,8 @@ class SourceStatistics:
                  f"noise {sig(self.noise_std)}", edge]
         if self.solid_fraction is not None:
             parts.append(f"solid fraction {fraction(self.solid_fraction)}")
+        if self.coordination is not None:
+            parts.append(f"{sig(self.coordination)} contacts per grain")
         return ", ".join(parts)
 
     def to_dict(self) -> dict[str, float | list[float]]:
@@ -207,12 +219,12 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
         the noise cannot be estimated (no grain or pore interior to measure it in).
     """
     whole = specimen_mask(scan.labels)
-    specimen = whole
+    specimen, readable = whole, None
     if exclude is not None:
         block = [slice(None)] * 3
         block[axis] = slice(*exclude)
-        specimen = whole.copy()
-        specimen[tuple(block)] = False
+        specimen, readable = whole.copy(), np.ones(whole.shape, dtype=bool)
+        specimen[tuple(block)] = readable[tuple(block)] = False
     levels = estimate_phases(scan, region=specimen)
     levels.check_contrast()
     noise = estimate_noise(scan.tomogram, scan.labels, region=specimen)
@@ -248,6 +260,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
+                                  coordination=mean_coordination(scan.labels, specimen, readable=readable),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
