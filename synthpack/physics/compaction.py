@@ -186,8 +186,11 @@ class PackingController:
     inner_radius : float
         The tube's inner radius, simulation units.
     margin : float
-        Distance of the bulk from the wall and the floor (twice it below the top):
-        one median grain diameter, i.e. 1 simulation unit.
+        Distance of the bulk from the floor (twice it below the top): one median
+        grain diameter, i.e. 1 simulation unit.
+    wall_margin : float
+        Distance of the bulk from the wall, simulation units: `margin`, or more for
+        the pour of an interior crop (`~synthpack.physics.container.CROP_WALL_MARGIN`).
     seed : int
         Seed of the Monte-Carlo points.
     """
@@ -197,6 +200,7 @@ class PackingController:
     meshes: Sequence[tuple[np.ndarray, np.ndarray]]
     inner_radius: float
     margin: float = 1.0
+    wall_margin: float = 1.0
     seed: int = 0
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
@@ -257,7 +261,7 @@ class PackingController:
                                     rotation, 1.0, world, convexity)
         top = max(float(g[6][:, 2].max()) for g in self._grains.values())
         z0, z1 = self._measured_to, top - 2 * self.margin
-        radius = self.inner_radius - self.margin
+        radius = self.inner_radius - self.wall_margin
         if z1 - z0 < _MIN_LAYER or radius <= 0:
             return
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]

@@ -16,7 +16,7 @@ from ..measure.psf import fit_edge_spread
 from ..measure.pore_histogram import measure_pore_quantiles
 from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
-from ..measure.specimen import solid_fraction, specimen_mask
+from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.spectrum import phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
@@ -108,6 +108,10 @@ class SourceStatistics:
         (`~synthpack.measure.specimen.solid_fraction`), dimensionless; the default
         target of a pour (``pour.target_solid_fraction: source``). None for a
         library of an older synthpack.
+    edge_coverage : float or None
+        Fraction of the scan's four side faces that lie in its specimen
+        (`~synthpack.measure.specimen.edge_coverage`), dimensionless; with no wall
+        measured, it says whether the scan is an interior crop (`interior_crop`).
     """
 
     pore_mean: float
@@ -133,6 +137,7 @@ class SourceStatistics:
     wall_thickness: float | None = None
     wall_gap: float | None = None
     solid_fraction: float | None = None
+    edge_coverage: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -143,6 +148,12 @@ class SourceStatistics:
         use it signed.
         """
         return self.grain_mean - self.pore_mean
+
+    @property
+    def interior_crop(self) -> bool:
+        """Whether the scan is an interior crop: no wall, and grains to its side faces
+        (`~synthpack.measure.specimen.is_interior_crop`); False where the coverage was not measured."""
+        return self.edge_coverage is not None and is_interior_crop(self.edge_coverage, self.wall_intensity is not None)
 
     def summary(self) -> str:
         """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction.
@@ -156,6 +167,8 @@ class SourceStatistics:
                  f"noise {sig(self.noise_std)}", edge]
         if self.solid_fraction is not None:
             parts.append(f"solid fraction {fraction(self.solid_fraction)}")
+        if self.interior_crop:
+            parts.append("an interior crop (no wall, grains to the edges)")
         return ", ".join(parts)
 
     def to_dict(self) -> dict[str, float | list[float]]:
@@ -232,6 +245,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
+                                  edge_coverage=edge_coverage(whole),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
