@@ -123,6 +123,8 @@ class World(abc.ABC):
             >= 0: they collide as their hulls inflated by this fraction of their size
             about their centre of mass (:mod:`~synthpack.physics.compaction`); their mass
             stays that of the true grain. The wall must reach above every spawned body.
+            < 0 only for an engine that :attr:`~synthpack.physics.engine.Engine.shrinks_shells`:
+            hulls shrunk by ``-inflation``, their true meshes still kept inside the tube.
         """
 
     @abc.abstractmethod

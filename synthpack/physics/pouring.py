@@ -144,7 +144,7 @@ def pour(
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
         controller = None if target is None else PackingController(
             target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius,
-            wall_margin=wall_margin, seed=seed)
+            wall_margin=wall_margin, seed=seed, shrinks=chosen.shrinks_shells)
         result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
                                controller)
         positions = np.asarray(result.positions, dtype=float) * length
