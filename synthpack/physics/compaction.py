@@ -23,13 +23,14 @@ locking, with one knob ``u`` per batch (:class:`BatchCompaction`):
   ``(u - 1) * max_shrink`` of their size. Grains collide as their convex hulls, and
   hulls cannot nest, so concave grains (sand: mean mesh volume over hull volume
   ``c`` about 0.8) pack looser than the real ones, which do; a shell shrunk by
-  ``max_shrink = 1 - c^(1/3)`` holds the grain's volume. Sand's free pour reached
+  ``max_shrink = 1 - c^(1/3)`` holds the grain's volume. A pour of sand reached
   0.52 under full compaction against the scan's 0.58, as the hulls' own fraction
   (``0.58 / c`` would be 0.72) is more than any random packing holds. The grains are
   rendered at their true size, so neighbours may overlap a little where their
   concavities do not meet (the checks report the penetration and the overlap). A
-  batch gets ``u > 1`` only once a bulk layer packed at ``u >= 1`` fell short of the
-  target: a pour that full compaction brings to the target never shrinks a shell.
+  batch gets ``u > 1`` only once the bulk layers packed at ``u = 1`` fell short of the
+  target by more than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to the target never shrinks a shell; and
+  it rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
 * ``u < 0``, **looser than a free pour**: the grains collide as shells inflated by
   ``-u`` of their size about their centre of mass (a spacing, as in the coarse-grain
   and "collision distance" options of DEM codes), so they settle apart; they are
@@ -103,6 +104,8 @@ MAX_TARGET = 0.8
 PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
 #: The next layer aims at most this far from the target to make up for past layers.
 _MAX_CORRECTION = 0.06
+#: Above 1, a batch's knob rises at most this far above the last batch's (the shrunk layers' fraction is noisy).
+_MAX_SHRINK_STEP = 0.5
 _SAMPLES_PER_UNIT_VOLUME = 600  # Monte-Carlo points per cubic simulation unit of a layer
 _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
 
@@ -282,6 +285,8 @@ class PackingController:
             wanted = self.target + (self.target - reached) * len(heights)
             wanted = float(np.clip(wanted, self.target - _MAX_CORRECTION, self.target + _MAX_CORRECTION))
         knob = _prior_knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
+        if knob > 1.0:
+            knob = min(knob, max(self.knobs[-1], 1.0) + _MAX_SHRINK_STEP)
         self.knobs.append(knob)
         return BatchCompaction.from_knob(knob, self.friction, self.max_shrink)
 
