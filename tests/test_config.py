@@ -57,6 +57,7 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
         ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
         ({"reconstruct": {"pore_texture": {"model": "fractal"}}}, "'reconstruct.pore_texture.model'"),
         ({"run": {"device": "gpu"}}, "'run.device' is out of range"),
+        ({"reconstruct": {"view": "box"}}, "'reconstruct.view' is out of range"),
         ({"pour": 3}, "must be a mapping"),
     ],
 )

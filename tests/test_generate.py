@@ -1,13 +1,16 @@
+import copy
 import dataclasses
 import json
+import logging
 
 import numpy as np
 import pytest
 
 import synthpack.store.pack as pack_module
 from synthpack.pipeline.config import PackConfig
-from synthpack.errors import PackBuildError
-from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed
+from synthpack.errors import PackBuildError, SynthpackInputError
+from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed, resolve_view
+from synthpack.realism import Specimen
 from synthpack.store.pack import is_complete_pack, open_pack
 from synthpack.render.pore_texture import PoreTextureConfig
 from synthpack.render.torch_render import resolve_device
@@ -121,3 +124,58 @@ def test_zarr_packs_open_lazily(large_library, tmp_path):
     middle = pack.labels.shape[0] // 2
     np.testing.assert_array_equal(pack.tomogram[middle], pack.clean[middle])  # no post-processing
     assert pack.labels[middle].max() >= 1
+
+
+INTERIOR = PackConfig().replace(seed=2, pour={"n_particles": 200, "batch_size": 50, "target_solid_fraction": None})
+
+
+@pytest.fixture(scope="module")
+def interior_pack(large_library, tmp_path_factory):
+    """A pack of the `large` sample (an interior crop, no wall) as the default view makes it: a crop, no tube."""
+    (path,) = generate_packs(large_library, tmp_path_factory.mktemp("interior"), 1, INTERIOR, progress=False)
+    return path
+
+
+def test_an_interior_crop_is_full_of_grains_to_its_edges_with_no_wall_or_air(interior_pack):
+    pack = open_pack(interior_pack)
+    manifest = pack.manifest
+    assert manifest["view"]["view"] == "interior" and manifest["view"]["requested"] == "auto"
+    assert manifest["wall"] is None
+    lo, hi = (np.array(manifest["view"]["crop"][k]) for k in ("lo", "hi"))
+    assert np.allclose((hi - lo) / pack.voxel_size, np.array(pack.shape) - 1, atol=1)  # the grid is the crop
+    container = manifest["view"]["container"]
+    assert hi[1] ** 2 + hi[2] ** 2 < container["inner_radius"] ** 2  # inside the tube, off its wall
+    grains = np.asarray(pack.labels[:]) > 0
+    bulk = grains.mean()
+    assert abs(bulk - manifest["pour_checks"]["packing_fraction"]) < 0.05
+    for axis in range(3):  # every slice, along every axis, holds about the bulk's fraction of grain
+        slices = grains.mean(axis=tuple(a for a in range(3) if a != axis))
+        assert slices.min() > 0.6 * bulk, axis
+    quarter = np.array(grains.shape[1:]) // 4
+    for corner in (grains[:, :quarter[0], :quarter[1]], grains[:, -quarter[0]:, -quarter[1]:],
+                   grains[:, :quarter[0], -quarter[1]:], grains[:, -quarter[0]:, :quarter[1]]):
+        assert corner.mean() > 0.6 * bulk  # no empty corners: a tube's are air
+    assert manifest["postprocess_mode"] == "calibrated"  # fitted in the crop, all of it bulk
+    specimen = Specimen.from_pack(interior_pack)
+    assert specimen.region.all()
+
+
+def test_a_source_with_a_container_keeps_the_tube_and_few_grains_fall_back_to_it(large_library, caplog):
+    walled = dataclasses.replace(large_library.statistics, wall_intensity=0.5, wall_thickness=3.0, wall_gap=1.0)
+    library = copy.copy(large_library)
+    library.statistics = walled
+    assert resolve_view(library, INTERIOR) == "tube"  # a container in view: the tube with its wall
+    assert resolve_view(large_library, INTERIOR) == "interior"
+    few = SMALL.replace(pour={"n_particles": 23})  # a count no other test pours: its warning is not yet given
+    with caplog.at_level(logging.WARNING, logger="synthpack.pipeline.generate"):
+        assert resolve_view(large_library, few) == "tube"  # 23 grains hold no crop
+    assert "23 grains are too few" in caplog.text and "pour at least" in caplog.text
+    with pytest.raises(SynthpackInputError, match=r"too few for an interior crop.*pour at least \d+"):
+        resolve_view(large_library, SMALL.replace(reconstruct={"view": "interior"}))
+    assert resolve_view(large_library, INTERIOR.replace(reconstruct={"view": "tube"})) == "tube"
+
+
+def test_a_tube_pack_records_its_view(small_pack):
+    view = small_pack.manifest["view"]
+    assert view["view"] == "tube" and view["crop"] is None
+    assert view["container"] == small_pack.placements.tube.to_dict()

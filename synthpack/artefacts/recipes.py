@@ -223,7 +223,7 @@ def resolve_postprocessing(
     clean: Any,
     labels: Any,
     grid: Grid,
-    packing_region: dict[str, float],
+    packing_region: dict[str, float] | None,
     pore_texture: np.ndarray | None = None,
     seed: int = 0,
 ) -> Postprocessing:
@@ -241,9 +241,10 @@ def resolve_postprocessing(
         Its labels (0 = pore, tube or outside).
     grid : Grid
         Where the volumes sit in the world frame.
-    packing_region : dict
+    packing_region : dict or None
         ``radius``, ``z_min``, ``z_max`` of the pour's bulk sub-cylinder, physical
-        units (``PourChecks.packing_region``); ``calibrated`` measures there.
+        units (``PourChecks.packing_region``); ``calibrated`` measures there. None:
+        the whole grid is bulk (an interior crop).
     pore_texture : ndarray of float64, shape (T, T, T), optional
         The render's pore texture density (`~synthpack.render.reconstruct.Background.texture_density`),
         for ``calibrated`` (`~synthpack.artefacts.calibrate`).
@@ -286,7 +287,7 @@ def resolve_postprocessing(
     return result
 
 
-def _fit(statistics: SourceStatistics, clean: Any, labels: Any, grid: Grid, packing_region: dict[str, float],
+def _fit(statistics: SourceStatistics, clean: Any, labels: Any, grid: Grid, packing_region: dict[str, float] | None,
          pore_texture: np.ndarray | None) -> tuple[Calibration | None, str | None]:
     """``(calibration, None)``, or ``(None, why not)`` where the pack cannot be calibrated."""
     fallback = _uncalibratable(statistics)
@@ -385,14 +386,15 @@ def bulk_region(
     shape: tuple[int, int, int],
     origin: tuple[float, float, float],
     voxel_size: tuple[float, float, float],
-    packing_region: dict[str, float],
+    packing_region: dict[str, float] | None,
 ) -> np.ndarray:
     """Voxels of a pack grid inside the bulk sub-cylinder of its pour.
 
     The sub-cylinder is the one the pour's packing-fraction check uses
     (`synthpack.physics.checks`): one median grain diameter from the tube wall
     and floor, two below the top of the pack. Calibration fits there, and the
-    realism report measures there.
+    realism report measures there. A pack that is an interior crop of its pour's
+    bulk (``reconstruct.view: interior``, no wall, no air) is bulk throughout.
 
     Parameters
     ----------
@@ -402,9 +404,10 @@ def bulk_region(
         World position ``(z, y, x)`` of the centre of voxel ``(0, 0, 0)``, physical units.
     voxel_size : tuple of 3 float
         ``(dz, dy, dx)``, physical units.
-    packing_region : dict
+    packing_region : dict or None
         ``radius``, ``z_min``, ``z_max`` of the sub-cylinder about the world z axis,
-        physical units (``PourChecks.packing_region``).
+        physical units (``PourChecks.packing_region``); None for an interior crop:
+        every voxel.
 
     Returns
     -------
@@ -425,17 +428,20 @@ def bulk_parts(
     shape: tuple[int, int, int],
     origin: tuple[float, float, float],
     voxel_size: tuple[float, float, float],
-    packing_region: dict[str, float],
+    packing_region: dict[str, float] | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`bulk_region` as its two factors, without the (Z, Y, X) mask: the slices (Z,) and the disc (Y, X), bool.
 
     Parameters and errors as `bulk_region`.
     """
-    z = origin[0] + np.arange(shape[0]) * voxel_size[0]
-    y = origin[1] + np.arange(shape[1]) * voxel_size[1]
-    x = origin[2] + np.arange(shape[2]) * voxel_size[2]
-    in_disc = np.hypot(y[:, None], x[None, :]) <= packing_region["radius"]
-    in_height = (z >= packing_region["z_min"]) & (z <= packing_region["z_max"])
+    if packing_region is None:
+        in_height, in_disc = np.ones(shape[0], dtype=bool), np.ones(shape[1:], dtype=bool)
+    else:
+        z = origin[0] + np.arange(shape[0]) * voxel_size[0]
+        y = origin[1] + np.arange(shape[1]) * voxel_size[1]
+        x = origin[2] + np.arange(shape[2]) * voxel_size[2]
+        in_disc = np.hypot(y[:, None], x[None, :]) <= packing_region["radius"]
+        in_height = (z >= packing_region["z_min"]) & (z <= packing_region["z_max"])
     voxels = int(np.count_nonzero(in_height)) * int(np.count_nonzero(in_disc))
     if voxels < MIN_REGION_VOXELS:
         raise SynthpackInputError(

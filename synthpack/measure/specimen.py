@@ -8,6 +8,10 @@ noise of a cylinder of concrete were those of air and paste mixed (spread 12,090
 themselves: in each slice, the convex hull of its labelled pixels. Pore voxels inside it
 lie between grains; the wall and what lies outside are left out. :func:`solid_fraction`
 is the fraction of a region's voxels that are grain.
+
+A scan is an *interior crop* (:func:`is_interior_crop`) when it shows no container and its
+specimen reaches its side faces: it was cut out of the bulk of a larger specimen, so every
+slice is full of grains to its edges. :func:`edge_coverage` measures the second part.
 """
 
 from __future__ import annotations
@@ -18,7 +22,12 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 from skimage.draw import polygon
 
-__all__ = ["solid_fraction", "specimen_mask"]
+__all__ = ["INTERIOR_COVERAGE", "edge_coverage", "is_interior_crop", "solid_fraction", "specimen_mask"]
+
+#: A scan without a container whose specimen covers at least this fraction of its four side
+#: faces is an interior crop (the built-in samples and a block of sand cover about 0.9, a
+#: cylinder in its field of view none).
+INTERIOR_COVERAGE = 0.5
 
 logger = logging.getLogger(__name__)
 
@@ -87,3 +96,26 @@ def solid_fraction(labels: np.ndarray, region: np.ndarray) -> float:
         In [0, 1]; the porosity is one minus it.
     """
     return float(np.count_nonzero(labels[region] > 0) / np.count_nonzero(region))
+
+
+def edge_coverage(specimen: np.ndarray) -> float:
+    """Fraction of the voxels of the four side faces (the first and last rows and columns of every slice) in `specimen`.
+
+    Parameters
+    ----------
+    specimen : (Z, Y, X) ndarray of bool
+        The specimen (`specimen_mask`).
+
+    Returns
+    -------
+    float
+        In [0, 1]: about 1 for a block cut out of the bulk, 0 for a specimen that sits inside
+        the field of view (a cylinder, the air around it).
+    """
+    faces = (specimen[:, 0, :], specimen[:, -1, :], specimen[:, :, 0], specimen[:, :, -1])
+    return float(sum(np.count_nonzero(face) for face in faces) / sum(face.size for face in faces))
+
+
+def is_interior_crop(coverage: float, wall: bool) -> bool:
+    """Whether a scan is an interior crop: no container `wall` and an `edge_coverage` of at least `INTERIOR_COVERAGE`."""
+    return not wall and coverage >= INTERIOR_COVERAGE

@@ -6,7 +6,7 @@ Modules, one job each, in the order a pour runs them:
 ``config``             `PourConfig`: the pour's settings (count, batch, tube, scale, engine, target); sizes its tube
 ``pouring``            `pour(library, config, seed)`: check -> plan -> engine, batch by batch -> checks -> `Placements`
 ``plan``               the seeded pour plan: which grains, at what scale, orientation and drop height
-``container``          `Tube`: the container, sized for the pour
+``container``          `Tube`: the container, sized for the pour; an interior crop's tube and box
 ``compaction``         packing to a target solid fraction, steered by the bulk after each locked batch
 ``shells``             a target coordination: which grains of a spaced pour collide bare, the others' shells
 ``scene``              `Scene`: the grains, tube, material, settle criteria and options every engine pours

@@ -13,8 +13,8 @@
 * **Overlap fraction**: the fraction of the solid Monte-Carlo sample points (below)
   that lie inside two or more grains' meshes: a mesh-exact measure of overlap.
 * **Packing fraction of the bulk**: the solid volume fraction inside a sub-cylinder
-  one median grain diameter away from the wall and the floor and two diameters
-  below the pack's top (the highest grain point), estimated by sampling
+  one median grain diameter away from the wall (two for the pour of an interior crop:
+  `wall_margin`) and the floor and two diameters below the pack's top (the highest grain point), estimated by sampling
   `n_samples` uniform random points in it and testing each against every nearby
   grain's convex hull (a cheap half-space test) and, if inside it, against the
   grain's mesh with the generalized winding number (robust for watertight
@@ -146,6 +146,7 @@ def compute_checks(
     seconds: float = 0.0,
     n_samples: int = 20_000,
     seed: int = 0,
+    wall_margin: float = 1.0,
 ) -> PourChecks:
     """Check a pour's final state.
 
@@ -174,6 +175,9 @@ def compute_checks(
         Monte-Carlo points for the packing and overlap fractions.
     seed : int
         Seed of the sample points.
+    wall_margin : float
+        Distance of the bulk region from the wall, in `length_scale` (1; 2 for the pour of
+        an interior crop, `~synthpack.physics.container.CROP_WALL_MARGIN`).
 
     Returns
     -------
@@ -193,7 +197,7 @@ def compute_checks(
     grain_pen = _max_hull_penetration(world, length_scale)
     packing, overlap, region = _packing(
         meshes, indices, positions, rotations, scales, world, tube, fill, length_scale,
-        n_samples, seed,
+        n_samples, seed, wall_margin,
     )
     checks = PourChecks(
         n_outside=n_outside,
@@ -278,9 +282,10 @@ def _packing(
     margin: float,
     n_samples: int,
     seed: int,
+    wall_margin: float,
 ) -> tuple[float, float, dict[str, float]]:
     """(packing fraction of the bulk, overlap fraction, region) by Monte-Carlo sampling."""
-    radius, z_min, z_max = tube.inner_radius - margin, margin, fill - 2 * margin
+    radius, z_min, z_max = tube.inner_radius - wall_margin * margin, margin, fill - 2 * margin
     region = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
     if radius <= 0 or z_max <= z_min:
         logger.debug("The pack is too shallow or narrow for a bulk region: no packing fraction.")

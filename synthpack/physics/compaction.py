@@ -17,6 +17,20 @@ locking, with one knob ``u`` per batch (:class:`BatchCompaction`):
   low-friction fall gave 0.593 against 0.602 without, for 6% more steps. Waiting for
   the low-friction fall to come fully to rest gave no more density than stopping at
   8x the speed thresholds (0.596-0.603 against 0.610) for 1.3-1.5x the steps.
+* ``1 < u <= 2``, **denser than these hulls pack**, for an engine that can shrink
+  collision shells (:attr:`~synthpack.physics.engine.Engine.shrinks_shells`): full
+  compaction, with the batch colliding as shells shrunk about their centre of mass by
+  ``(u - 1) * max_shrink`` of their size. Grains collide as their convex hulls, and
+  hulls cannot nest, so concave grains (sand: mean mesh volume over hull volume
+  ``c`` about 0.8) pack looser than the real ones, which do; a shell shrunk by
+  ``max_shrink = 1 - c^(1/3)`` holds the grain's volume. A pour of sand reached
+  0.52 under full compaction against the scan's 0.58, as the hulls' own fraction
+  (``0.58 / c`` would be 0.72) is more than any random packing holds. The grains are
+  rendered at their true size, so neighbours may overlap a little where their
+  concavities do not meet (the checks report the penetration and the overlap). A
+  batch gets ``u > 1`` only once the bulk layers packed at ``u = 1`` fell short of the
+  target by more than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to the target never shrinks a shell; and
+  it rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
 * ``u < 0``, **looser than a free pour**: the grains collide as shells inflated by
   ``-u`` of their size about their centre of mass (a spacing, as in the coarse-grain
   and "collision distance" options of DEM codes), so they settle apart; they are
@@ -34,7 +48,8 @@ below the median height of the pack's surface, so a layer is measured once the g
 cover it and no later grain falls into it; by Monte Carlo against the grains' meshes,
 :func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
-(:func:`prior_fraction`), scaled by the ratio measured so far (each layer against the
+(:func:`prior_fraction`; for ``u > 1``, the full compaction's fraction over the shrunk
+shell's volume, ``(1 - shrink)^3``), scaled by the ratio measured so far (each layer against the
 prior of the grains centred in it: a layer holds grains of several batches), aiming the next layer
 so that the cumulative bulk fraction comes back to the target (integral action).
 The first batches, before there is a bulk, use the prior alone. A target looser
@@ -86,6 +101,8 @@ FALL_STEPS = 4000
 FALL_QUIET = 8.0
 #: Largest shell inflation, as a fraction of the grain's size (u = -MAX_INFLATION).
 MAX_INFLATION = 0.6
+#: Largest knob: full compaction with shells shrunk by the pour's ``max_shrink`` (an engine that shrinks shells).
+MAX_KNOB = 2.0
 #: Densest target accepted: random packings of rigid grains stay below it (spheres jam at
 #: 0.64, ellipsoids at 0.74, the densest random packings known, of tetrahedra and cubes, at about 0.78).
 MAX_TARGET = 0.8
@@ -94,6 +111,8 @@ PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
 #: The next layer aims at most this far from the target to make up for past layers (a target looser
 #: than a free pour: this times target / PRIOR_FREE, the same share of the target).
 _MAX_CORRECTION = 0.06
+#: Above 1, a batch's knob rises at most this far above the last batch's (the shrunk layers' fraction is noisy).
+_MAX_SHRINK_STEP = 0.5
 _SAMPLES_PER_UNIT_VOLUME = 600  # Monte-Carlo points per cubic simulation unit of a layer
 _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
 _SURFACE_CELL = 0.5  # side of the columns the pack's surface height is taken in, in margins
@@ -135,9 +154,10 @@ class BatchCompaction:
     Attributes
     ----------
     knob : float
-        ``u`` in ``[-MAX_INFLATION, 1]`` (see the module docstring).
+        ``u`` in ``[-MAX_INFLATION, MAX_KNOB]`` (see the module docstring).
     inflation : float
-        Collision shells inflated by this fraction of the grain's size (0 for u >= 0).
+        Collision shells inflated by this fraction of the grain's size (0 for ``0 <= u <= 1``;
+        negative, a shrunk shell, for ``u > 1``).
     settle_friction : float
         Friction coefficient of the batch while it falls (the material's for u <= 0).
     """
@@ -152,26 +172,37 @@ class BatchCompaction:
         return self.knob > 0
 
     @classmethod
-    def from_knob(cls, knob: float, friction: float) -> BatchCompaction:
-        """The batch's compaction for knob `knob` and the material's `friction`."""
-        knob = float(np.clip(knob, -MAX_INFLATION, 1.0))
+    def from_knob(cls, knob: float, friction: float, max_shrink: float = 0.0) -> BatchCompaction:
+        """The batch's compaction for knob `knob`, the material's `friction` and the pour's `max_shrink`.
+
+        Above 1 only with a `max_shrink` > 0 (the shell shrunk at ``u = MAX_KNOB``), else clipped to 1.
+        """
+        knob = float(np.clip(knob, -MAX_INFLATION, MAX_KNOB if max_shrink > 0 else 1.0))
         if knob <= 0.0:
             return cls(knob, -knob, friction)
-        return cls(knob, 0.0, friction * (1.0 - knob) + min(SETTLE_FRICTION, friction) * knob)
+        compacted = friction * (1.0 - min(knob, 1.0)) + min(SETTLE_FRICTION, friction) * min(knob, 1.0)
+        return cls(knob, -_shrink(knob, max_shrink), compacted)
 
 
-def prior_fraction(knob: float) -> float:
+def _shrink(knob: float, max_shrink: float) -> float:
+    """The fraction of their size the shells are shrunk by at knob `knob` (0 up to 1)."""
+    return max(knob - 1.0, 0.0) * max_shrink
+
+
+def prior_fraction(knob: float, max_shrink: float = 0.0) -> float:
     """The prior model's packing fraction at knob `knob` (before the measured correction)."""
     if knob < 0:
         return PRIOR_FREE / (1.0 - knob) ** 3
-    return PRIOR_FREE + (PRIOR_DENSE - PRIOR_FREE) * min(knob, 1.0)
+    return (PRIOR_FREE + (PRIOR_DENSE - PRIOR_FREE) * min(knob, 1.0)) / (1.0 - _shrink(knob, max_shrink)) ** 3
 
 
-def _prior_knob(fraction: float) -> float:
-    """The knob at which :func:`prior_fraction` is `fraction` (clipped to the knob's range)."""
+def _prior_knob(fraction: float, highest: float = 1.0, max_shrink: float = 0.0) -> float:
+    """The knob at which :func:`prior_fraction` is `fraction` (clipped to ``[-MAX_INFLATION, highest]``)."""
     if fraction < PRIOR_FREE:
         return max(1.0 - (PRIOR_FREE / fraction) ** (1 / 3), -MAX_INFLATION)
-    return min((fraction - PRIOR_FREE) / (PRIOR_DENSE - PRIOR_FREE), 1.0)
+    if fraction <= PRIOR_DENSE or highest <= 1.0 or max_shrink <= 0:
+        return min((fraction - PRIOR_FREE) / (PRIOR_DENSE - PRIOR_FREE), 1.0)
+    return min(1.0 + (1.0 - (PRIOR_DENSE / fraction) ** (1 / 3)) / max_shrink, highest)
 
 
 @dataclass
@@ -194,13 +225,20 @@ class PackingController:
     inner_radius : float
         The tube's inner radius, simulation units.
     margin : float
-        Distance of the bulk from the wall and the floor (twice it below the top):
-        one median grain diameter, i.e. 1 simulation unit.
+        Distance of the bulk from the floor (twice it below the top): one median
+        grain diameter, i.e. 1 simulation unit.
+    wall_margin : float
+        Distance of the bulk from the wall, simulation units: `margin`, or more for
+        the pour of an interior crop (`~synthpack.physics.container.CROP_WALL_MARGIN`).
     seed : int
         Seed of the Monte-Carlo points.
     bare : numpy.ndarray, optional
         (N,) bool: the bodies that collide without a spacing shell in a spaced batch
         (:func:`synthpack.physics.shells.bare_grains`); None: none does.
+    shrinks : bool
+        Whether the engine can shrink collision shells
+        (:attr:`~synthpack.physics.engine.Engine.shrinks_shells`): then knobs above 1
+        shrink them, by up to :attr:`max_shrink` (see the module docstring).
     """
 
     target: float
@@ -208,8 +246,10 @@ class PackingController:
     meshes: Sequence[tuple[np.ndarray, np.ndarray]]
     inner_radius: float
     margin: float = 1.0
+    wall_margin: float = 1.0
     seed: int = 0
     bare: np.ndarray | None = None
+    shrinks: bool = False
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
     #: Measured bulk layers: (z0, z1, packing fraction, knob of its grains: the one whose prior fraction is
@@ -217,12 +257,17 @@ class PackingController:
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
+    #: Set once the layers of full compaction packed short of the target: knobs may then exceed 1 (shrunk shells).
+    shrinking: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
     _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
 
     def __post_init__(self) -> None:
         self._measured_to = float(self.margin)
         self._rng = generator(self.seed, "compaction")
+        #: The shells' shrink at knob MAX_KNOB: ``1 - c^(1/3)``, ``c`` the grains' mean mesh over hull volume.
+        self.max_shrink = 1.0 - float(np.mean([_convexity(v, f) for v, f in self.meshes])) ** (1 / 3) \
+            if self.shrinks else 0.0
 
     def next_batch(self) -> BatchCompaction:
         """The knob of the next batch, from the target, the layers measured so far and the prior.
@@ -241,18 +286,26 @@ class PackingController:
                            "pour cannot be steered: batches get the prior model's knob until one does.", self.target)
         if measured:
             heights, fractions, knobs = (np.array(column) for column in zip(*measured))
-            priors = np.array([prior_fraction(k) for k in knobs])
+            priors = np.array([prior_fraction(k, self.max_shrink) for k in knobs])
+            full = knobs == 1.0  # shells shrink once full compaction has fallen short of the target, and on
+            if self.max_shrink > 0 and full.any() and not self.shrinking and \
+                    heights[full] @ fractions[full] / heights[full].sum() < self.target - TARGET_TOLERANCE / 2:
+                self.shrinking = True
+                logger.debug("Full compaction packs below %.3f: shells shrink by up to %.3f", self.target,
+                             self.max_shrink)
             reached = float(heights @ fractions / heights.sum())
             ratio = float(heights @ fractions / (heights @ priors))
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
             correction = _MAX_CORRECTION * min(1.0, self.target / PRIOR_FREE)
             wanted = float(np.clip(wanted, self.target - correction, self.target + correction))
-        knob = _prior_knob(wanted / ratio)
+        knob = _prior_knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
+        if knob > 1.0:
+            knob = min(knob, max(self.knobs[-1], 1.0) + _MAX_SHRINK_STEP)
         if self.target < PRIOR_FREE:
             knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
         self.knobs.append(knob)
-        return BatchCompaction.from_knob(knob, self.friction)
+        return BatchCompaction.from_knob(knob, self.friction, self.max_shrink)
 
     def observe(self, members: np.ndarray, positions: np.ndarray, quaternions: np.ndarray) -> None:
         """Take a locked batch's final poses and measure the bulk layer it completed.
@@ -274,7 +327,7 @@ class PackingController:
                                     rotation, 1.0, world, volume / hull.volume)
             self._knob_of[int(k)] = (self.knobs[-1], volume)
         top = max(float(g[6][:, 2].max()) for g in self._grains.values())
-        radius = self.inner_radius - self.margin
+        radius = self.inner_radius - self.wall_margin
         if radius <= 0:
             return
         z0 = self._measured_to
@@ -301,7 +354,8 @@ class PackingController:
         knobs, volumes = (np.array(column) for column in zip(*placed))
         if np.ptp(knobs) == 0:
             return float(knobs[0])
-        return _prior_knob(float(volumes @ [prior_fraction(k) for k in knobs] / volumes.sum()))
+        return _prior_knob(float(volumes @ [prior_fraction(k, self.max_shrink) for k in knobs] / volumes.sum()),
+                           MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
 
     def _surface_height(self, radius: float) -> float:
         """Median height of the pack's surface within `radius` of the axis (0 where the floor shows).
@@ -321,7 +375,8 @@ class PackingController:
         return float(np.median(heights[inside])) if inside.any() else 0.0
 
     def record(self) -> dict[str, Any]:
-        """The knob of every batch, the measured bulk layers and the number of bare grains, JSON-able."""
+        """The knob of every batch, the measured bulk layers and the number of bare grains, JSON-able; the
+        shells' largest shrink (``max_shrink``, at knob `MAX_KNOB`) where knobs above 1 were allowed."""
         record: dict[str, Any] = {
             "knobs": [round(k, 4) for k in self.knobs],
             "layers": [{"z0": z0, "z1": z1, "packing_fraction": f, "knob": round(k, 4)}
@@ -329,7 +384,14 @@ class PackingController:
         }
         if self.bare is not None:
             record["bare_grains"] = int(np.count_nonzero(self.bare))
+        if self.shrinking:
+            record["max_shrink"] = round(self.max_shrink, 4)
         return record
+
+
+def _convexity(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """A mesh's volume over its convex hull's (1 for a convex grain)."""
+    return float(trimesh.Trimesh(vertices, faces, process=False).volume / ConvexHull(vertices).volume)
 
 
 def resolve_target(target: Any, library: Any, engine: Any) -> float | None:
@@ -392,7 +454,8 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:
-        limit = 1.0 if reached < target else -MAX_INFLATION
+        limit = (MAX_KNOB if controller is not None and controller.max_shrink > 0 else 1.0) \
+            if reached < target else -MAX_INFLATION
         knobs = [] if controller is None else controller.knobs
         if controller is not None and controller.degenerate and not any(f > 0 for _, _, f, _ in controller.layers):
             why = "the bulk layers measured while pouring held no solid, so the pour was not steered"

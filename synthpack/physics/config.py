@@ -9,7 +9,7 @@ from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .scene import COLLISION_SHAPES, Material, SettleCriteria
 from .compaction import MAX_TARGET, TARGET_SOURCE, expected_fraction, parse_target
-from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube
+from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube, interior_grains, interior_radius
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 from .shells import parse_coordination
@@ -106,7 +106,7 @@ class PourConfig:
         return Material(friction=self.friction, restitution=self.restitution,
                         collision_shape=self.collision_shape)
 
-    def tube(self, library: LibraryLike) -> Tube:
+    def tube(self, library: LibraryLike, *, interior: bool = False) -> Tube:
         """The tube this pour fills, sized for `library`; ``tube_radius`` and ``tube_height`` override it.
 
         The one sizing of a pour's tube (:meth:`Tube.for_library`), for `pour`, ``synthpack
@@ -114,20 +114,37 @@ class PourConfig:
         largest ``scale``, at the packing fraction the target gives
         (:func:`~synthpack.physics.compaction.expected_fraction`: the usual
         :data:`~synthpack.physics.container.DEFAULT_PACKING_FRACTION`, or a looser target,
-        so a spaced pack fits).
+        so a spaced pack fits). With `interior`, the tube is wide enough for an interior crop
+        of the source's shape (:func:`~synthpack.physics.container.interior_radius`), or as
+        large a crop as the grains allow.
 
         Parameters
         ----------
         library : ParticleLibrary
             The grains; for ``target_solid_fraction: source`` its source scan's solid fraction.
+        interior : bool
+            Size it for an interior crop (``reconstruct.view: interior``).
 
         Returns
         -------
         Tube
             Physical units (the library's ``unit``).
+
+        Raises
+        ------
+        SynthpackInputError
+            With `interior`, where ``n_particles`` grains cannot hold a crop (it says how many can).
         """
-        return Tube.for_library(
-            library, self.n_particles, scale=parse_scale(self.scale)[1],
-            inner_radius=self.tube_radius, height=self.tube_height,
-            packing_fraction=expected_fraction(self.target_solid_fraction, library, DEFAULT_PACKING_FRACTION),
-        )
+        scale = parse_scale(self.scale)[1]
+        fraction = expected_fraction(self.target_solid_fraction, library, DEFAULT_PACKING_FRACTION)
+        radius = self.tube_radius
+        if interior and radius is None:
+            radius = interior_radius(library, self.n_particles, scale=scale, packing_fraction=fraction)
+            if radius is None:
+                needed = interior_grains(library, scale=scale, packing_fraction=fraction)
+                raise SynthpackInputError(
+                    f"{self.n_particles} grains are too few for an interior crop of these grains: pour at least "
+                    f"{needed} (pour.n_particles), or show the tube (reconstruct.view: tube)."
+                )
+        return Tube.for_library(library, self.n_particles, scale=scale, inner_radius=radius,
+                                height=self.tube_height, packing_fraction=fraction)

@@ -1,10 +1,17 @@
-"""The container grains are poured into: a closed-bottom cylindrical tube."""
+"""The container grains are poured into: a closed-bottom cylindrical tube, and the interior crop of a pour.
+
+A pack shows either the whole tube (``reconstruct.view: tube``) or an interior crop of its
+bulk (``interior``): a box that keeps `CROP_WALL_MARGIN` median grain diameters from the
+wall, one from the floor and two from the pack top (`crop_box`), with the source scan's
+shape. `interior_radius` sizes the tube whose pour holds such a crop.
+"""
 
 from __future__ import annotations
 
 import logging
 import math
 from dataclasses import asdict, dataclass
+from collections.abc import Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -16,7 +23,8 @@ from .scene import TubeSpec
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Tube", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT"]
+__all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box",
+           "crop_extent", "interior_grains", "interior_radius"]
 
 #: Packing fraction assumed when sizing a tube for a number of grains: a loose
 #: random packing of angular grains poured under gravity.
@@ -24,6 +32,13 @@ DEFAULT_PACKING_FRACTION = 0.55
 #: Tallest default fill, in inner diameters of the tube: a default tube is widened past
 #: the source scan's width rather than let the grains stack into a column taller than this.
 MAX_FILL_ASPECT = 10.0
+#: An interior crop keeps this many median grain diameters from the tube wall: one more than
+#: the pour's bulk region (`~synthpack.physics.checks`), as the wall orders the grains next to it.
+CROP_WALL_MARGIN = 2.0
+#: The smallest interior crop, in median grain diameters along its shortest side.
+MIN_CROP = 2.0
+#: What the pour's bulk region leaves above the floor and below the pack top, in median grain diameters.
+_FLOOR_MARGIN, _TOP_MARGIN = 1.0, 2.0
 
 
 class LibraryLike(Protocol):
@@ -218,3 +233,125 @@ class Tube:
         """Inverse of :meth:`to_dict`."""
         names = ("inner_radius", "height", "wall_thickness", "base_thickness")
         return cls(**{k: data[k] for k in names})
+
+
+def crop_extent(library: LibraryLike, scale: float = 1.0) -> np.ndarray:
+    """The shape an interior crop aims at: the source scan's extent times ``max(scale, 1)``.
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        Needs ``source_shape`` (Z, Y, X) and ``voxel_size`` (dz, dy, dx).
+    scale : float
+        Largest scale factor of the grains (scaled up, the crop is as many grains across as the scan).
+
+    Returns
+    -------
+    (3,) ndarray of float
+        ``(Z, Y, X)`` extent, physical units.
+    """
+    return np.asarray(library.source_shape, dtype=float) * np.asarray(library.voxel_size, dtype=float) * max(scale, 1.0)
+
+
+class _CropSizing:
+    """The sizes `interior_radius` and `interior_grains` weigh: a crop of ``t`` times the source's shape."""
+
+    def __init__(self, library: LibraryLike, scale: float, packing_fraction: float) -> None:
+        self.extent = crop_extent(library, scale)
+        self.diameter = float(np.median(np.asarray(library.equivalent_diameters, dtype=float))) * scale
+        self.grain_volume = float(np.mean([library[i].volume for i in range(len(library))])) * scale**3
+        self.packing_fraction = packing_fraction
+        self.smallest = MIN_CROP * self.diameter / float(self.extent.min())  # t of the smallest crop
+
+    def radius(self, t: float) -> float:
+        """Inner radius of the tube that holds the crop ``t``."""
+        return t * math.hypot(self.extent[1], self.extent[2]) / 2.0 + CROP_WALL_MARGIN * self.diameter
+
+    def grains(self, t: float) -> float:
+        """Grains whose expected fill in that tube reaches the top of the crop ``t``."""
+        fill = t * self.extent[0] + (_FLOOR_MARGIN + _TOP_MARGIN) * self.diameter
+        return self.packing_fraction * math.pi * self.radius(t) ** 2 * fill / self.grain_volume
+
+
+def interior_radius(
+    library: LibraryLike, n_particles: int, *, scale: float = 1.0, packing_fraction: float = DEFAULT_PACKING_FRACTION,
+) -> float | None:
+    """Inner radius of a tube whose pour of `n_particles` grains holds an interior crop of the source's shape.
+
+    The crop (`crop_box`) keeps `CROP_WALL_MARGIN` median grain diameters ``d`` (at the
+    largest `scale`) from the wall, ``d`` from the floor and ``2 d`` from the pack top; its
+    shape is `crop_extent` ``(Z, Y, X)`` times the largest ``t <= 1`` for which the
+    expected fill height (the grains' solid volume over ``packing_fraction pi R^2``, as in
+    `Tube.for_library`) reaches its top::
+
+        solid / (packing_fraction pi R(t)^2) >= t Z + 3 d,    R(t) = t hypot(Y, X) / 2 + CROP_WALL_MARGIN d
+
+    With ``t = 1`` and grains to spare, the crop is taller than the source (and for a
+    source under `MIN_CROP` diameters across, ``t`` may reach the crop that size).
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains (volumes, equivalent diameters) and the source scan's shape.
+    n_particles : int
+        Number of grains to pour.
+    scale : float
+        Largest scale factor the grains will get.
+    packing_fraction : float
+        Expected solid fraction of the pack, in (0, 1).
+
+    Returns
+    -------
+    float or None
+        The inner radius, physical units; None where `n_particles` grains cannot hold a crop
+        `MIN_CROP` diameters on its shortest side (`interior_grains` can).
+    """
+    sizing = _CropSizing(library, scale, packing_fraction)
+    t = max(1.0, sizing.smallest)  # a scan under MIN_CROP grains across: a crop that size
+    if sizing.grains(t) > n_particles:
+        low, high = 0.0, t  # bisection: the grains a crop needs grow with t
+        for _ in range(50):
+            middle = (low + high) / 2
+            low, high = (middle, high) if sizing.grains(middle) <= n_particles else (low, middle)
+        t = low
+    if t < sizing.smallest:
+        logger.debug("%d grains hold no interior crop %s diameters across", n_particles, sig(MIN_CROP))
+        return None
+    logger.debug("Interior crop for %d grains: %.3g of the source's shape, tube radius %s",
+                 n_particles, t, sig(sizing.radius(t)))
+    return sizing.radius(t)
+
+
+def interior_grains(library: LibraryLike, *, scale: float = 1.0,
+                    packing_fraction: float = DEFAULT_PACKING_FRACTION) -> int:
+    """The fewest grains whose pour holds an interior crop `MIN_CROP` diameters across (see `interior_radius`)."""
+    sizing = _CropSizing(library, scale, packing_fraction)
+    return math.ceil(sizing.grains(sizing.smallest))
+
+
+def crop_box(region: Mapping[str, float], lateral: tuple[float, float]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The interior crop of a pour: the largest box of the source's lateral proportions in its bulk cylinder.
+
+    Parameters
+    ----------
+    region : mapping
+        The pour's bulk cylinder about the z axis, ``radius``, ``z_min`` and ``z_max``, physical
+        units (`~synthpack.physics.checks.PourChecks.packing_region` of a pour measured
+        `CROP_WALL_MARGIN` diameters from the wall).
+    lateral : (float, float)
+        ``(Y, X)`` extent the crop aims at (`crop_extent`), physical units: its sides keep their
+        ratio and are at most these.
+
+    Returns
+    -------
+    (ndarray, ndarray) or None
+        ``lo`` and ``hi``, (3,) float ``(z, y, x)`` world corners, physical units, centred on the
+        tube axis; None for an empty region.
+    """
+    if region["radius"] <= 0 or region["z_max"] <= region["z_min"]:
+        return None
+    y, x = (float(v) for v in lateral)
+    shrink = min(1.0, 2.0 * float(region["radius"]) / math.hypot(y, x))
+    half = np.array([y, x]) * shrink / 2.0
+    return (np.array([region["z_min"], -half[0], -half[1]], dtype=float),
+            np.array([region["z_max"], half[0], half[1]], dtype=float))

@@ -122,10 +122,12 @@ class World(abc.ABC):
             Their friction coefficient until :meth:`set_friction` or :meth:`lock` (the
             material's, or lower for a compacted batch).
         inflation : numpy.ndarray
-            (M,) float64 >= 0: each collides as its hull inflated by this fraction of its
+            (M,) float64: each collides as its hull inflated by this fraction of its
             size about its centre of mass (:mod:`~synthpack.physics.compaction`,
             :mod:`~synthpack.physics.shells`); its mass stays that of the true grain. The
-            wall must reach above every spawned body.
+            wall must reach above every spawned body. < 0 only for an engine that
+            :attr:`~synthpack.physics.engine.Engine.shrinks_shells`: hulls shrunk by
+            ``-inflation``, their true meshes still kept inside the tube.
         """
 
     @abc.abstractmethod

@@ -55,6 +55,10 @@ class Engine(abc.ABC):
     #: <synthpack.physics.driver.World.set_friction>`. The driver does the rest for every engine;
     #: one that cannot sets False, and a pour refuses a target for it (``"source"`` pours freely).
     supports_compaction: ClassVar[bool] = True
+    #: Whether its world shrinks collision shells for a negative ``inflation`` (:meth:`World.add_batch
+    #: <synthpack.physics.driver.World.add_batch>`), keeping the grains' true meshes in the tube: then
+    #: compaction may go past full compaction (knobs above 1, :mod:`synthpack.physics.compaction`).
+    shrinks_shells: ClassVar[bool] = False
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."

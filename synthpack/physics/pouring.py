@@ -63,6 +63,7 @@ def pour(
     size_classes: Sequence[Sequence[float]] | None = None,
     indices: Sequence[int] | None = None,
     progress: bool = True,
+    wall_margin: float = 1.0,
 ) -> Placements:
     """Pour ``config.n_particles`` grains of `library` into a tube, ``config.batch_size`` at a time.
 
@@ -97,6 +98,11 @@ def pour(
         them (see :func:`~synthpack.physics.plan.make_plan`).
     progress : bool
         Show a progress bar over batches.
+    wall_margin : float
+        Distance of the bulk region that the checks and the compaction measure from the
+        tube wall, in median grain diameters: 1, or
+        :data:`~synthpack.physics.container.CROP_WALL_MARGIN` for the pour of an interior
+        crop (``reconstruct.view: interior``), whose crop lies in that region.
 
     Returns
     -------
@@ -143,12 +149,12 @@ def pour(
     bare = bare_grains(plan.batches, bare_fraction(coordination), seed)
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
         controller = None if target is None else PackingController(
-            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius, seed=seed,
-            bare=bare)
+            target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius,
+            wall_margin=wall_margin, seed=seed, bare=bare, shrinks=chosen.shrinks_shells)
         result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
                                controller)
         positions = np.asarray(result.positions, dtype=float) * length
-        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed),
+        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed, wall_margin),
                                target, controller)
         if checks.n_outside == 0 or attempt == CONTAINMENT_ATTEMPTS:
             break
@@ -254,7 +260,7 @@ def _run(
 
 def _checks(
     library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
-    length: float, seconds: float, seed: int,
+    length: float, seconds: float, seed: int, wall_margin: float,
 ) -> PourChecks:
     """The checks of the finished pour (:func:`~synthpack.physics.checks.compute_checks`)."""
     meshes = [(np.asarray(library[i].mesh.vertices, dtype=float), np.asarray(library[i].mesh.faces))
@@ -263,7 +269,7 @@ def _checks(
         meshes, plan.indices, positions, result.quaternions, plan.scales, tube,
         voxel_size=float(min(library.voxel_size)), length_scale=length,
         steps_per_batch=result.steps_per_batch, settled_per_batch=result.settled_per_batch,
-        seconds=seconds, seed=seed,
+        seconds=seconds, seed=seed, wall_margin=wall_margin,
     )
 
 

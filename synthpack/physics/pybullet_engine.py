@@ -64,7 +64,10 @@ Choices, and why:
 * Packing to a target (:mod:`synthpack.physics.compaction`, steered by the driver): a
   batch added at a lowered friction gets it while it falls (``changeDynamics``), and
   the material's back before it settles; a spaced batch collides as hulls inflated
-  about the centre of mass (:func:`_shape_for`), with the true grain's mass and inertia.
+  about the centre of mass (:func:`_shape_for`), with the true grain's mass and inertia,
+  and a batch packed past full compaction as hulls shrunk about it (the engine
+  :attr:`shrinks_shells`): their meshes reach further outside them, so the tube's
+  colliders are moved further in (rebuilt) when a shrunk batch needs it.
 """
 
 from __future__ import annotations
@@ -129,6 +132,7 @@ class PybulletEngine(Engine):
     name = "pybullet"
     Options = PybulletConfig
     supports_compaction = True
+    shrinks_shells = True
 
     def options(
         self, values: Mapping[str, Any] | None = None, prefix: str = "engine_options."
@@ -178,7 +182,9 @@ class _PybulletWorld(World):
             self._body_shapes = [self._shape(body, 0.0) for body in scene.bodies]
             self._inset = max(shape.protrusion for shape in self._shapes.values())
             logger.debug("Tube colliders inset by %.4f (the grains' largest reach outside their shapes)", self._inset)
-            self._wall_top = _build_tube(client, scene.tube, scene.material, 0.0, scene.tube.height, self._inset)
+            self._walls: list[int] = []  # the tube's collider bodies
+            self._wall_top = _build_tube(client, scene.tube, scene.material, 0.0, scene.tube.height, self._inset,
+                                         self._walls)
         except BaseException:
             client.close()
             raise
@@ -195,10 +201,19 @@ class _PybulletWorld(World):
         client, scene, bodies = self.client, self.scene, self.scene.bodies
         reach = max(pos[2] + float(np.linalg.norm(bodies[i].vertices, axis=1).max())
                     for i, pos in zip(members, positions))
+        shapes = [self._body_shapes[i] if shell == 0 else self._shape(bodies[i], float(shell))
+                  for i, shell in zip(members, np.asarray(inflation, dtype=float))]
+        inset = max([self._inset] + [shape.protrusion for shape in shapes])
+        if inset > self._inset:  # shrunk shells: their meshes reach further out; rebuild the tube further in
+            for body_id in self._walls:
+                client.removeBody(body_id)
+            self._walls, self._inset = [], inset
+            logger.debug("Tube colliders rebuilt, inset by %.4f (a batch of shrunk shells)", inset)
+            self._wall_top = _build_tube(client, scene.tube, scene.material, 0.0, self._wall_top, inset, self._walls)
         if reach > self._wall_top:
-            self._wall_top = _build_tube(client, scene.tube, scene.material, self._wall_top, reach + 1.0, self._inset)
-        for i, position, shell in zip(members, positions, np.asarray(inflation, dtype=float)):
-            shape = self._body_shapes[i] if shell == 0 else self._shape(bodies[i], float(shell))
+            self._wall_top = _build_tube(client, scene.tube, scene.material, self._wall_top, reach + 1.0, self._inset,
+                                         self._walls)
+        for i, position, shape in zip(members, positions, shapes):
             orientation = np.asarray(bodies[i].orientation, dtype=float)
             body_id = _create_dynamic(client, shape, bodies[i].mass, position, orientation, scene.material)
             if friction != scene.material.friction:
@@ -272,13 +287,13 @@ def _apply_material(client: Client, body_id: int, material: Material, *, grain: 
 
 
 def _build_tube(
-    client: Client, tube: TubeSpec, material: Material, z0: float, z1: float, inset: float
+    client: Client, tube: TubeSpec, material: Material, z0: float, z1: float, inset: float, bodies: list[int],
 ) -> float:
-    """Add the wall between heights `z0` and `z1` (and the floor when ``z0 == 0``).
+    """Add the wall between heights `z0` and `z1` (and the floor when ``z0 == 0``); `z1`.
 
     The colliders lie `inset` inside the tube: the floor's top face at ``z = inset``,
     the wall's inner faces a polygon inscribed in the circle of radius
-    ``inner_radius - inset``.
+    ``inner_radius - inset``. Their body ids are appended to `bodies`.
     """
     thickness = max(tube.wall_thickness, _MIN_COLLIDER_THICKNESS)
     half_height = (z1 - z0) / 2
@@ -296,6 +311,7 @@ def _build_tube(
             baseOrientation=client.getQuaternionFromEuler([0.0, 0.0, angle]),
         )
         _apply_material(client, body, material, grain=False)
+        bodies.append(body)
     if z0 == 0.0:
         base = max(tube.base_thickness, _MIN_COLLIDER_THICKNESS)
         extent = tube.inner_radius + thickness
@@ -304,6 +320,7 @@ def _build_tube(
         )
         body = client.createMultiBody(0.0, floor, -1, basePosition=[0.0, 0.0, inset - base / 2])
         _apply_material(client, body, material, grain=False)
+        bodies.append(body)
     return z1
 
 
@@ -314,8 +331,9 @@ def _shape_for(
     """Collision shape and inertial frame of `body`, shared by identical geometries.
 
     With `inflation` > 0 the collider is the grain inflated by that fraction of its
-    size about its centre of mass (a spacing shell, :mod:`.compaction`); mass,
-    inertia and the pose of the local origin stay those of the true grain.
+    size about its centre of mass (a spacing shell, :mod:`.compaction`), with
+    `inflation` < 0 shrunk by it (packing past full compaction); mass, inertia and the
+    pose of the local origin stay those of the true grain.
     """
     vertices = np.ascontiguousarray(body.vertices, dtype=np.float64)
     faces = np.ascontiguousarray(body.faces, dtype=np.int64)
@@ -323,7 +341,7 @@ def _shape_for(
     if key in cache:
         return cache[key]
     true_vertices = vertices
-    if inflation > 0:
+    if inflation != 0:
         centre = np.asarray(body.center_mass, dtype=np.float64)
         vertices = centre + (vertices - centre) * (1.0 + inflation)
     hull = convex_hull(vertices)

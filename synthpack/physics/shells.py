@@ -147,7 +147,8 @@ def shell_inflations(inflation: float, bare: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     inflation : float
-        >= 0, the knob's inflation (:class:`~synthpack.physics.compaction.BatchCompaction`).
+        The knob's inflation (:class:`~synthpack.physics.compaction.BatchCompaction`); < 0
+        (shells shrunk past full compaction) applies to every grain, bare or not.
     bare : numpy.ndarray
         (M,) bool, the batch's bare grains.
 
@@ -157,12 +158,12 @@ def shell_inflations(inflation: float, bare: np.ndarray) -> np.ndarray:
         (M,) float64: 0 for the bare grains, and for the others the inflation ``s`` with
         ``(1 - f) (1 + s)^3 + f = (1 + inflation)^3`` (``f`` the batch's bare fraction),
         so the batch's mean collision volume is that of the equal shells: `inflation`
-        itself where no grain is bare, all 0 for ``inflation == 0`` or a batch of bare grains only.
+        itself where no grain is bare or ``inflation <= 0``, all 0 for a batch of bare grains only.
     """
     bare = np.asarray(bare, dtype=bool)
-    if not bare.any():
+    if inflation <= 0 or not bare.any():  # a free batch, shrunk shells (past full compaction) or no bare grain
         return np.full(len(bare), float(inflation))
-    if inflation <= 0 or bare.all():
+    if bare.all():
         return np.zeros(len(bare))
     f = float(bare.mean())
     thick = (((1.0 + inflation) ** 3 - f) / (1.0 - f)) ** (1 / 3) - 1.0

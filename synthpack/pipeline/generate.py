@@ -23,13 +23,15 @@ from .._shared.chunks import bounded_map, chunk_boxes, thread_count
 from .._shared.seeds import derived_seed, record as random_streams
 from ..artefacts.blockwise import apply_blockwise, device_for
 from .._shared.budget import check_pack_grid
-from .config import PackConfig, ReconstructConfig
+from .config import PackConfig
 from ..library.deform import PackGrains, pack_grains
 from ..errors import PackBuildError, SynthpackInputError
 from ..library.core import ParticleLibrary
 from ..store.pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from ..render.partial_volume import PartialVolume
 from ..physics import Placements, check_pour_size, pour
+from ..physics.container import CROP_WALL_MARGIN, crop_box, crop_extent
+from ..physics.plan import parse_scale
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
 from ..render import Background, Grid, pose_maps, reconstruct
@@ -38,7 +40,7 @@ from .runner import run_packs
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name"]
+__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name", "resolve_view"]
 
 #: ``allocate(name, shape, dtype, chunks) -> array``: where `build_pack` writes a volume.
 Allocate = Callable[[str, tuple[int, int, int], Any, tuple[int, int, int]], Any]
@@ -82,12 +84,42 @@ class SyntheticPack:
     manifest: dict = field(default_factory=dict)
 
 
+def resolve_view(library: ParticleLibrary, config: PackConfig) -> str:
+    """What a pack of `config` shows: ``"tube"`` or ``"interior"`` (``reconstruct.view``, `ReconstructConfig.view_of`).
+
+    ``auto`` for a source scan that is an interior crop is ``interior``, unless ``pour.n_particles``
+    grains are too few for one: then ``tube``, with a warning that says how many are enough.
+
+    Raises
+    ------
+    SynthpackInputError
+        For ``view: interior`` with too few grains for a crop.
+    """
+    view = config.reconstruct.view_of(library.statistics)
+    if view == "interior":
+        try:
+            config.pour.tube(library, interior=True)
+        except SynthpackInputError as error:
+            if config.reconstruct.view != "auto":
+                raise
+            _warn_tube(str(error))
+            return "tube"
+    return view
+
+
+@functools.cache
+def _warn_tube(why: str) -> None:
+    """Warn, once per process and reason, that a pack of an interior-crop source shows the tube."""
+    logger.warning("The source scan is an interior crop, but the pack shows the tube: %s", why)
+
+
 def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:
     """Refuse up front a pack whose pour or whose volumes cannot fit this machine (`synthpack._shared.budget`).
 
-    The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out.
+    The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out
+    (an interior crop lies inside it).
     """
-    tube = config.pour.tube(library)
+    tube = config.pour.tube(library, interior=resolve_view(library, config) == "interior")
     check_pour_size(library, config.pour, tube)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
                          margin=config.reconstruct.margin)
@@ -139,6 +171,7 @@ def build_pack(
         Default: NumPy arrays.
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
+    view = resolve_view(library, config)
     device = resolve_device(config.run.device, config.reconstruct.order)
     allocate = allocate or _numpy_volume
     chunks = tuple(config.run.chunks)
@@ -149,14 +182,14 @@ def build_pack(
         with _timed(timings, "deform"):
             grains = pack_grains(library, config.pour.n_particles, config.grains.deform, seed)
     with _timed(timings, "pour"):
-        placements = _pour(library, config, seed, progress, grains)
+        placements = _pour(library, config, seed, progress, grains, view)
     timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
     with _timed(timings, "reconstruct"):
-        render = _render(library, placements, config.reconstruct, seed, chunks, threads, allocate, grains, device)
+        render = _render(library, placements, config, view, seed, chunks, threads, allocate, grains, device)
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
-            grid=render.grid, packing_region=placements.checks.packing_region,
+            grid=render.grid, packing_region=None if render.crop is not None else placements.checks.packing_region,
             pore_texture=render.background.texture_density(), seed=seed,
         )
         # any render order post-processes on the device, if every transform has a torch version
@@ -166,10 +199,11 @@ def build_pack(
     manifest = dict(
         seed=seed, random_streams=random_streams(), config=config.to_dict(), library_source=library.source,
         n_particles=len(placements),
-        n_labels=_grains_present(render.labels, len(placements), chunks, threads),
+        n_labels=_grains_present(render.labels, len(placements), chunks, threads, every=render.crop is None),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
-        wall=render.background.wall_record(render.wall),
+        view=_view_record(view, config.reconstruct.view, placements, render.crop),
+        wall=None if render.wall is None else render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
         devices=dict(render=device or "cpu", postprocess=postprocess_device or "cpu"),  # "cpu": NumPy
@@ -188,7 +222,8 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 @dataclass(frozen=True)
 class _Render:
     """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
-    the partial volume (None: whole voxels), the wall's inner and outer radius (physical units)."""
+    the partial volume (None: whole voxels), the wall's inner and outer radius (physical units; None: no wall
+    in view), the interior crop's world corners ``(lo, hi)`` (physical units; None: the tube)."""
 
     grid: Grid
     clean: Any
@@ -196,42 +231,62 @@ class _Render:
     background: Background
     contested: int
     partial_volume: PartialVolume | None
-    wall: tuple[float, float]
+    wall: tuple[float, float] | None
+    crop: tuple[np.ndarray, np.ndarray] | None
 
 
 def _pour(
-    library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None,
+    library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None, view: str,
 ) -> Placements:
-    """The pour (paper 3.3) of ``config.pour`` with `seed`.
+    """The pour (paper 3.3) of ``config.pour`` with `seed`, into the tube of `view`.
 
     With `grains`, placement ``k`` pours ``grains.particles[k]`` (a deformed grain, in its
     own frame); the placements name its library grain (``indices``) and record how it
-    was made (``grains``). The tube is the library's either way.
+    was made (``grains``). The tube is the library's either way. For an interior crop, the
+    tube is wide enough for one and the pour measures its bulk where the crop lies
+    (`~synthpack.physics.container.CROP_WALL_MARGIN` from the wall).
     """
+    interior = view == "interior"
+    tube = config.pour.tube(library, interior=interior)
+    wall_margin = CROP_WALL_MARGIN if interior else 1.0
     if grains is None:
-        return pour(library, config.pour, seed, progress=progress)
-    placements = pour(grains.particles, config.pour, seed, container=config.pour.tube(library),
+        return pour(library, config.pour, seed, container=tube, progress=progress, wall_margin=wall_margin)
+    placements = pour(grains.particles, config.pour, seed, container=tube, wall_margin=wall_margin,
                       indices=np.arange(len(grains.particles)), progress=progress)
     return dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
 
 
 def _render(
-    library: ParticleLibrary, placements: Placements, config: ReconstructConfig, seed: int,
+    library: ParticleLibrary, placements: Placements, pack: PackConfig, view: str, seed: int,
     chunks: tuple[int, int, int], threads: int | None, allocate: Allocate, grains: PackGrains | None,
     device: str | None,
 ) -> _Render:
     """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
 
     Placement ``k``'s grain is ``library[placements.indices[k]]``, or ``grains.particles[k]`` with `grains`.
-    On the torch `device` (`synthpack.render.torch_render`), or with NumPy where it is None.
+    On the torch `device` (`synthpack.render.torch_render`), or with NumPy where it is None. The grid
+    covers the tube and its wall (`view` ``"tube"``), or only the interior crop
+    (`~synthpack.physics.container.crop_box`), with no wall.
     """
+    config = pack.reconstruct
     particles, placed = (library, placements.indices) if grains is None else (
         grains.particles, np.arange(len(placements)))
     tube = placements.tube
     background = Background.from_source(library.statistics, config)
-    wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
-    grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
-                         library.voxel_size, margin=config.margin)
+    wall, crop = None, None
+    if view == "interior":
+        extent = crop_extent(library, parse_scale(pack.pour.scale)[1])
+        crop = crop_box(placements.checks.packing_region, (extent[1], extent[2]))
+        if crop is None:
+            raise SynthpackInputError(
+                f"the pour's bulk ({placements.checks.fill_height:g} high in a tube of radius "
+                f"{tube.inner_radius:g}) holds no interior crop: pour more grains (pour.n_particles), "
+                "or show the tube (reconstruct.view: tube)")
+        grid = Grid.box(*crop, library.voxel_size)
+    else:
+        wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
+        grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
+                             library.voxel_size, margin=config.margin)
     background = dataclasses.replace(background, extent=grid.shape)  # the pore texture's period covers the pack
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in particles], placed,
@@ -240,7 +295,7 @@ def _render(
     renderer = None if device is None else TorchRenderer(device)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
-        tube=(wall[0], wall[1], -tube.base_thickness),
+        tube=None if wall is None else (wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
         partial_volume=partial_volume, renderer=renderer, surface=config.surface,
@@ -248,7 +303,14 @@ def _render(
     if renderer is not None:
         logger.info("rendered on %s: %d voxels within float rounding of a grain's surface", device,
                     renderer.near_threshold)
-    return _Render(grid, clean, labels, background, contested, partial_volume, wall)
+    return _Render(grid, clean, labels, background, contested, partial_volume, wall, crop)
+
+
+def _view_record(view: str, requested: str, placements: Placements, crop: tuple[np.ndarray, np.ndarray] | None) -> dict:
+    """The manifest's ``view``: what the pack shows (`view`, from ``reconstruct.view`` `requested`), the
+    container poured into and the interior crop's world corners (``lo``, ``hi``, ``(z, y, x)``, physical units)."""
+    return {"view": view, "requested": requested, "container": placements.tube.to_dict(),
+            "crop": None if crop is None else {"lo": [float(v) for v in crop[0]], "hi": [float(v) for v in crop[1]]}}
 
 
 def _postprocess(
@@ -268,8 +330,10 @@ def _postprocess(
     return tomogram, applied
 
 
-def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads: int | None) -> int:
-    """How many of the labels ``1..n_placed`` occur in `labels`, read chunk by chunk (warns if not all)."""
+def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads: int | None, *,
+                    every: bool = True) -> int:
+    """How many of the labels ``1..n_placed`` occur in `labels`, read chunk by chunk (warns if not all
+    where `every` grain should be in view: not in an interior crop)."""
     present = np.zeros(n_placed + 1, dtype=bool)
 
     def found(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
@@ -279,7 +343,7 @@ def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads
     for _, values in bounded_map(found, chunk_boxes(tuple(labels.shape), chunks), thread_count(threads)):
         present[values] = True
     n_present = int(np.count_nonzero(present[1:]))
-    if n_present < n_placed:
+    if n_present < n_placed and every:
         logger.warning("%d of %d placed grains have no voxel in the volume", n_placed - n_present, n_placed)
     return n_present
 

@@ -10,7 +10,7 @@ _HOW_TO_READ = """\
 How to read it: the source is measured in the specimen (in each slice, the convex hull
 of its labelled voxels: no container, no air, as in the source statistics the packs are
 built from), each pack in its bulk region (one median grain diameter from the tube wall
-and floor, two below the top). KS is the two-sample Kolmogorov-Smirnov distance between
+and floor, two below the top; all of a pack that is an interior crop). KS is the two-sample Kolmogorov-Smirnov distance between
 the pack's and the
 source's distributions (0 = the same, 1 = disjoint). W is the Wasserstein distance
 between intensity histograms, as a fraction of the source's grain-pore contrast. Noise

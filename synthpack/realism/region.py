@@ -12,7 +12,9 @@ it that is measured, its *bulk region*:
   diameter away from the tube wall and above the floor, and two diameters below
   the top of the pack (the highest grain point). That excludes the wall, the
   air outside the tube, the ordered layer at the floor and the loose top. It is
-  `synthpack.artefacts.recipes.bulk_region`, where ``postprocess: calibrated`` fits too.
+  `synthpack.artefacts.recipes.bulk_region`, where ``postprocess: calibrated`` fits too;
+* a synthetic pack that is an interior crop (its manifest's ``view`` is ``interior``:
+  ``reconstruct.view``): all of it, as the crop lies in its pour's bulk.
 """
 
 from __future__ import annotations
@@ -91,7 +93,9 @@ class Specimen:
             raise SynthpackInputError(
                 f"pack {directory} has no pour region in its manifest: generate it again with this synthpack"
             )
-        region = bulk_region(pack.shape, tuple(manifest["grid_origin"]), pack.voxel_size, checks["packing_region"])
+        interior = (manifest.get("view") or {}).get("view") == "interior"
+        region = bulk_region(pack.shape, tuple(manifest["grid_origin"]), pack.voxel_size,
+                             None if interior else checks["packing_region"])
         volume = pack.clean if clean else pack.tomogram
         fraction = checks.get("packing_fraction")
         return cls(name or Path(directory).name, np.asarray(volume[:], dtype=np.float32),

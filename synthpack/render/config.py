@@ -10,7 +10,12 @@ from .partial_volume import PartialVolume
 from .pore_texture import PoreTextureConfig
 from .surface import SIGMA, Surface
 
-__all__ = ["ReconstructConfig"]
+__all__ = ["VIEWS", "ReconstructConfig"]
+
+#: What a pack shows (``reconstruct.view``): ``tube``, the whole tube with its wall, in air;
+#: ``interior``, a crop of the pack's bulk with no wall and no air, every slice full of grains;
+#: ``auto``, an interior crop where the source scan is one, else the tube.
+VIEWS = ("auto", "tube", "interior")
 
 
 @dataclass(frozen=True)
@@ -20,10 +25,14 @@ class ReconstructConfig:
     ``pore_texture`` is a sub-section: the settings of the pore texture (`PoreTextureConfig`).
     """
 
+    view: str = setting("auto", one_of(VIEWS),
+                        "what the pack shows: tube (the tube with its wall, in air), interior (a crop of the "
+                        "bulk, full of grains to its edges, as a scan cut out of a larger specimen) or auto "
+                        "(interior where the source scan is an interior crop, else tube)")
     order: int = setting(1, one_of((0, 1, 3)), "interpolation of intensities: 0, 1 (linear) or 3 (cubic)")
-    wall: bool = setting(True, None, "draw the tube wall")
+    wall: bool = setting(True, None, "draw the tube wall (view tube)")
     wall_intensity: float | None = setting(None, finite, "wall intensity; default between pores and grains")
-    margin: int = setting(4, non_negative, "voxels of margin around the tube")
+    margin: int = setting(4, non_negative, "voxels of margin around the tube (view tube)")
     partial_volume: bool = setting(True, None, "composite each grain by the fraction of every voxel it fills "
                                    "(false: paste whole voxels, a hard step)")
     edge_shift: float | None = setting(None, finite, "partial volume: the grain's intensity edge relative to its "
@@ -34,6 +43,16 @@ class ReconstructConfig:
                                    "intensities are drawn from its Gaussian-smoothed signed distance, volume kept "
                                    "(0: the voxel staircase)")
     pore_texture: PoreTextureConfig = field(default_factory=PoreTextureConfig)
+
+    def view_of(self, statistics: SourceStatistics) -> str:
+        """``"tube"`` or ``"interior"``: `view`, with ``auto`` resolved from the source scan.
+
+        ``auto`` is ``interior`` where the source is an interior crop
+        (`~synthpack.source.SourceStatistics.interior_crop`: no wall, grains to its edges).
+        """
+        if self.view != "auto":
+            return self.view
+        return "interior" if statistics.interior_crop else "tube"
 
     def partial_volume_of(self, statistics: SourceStatistics) -> PartialVolume | None:
         """The partial volume to render grains of a source scan with; None for whole voxels."""

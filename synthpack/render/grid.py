@@ -55,3 +55,19 @@ class Grid:
         nz = int(np.ceil((z_max - z_min) / dz)) + 2 * margin + 1
         origin = (z_min - margin * dz, -(ny // 2) * dy, -(nx // 2) * dx)
         return cls((nz, ny, nx), origin, tuple(voxel_size))
+
+    @classmethod
+    def box(cls, lo: np.ndarray, hi: np.ndarray, voxel_size: tuple[float, float, float]) -> Grid:
+        """The voxels whose centres lie in the box ``[lo, hi]``, centred in it (an interior crop).
+
+        Parameters
+        ----------
+        lo, hi : (3,) array of float
+            World corners ``(z, y, x)`` of the box, physical units.
+        voxel_size : tuple of 3 float
+            ``(dz, dy, dx)``.
+        """
+        lo, hi, size = (np.asarray(v, dtype=float) for v in (lo, hi, voxel_size))
+        shape = np.maximum(np.floor((hi - lo) / size + 1e-9).astype(int) + 1, 1)
+        origin = (lo + hi) / 2 - (shape - 1) / 2 * size
+        return cls(tuple(int(n) for n in shape), tuple(float(o) for o in origin), tuple(voxel_size))

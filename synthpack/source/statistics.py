@@ -20,7 +20,7 @@ from ..measure.pore_histogram import measure_pore_quantiles
 from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
 from ..measure.phase_histograms import phase_masks, phase_quantiles
-from ..measure.specimen import solid_fraction, specimen_mask
+from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.spectrum import phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
@@ -125,6 +125,10 @@ class SourceStatistics:
         realism report makes), dimensionless; the default target of a pour
         (``pour.target_coordination: source``). None where no complete grain is centred
         in the specimen.
+    edge_coverage : float or None
+        Fraction of the scan's four side faces that lie in its specimen
+        (`~synthpack.measure.specimen.edge_coverage`), dimensionless; with no wall
+        measured, it says whether the scan is an interior crop (`interior_crop`).
     """
 
     pore_mean: float
@@ -154,6 +158,7 @@ class SourceStatistics:
     histogram_pores: tuple[float, ...] | None = None
     histogram_edges: tuple[float, ...] | None = None
     coordination: float | None = None
+    edge_coverage: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -164,6 +169,12 @@ class SourceStatistics:
         use it signed.
         """
         return self.grain_mean - self.pore_mean
+
+    @property
+    def interior_crop(self) -> bool:
+        """Whether the scan is an interior crop: no wall, and grains to its side faces
+        (`~synthpack.measure.specimen.is_interior_crop`); False where the coverage was not measured."""
+        return self.edge_coverage is not None and is_interior_crop(self.edge_coverage, self.wall_intensity is not None)
 
     def summary(self) -> str:
         """One short line of the figures a person checks: phase levels, noise, edge blur, solid fraction, contacts.
@@ -179,6 +190,8 @@ class SourceStatistics:
             parts.append(f"solid fraction {fraction(self.solid_fraction)}")
         if self.coordination is not None:
             parts.append(f"{sig(self.coordination)} contacts per grain")
+        if self.interior_crop:
+            parts.append("an interior crop (no wall, grains to the edges)")
         return ", ".join(parts)
 
     def to_dict(self) -> dict[str, float | list[float]]:
@@ -261,6 +274,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
                                   coordination=mean_coordination(scan.labels, specimen, readable=readable),
+                                  edge_coverage=edge_coverage(whole),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
