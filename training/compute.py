@@ -79,6 +79,14 @@ class ArmPlan:
         """Optimizer steps in batches: ``images_seen / batch``."""
         return self.images_seen / self.batch
 
+    @property
+    def validation_epochs(self) -> list[int]:
+        """The epochs (1-based) after which it validates: those whose images seen pass a multiple of
+        `val_every`, and the last."""
+        due = [e for e in range(1, self.epochs + 1)
+               if e * self.images // self.val_every > (e - 1) * self.images // self.val_every]
+        return due if due and due[-1] == self.epochs else [*due, self.epochs]
+
     def to_dict(self) -> dict:
         """JSON-able dict of the fields and of ``images_seen`` and ``steps``."""
         return {**asdict(self), "images_seen": self.images_seen, "steps": self.steps}

@@ -105,23 +105,32 @@ def resolve_device(device: str) -> str:
     return "0" if torch.cuda.is_available() else "cpu"
 
 
-def _validation_schedule(val_every: int | None, wanted: bool, images: int | None):
-    """An ``on_train_epoch_end`` callback: validate only when the images seen pass a multiple of `val_every`.
+def _validation_schedule(epochs: list[int] | None, wanted: bool, images: int | None):
+    """An ``on_train_epoch_end`` callback: validate after the given epochs only.
 
     Ultralytics validates after every epoch (``val: true``) or only after the last one
     (``val: false``), and keeps the last validation's fitness on the epochs it skips, which
     would save those epochs' weights as ``best.pt``: the callback clears it, so only
-    validated weights are ever "best". `images`: the epoch's training images of the plan,
-    checked against the dataset Ultralytics built.
+    validated weights are ever "best".
+
+    Parameters
+    ----------
+    epochs : list of int or None
+        1-based epochs to validate after (`training.compute.ArmPlan.validation_epochs`);
+        None: every epoch.
+    wanted : bool
+        The ``val`` option: False validates only after the last epoch, as Ultralytics does.
+    images : int or None
+        The plan's training images of an epoch, checked against the dataset Ultralytics built.
     """
+    due = None if epochs is None else set(epochs)
+
     def on_train_epoch_end(trainer) -> None:
         n = len(trainer.train_loader.dataset)
         if images is not None and n != images:
             raise RuntimeError(f"Ultralytics trains on {n} images an epoch, the compute plan on {images}: "
                                "training.compute.effective_images no longer matches Ultralytics")
-        seen = (trainer.epoch + 1) * n
-        due = val_every is None or seen // val_every > (seen - n) // val_every
-        trainer.args.val = wanted and (due or trainer.epoch + 1 >= trainer.epochs)
+        trainer.args.val = wanted and (due is None or trainer.epoch + 1 in due)
         trainer.fitness = None
 
     return on_train_epoch_end
@@ -168,7 +177,7 @@ def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettin
         options.update(scale_epoch_options(options, DEFAULT_CFG_DICT, plan.epoch_scale))
     model = yolo(settings.model, task="segment")
     model.add_callback("on_train_epoch_end", _validation_schedule(
-        plan.val_every if plan else None, bool(options.get("val", True)), plan.images if plan else None))
+        plan.validation_epochs if plan else None, bool(options.get("val", True)), plan.images if plan else None))
     for event, callback in (callbacks or {}).items():
         model.add_callback(event, callback)
     device = resolve_device(settings.device)
