@@ -16,19 +16,23 @@ For every real scan of the config (by default the built-in ``large`` and
    training list of their own (`training.arms`: packs alone, label budgets).
 
 Then every arm (`training.arms.ARM_KINDS`) is trained from scratch once per seed
-(`training.train.train`) and scored on the test slices of EVERY real scan
+(`training.train.train`), for the epochs its plan gives (`training.compute`: by default the
+same images seen and steps for every arm) with its learning curve on the real val slices
+(`training.curves`), and scored on the test slices of EVERY real scan
 (`training.evaluate.evaluate`): foreground Dice, matched-instance Dice and
 Ultralytics' mask mAP50, with per-slice foreground counts. The run folder gets
 ``results.csv`` (one row per arm, seed and test set), ``results.json`` (with every
 comparison), ``report.md`` (`training.report`: Tables 1 and 2 laid out as in the
 paper with the paper's figures beside ours, the packs-alone and label-efficiency
-tables, each comparison's paired difference with its bootstrap 95% interval),
-``dice.png`` and ``label_efficiency.png``.
+tables, each comparison's paired difference with its bootstrap 95% interval, each arm's
+epochs, images seen and steps, and the learning-curve table with its not-converged warning),
+``dice.png``, ``learning_curves.png`` and ``label_efficiency.png``.
 
 A ``real`` entry marked ``optional: true`` whose files are absent (the concrete
 scan of the ``cpu`` config on a fresh clone) is left out with a logged message.
 
-Each stage is skipped when its output is complete, so an interrupted run resumes.
+Each stage is skipped when its output is complete, so an interrupted run resumes (a
+training done under another compute plan is refused).
 
 Run from the checkout root::
 
