@@ -62,7 +62,9 @@ def run_offline(module: str, *args: str, timeout: float = 900) -> subprocess.Com
 def smoke(tmp_path_factory) -> Path:
     """The `smoke` experiment, run once for this module with the network refused."""
     out = tmp_path_factory.mktemp("smoke")
-    result = run_offline("training.experiment", "--config", "smoke", "--out", str(out))
+    # a few minutes on two free cores; equal steps make the small arms run many short epochs, and
+    # the limit leaves room for a machine shared with other work
+    result = run_offline("training.experiment", "--config", "smoke", "--out", str(out), timeout=1800)
     assert result.returncode == 0, result.stderr[-4000:]
     assert "NETWORK ATTEMPTS: 0 []" in result.stderr, result.stderr[-2000:]
     return out

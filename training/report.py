@@ -255,8 +255,8 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "",
         "## Learning curves: foreground Dice on the real val slices against steps",
         "",
-        ("Every arm validates once per epoch of the largest arm, at the same steps" if equal else
-         "Every arm validates after each of its epochs") + " and keeps its best validated weights (its model). "
+        ("Every arm validates once per epoch of the largest arm, at the same steps," if equal else
+         "Every arm validates after each of its epochs,") + " and keeps its best validated weights (its model). "
         "Figures of the mean curve over the seeds; chart: `learning_curves.png`.",
         "",
         *convergence_lines(config, curves),
@@ -378,6 +378,7 @@ def save_learning_curves(config, curves: dict, plans: dict[str, ArmPlan], path: 
             if mean is not None:
                 ax.plot(mean[0], 100 * mean[1], "o-", markersize=3, linewidth=2.5 if arm.kind == "real" else 1.2,
                         label=arm.name)
+        ax.set_xlim(left=0)
         ax.set_xlabel("steps (images seen / batch)")
         ax.set_ylabel(f"foreground Dice on {scan}'s val slices (%)")
         ax.set_ylim(0, 100)
