@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from synthpack.errors import SynthpackInputError
 from synthpack.io import read_label_image, write_label_image
 from synthpack.library.core import ParticleLibrary
 from synthpack.scan.split import VAL_FRACTION, central_block, slice_splits
@@ -17,7 +18,7 @@ from training.arms import budget_slices
 from training.compute import plan_compute
 from training.curves import RISE_LIMIT, tail_rise
 from training.evaluate import score
-from training.experiment import ExperimentConfig
+from training.experiment import ExperimentConfig, _trained
 from training.report import convergence_lines
 from training.stats import paired_bootstrap
 
@@ -295,3 +296,16 @@ def test_the_plateau_check_flags_a_rising_real_only_curve_and_not_a_flat_one():
         lines = "\n".join(convergence_lines(config, curves))
         assert ("real-only arm `large` has not converged" in lines) == warned
         assert "`large+syn`" not in lines and "| large+syn | 30 |" in lines
+
+
+def test_a_run_trained_under_another_compute_plan_is_refused_on_resume(tmp_path):
+    settings = ExperimentConfig.load("cpu").train
+    equal = plan_compute(settings, CPU_SIZES)["large"]
+    fixed = plan_compute(settings.__class__(**{**vars(settings), "compute": "fixed_epochs"}), CPU_SIZES)["large"]
+    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": 30}))  # a run from before the plans
+    assert _trained(tmp_path, fixed)["epochs"] == 30
+    with pytest.raises(SynthpackInputError, match="new --out folder"):
+        _trained(tmp_path, equal)
+    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": equal.epochs, "plan": equal.to_dict()}))
+    assert _trained(tmp_path, equal)["plan"] == equal.to_dict()
+    assert _trained(tmp_path / "none", equal) is None
