@@ -109,7 +109,8 @@ def plan_compute(settings, sizes: dict[str, int]) -> dict[str, ArmPlan]:
     Parameters
     ----------
     settings : training.train.TrainSettings
-        ``compute``, ``images_seen``, ``epochs``, ``batch`` and ``options["fraction"]`` are read.
+        ``compute`` (checked by `TrainSettings`), ``images_seen``, ``epochs``, ``batch`` and
+        ``options["fraction"]`` are read.
     sizes : dict
         Arm name -> training images of its dataset (before ``fraction``).
 
@@ -123,8 +124,6 @@ def plan_compute(settings, sizes: dict[str, int]) -> dict[str, ArmPlan]:
     SynthpackInputError
         If ``settings.images_seen`` is less than one epoch of the largest arm.
     """
-    if settings.compute not in COMPUTE_MODES:
-        raise SynthpackInputError(f"train.compute must be one of {', '.join(COMPUTE_MODES)}, got {settings.compute!r}")
     fraction = settings.options.get("fraction", 1.0)
     images = {arm: effective_images(n, fraction) for arm, n in sizes.items()}
     if not images:

@@ -8,7 +8,6 @@ of two arms on one test scan, with its bootstrap 95% interval over test slices a
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 from dataclasses import dataclass
