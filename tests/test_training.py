@@ -10,12 +10,16 @@ import numpy as np
 import pytest
 import yaml
 
+from synthpack.errors import SynthpackInputError
 from synthpack.io import read_label_image, write_label_image
 from synthpack.library.core import ParticleLibrary
 from synthpack.scan.split import VAL_FRACTION, central_block, slice_splits
 from training.arms import budget_slices
+from training.compute import plan_compute
+from training.curves import RISE_LIMIT, tail_rise
 from training.evaluate import score
-from training.experiment import ExperimentConfig
+from training.experiment import ExperimentConfig, _trained
+from training.report import convergence_lines
 from training.stats import paired_bootstrap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,7 +63,9 @@ def run_offline(module: str, *args: str, timeout: float = 900) -> subprocess.Com
 def smoke(tmp_path_factory) -> Path:
     """The `smoke` experiment, run once for this module with the network refused."""
     out = tmp_path_factory.mktemp("smoke")
-    result = run_offline("training.experiment", "--config", "smoke", "--out", str(out))
+    # a few minutes on two free cores; equal steps make the small arms run many short epochs, and
+    # the limit leaves room for a machine shared with other work
+    result = run_offline("training.experiment", "--config", "smoke", "--out", str(out), timeout=1800)
     assert result.returncode == 0, result.stderr[-4000:]
     assert "NETWORK ATTEMPTS: 0 []" in result.stderr, result.stderr[-2000:]
     return out
@@ -86,6 +92,26 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
     assert {(c["a"], c["b"]) for c in comparisons} >= {("large:syn", "large"), ("large@5+syn", "large@5")}
     for c in comparisons:
         assert c["low"] <= c["difference"] <= c["high"] and c["n_slices"] == 26
+
+
+@pytest.mark.slow
+def test_smoke_arms_train_for_equal_steps_and_record_their_learning_curves(smoke):
+    results = json.loads((smoke / "results.json").read_text())
+    plans = results["compute"]
+    budget = max(plan["images"] for plan in plans.values())  # the smoke config: 1 epoch of the largest arm
+    assert len({plan["epochs"] for plan in plans.values()}) > 1
+    for arm, plan in plans.items():
+        assert plan["compute"] == "equal_steps" and budget <= plan["images_seen"] < budget + plan["images"]
+        record = json.loads((smoke / "runs" / arm / "seed0" / "train.json").read_text())
+        assert record["epochs"] == plan["epochs"] and record["plan"] == plan
+        curve = results["curves"][arm]["0"]
+        assert curve[-1]["epoch"] == plan["epochs"] and curve[-1]["images_seen"] == plan["images_seen"]
+        assert all(0.0 <= point["val_dice"] <= 1.0 for point in curve)
+    rows = list(csv.DictReader((smoke / "results.csv").open()))
+    assert {int(row["images_seen"]) for row in rows} == {plan["images_seen"] for plan in plans.values()}
+    report = (smoke / "report.md").read_text()
+    assert "**Training compute: equal steps" in report and "## Learning curves" in report
+    assert (smoke / "learning_curves.png").stat().st_size > 0
 
 
 def _train_list(smoke, arm):
@@ -226,3 +252,60 @@ def test_unknown_experiment_config_is_a_clear_error(tmp_path):
     result = run_offline("training.experiment", "--config", "no-such-config", "--out", str(tmp_path), timeout=120)
     assert result.returncode == 2
     assert "smoke" in result.stderr and "cpu" in result.stderr and "paper" in result.stderr
+
+
+# The training-set sizes of the cpu config's `large` arms (docs/experiment-cpu.md).
+CPU_SIZES = {"large": 90, "large+syn": 205, "large:syn": 115, "large@15": 15, "large@15+syn": 130}
+
+
+def test_equal_steps_gives_arms_of_different_sizes_the_same_steps_and_validation_steps():
+    settings = ExperimentConfig.load("cpu").train
+    assert settings.compute == "equal_steps"
+    plans = plan_compute(settings, CPU_SIZES)
+    budget = max(CPU_SIZES.values()) * settings.epochs
+    assert len({plan.epochs for plan in plans.values()}) == len(plans)  # every size its own epochs
+    for arm, plan in plans.items():
+        assert plan.images == CPU_SIZES[arm]
+        assert budget <= plan.images_seen < budget + plan.images  # equal up to less than one of its epochs
+        assert plan.steps == plan.images_seen / settings.batch
+        validated = np.array(plan.validation_epochs) * plan.images  # images seen at each validation
+        assert len(validated) == settings.epochs  # as many chances to pick the model, at the same steps
+        assert np.all(np.abs(validated - budget / settings.epochs * np.arange(1, settings.epochs + 1)) < plan.images)
+    even = plan_compute(settings, {"a": 41, "b": 82, "c": 205})  # sizes dividing the budget: exactly equal
+    assert {plan.steps for plan in even.values()} == {205 * settings.epochs / settings.batch}
+    paper_rule = plan_compute(settings.__class__(**{**vars(settings), "compute": "fixed_epochs"}), CPU_SIZES)
+    assert paper_rule["large+syn"].steps / paper_rule["large"].steps == pytest.approx(205 / 90)
+    halves = plan_compute(settings.__class__(**{**vars(settings), "options": {"fraction": 0.5}}), {"a": 5, "b": 200})
+    assert halves["a"].images == 2 and halves["a"].epochs == 50 * settings.epochs  # Ultralytics keeps round(2.5)
+
+
+def _curve(dice, steps):
+    return [{"steps": float(s), "val_dice": float(d)} for s, d in zip(steps, dice)]
+
+
+def test_the_plateau_check_flags_a_rising_real_only_curve_and_not_a_flat_one():
+    steps = np.linspace(13, 384, 30)
+    rising = 0.9 * (1 - np.exp(-steps / 400))  # still climbing: about 5 points over the last 20%
+    flat = 0.9 * (1 - np.exp(-steps / 40))  # converged long before the end
+    assert tail_rise(steps, rising) > RISE_LIMIT > tail_rise(steps, flat) >= 0
+    assert tail_rise(steps, flat[::-1]) < 0 and tail_rise(steps[:1], flat[:1]) is None
+    config = ExperimentConfig.load("cpu")
+    for dice, warned in ((rising, True), (flat, False)):
+        curves = {"large": {seed: _curve(dice + 0.01 * seed, steps) for seed in config.seeds},
+                  "large+syn": {seed: _curve(rising, steps) for seed in config.seeds}}  # not a real-only arm
+        lines = "\n".join(convergence_lines(config, curves))
+        assert ("real-only arm `large` has not converged" in lines) == warned
+        assert "`large+syn`" not in lines and "| large+syn | 30 |" in lines
+
+
+def test_a_run_trained_under_another_compute_plan_is_refused_on_resume(tmp_path):
+    settings = ExperimentConfig.load("cpu").train
+    equal = plan_compute(settings, CPU_SIZES)["large"]
+    fixed = plan_compute(settings.__class__(**{**vars(settings), "compute": "fixed_epochs"}), CPU_SIZES)["large"]
+    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": 30}))  # a run from before the plans
+    assert _trained(tmp_path, fixed)["epochs"] == 30
+    with pytest.raises(SynthpackInputError, match="new --out folder"):
+        _trained(tmp_path, equal)
+    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": equal.epochs, "plan": equal.to_dict()}))
+    assert _trained(tmp_path, equal)["plan"] == equal.to_dict()
+    assert _trained(tmp_path / "none", equal) is None

@@ -11,8 +11,14 @@ Modules
 -------
 offline
     Ultralytics set up to run offline inside a run folder.
+compute
+    Training compute per arm: the same images seen and steps for every arm (epochs scaled
+    from its training-set size), or the paper's fixed epochs.
 train
-    One YOLO segmentation training from a ``.yaml`` model.
+    One YOLO segmentation training from a ``.yaml`` model, for an arm's planned epochs,
+    validated at the plan's steps.
+curves
+    Learning curves: validation Dice against steps, recorded during training; the plateau check.
 evaluate
     Predictions of the test slices as label images; Dice (pooled and per slice) and mAP50.
 arms

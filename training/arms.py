@@ -34,7 +34,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 from synthpack.scan.split import slice_splits
 
-__all__ = ["ARM_KINDS", "Arm", "budget_slices", "make_arms", "subset_dataset"]
+__all__ = ["ARM_KINDS", "Arm", "budget_slices", "dataset_images", "make_arms", "subset_dataset"]
 
 #: Arm kinds and what they train on.
 ARM_KINDS = {
@@ -183,3 +183,10 @@ def subset_dataset(export: Path, out: Path, arm: Arm) -> dict[str, int]:
         with atomic_file(out / name) as staging:
             staging.write_text(text)
     return counts
+
+
+def dataset_images(data: Path, arm: str) -> dict[str, int]:
+    """Images per split of `arm`'s dataset folder ``data/<arm>``: its ``dataset.json`` or ``export.json``."""
+    folder = Path(data) / arm
+    record = folder / "dataset.json" if (folder / "dataset.json").is_file() else folder / "export.json"
+    return json.loads(record.read_text())["images"]

@@ -16,19 +16,23 @@ For every real scan of the config (by default the built-in ``large`` and
    training list of their own (`training.arms`: packs alone, label budgets).
 
 Then every arm (`training.arms.ARM_KINDS`) is trained from scratch once per seed
-(`training.train.train`) and scored on the test slices of EVERY real scan
+(`training.train.train`), for the epochs its plan gives (`training.compute`: by default the
+same images seen and steps for every arm) with its learning curve on the real val slices
+(`training.curves`), and scored on the test slices of EVERY real scan
 (`training.evaluate.evaluate`): foreground Dice, matched-instance Dice and
 Ultralytics' mask mAP50, with per-slice foreground counts. The run folder gets
 ``results.csv`` (one row per arm, seed and test set), ``results.json`` (with every
 comparison), ``report.md`` (`training.report`: Tables 1 and 2 laid out as in the
 paper with the paper's figures beside ours, the packs-alone and label-efficiency
-tables, each comparison's paired difference with its bootstrap 95% interval),
-``dice.png`` and ``label_efficiency.png``.
+tables, each comparison's paired difference with its bootstrap 95% interval, each arm's
+epochs, images seen and steps, and the learning-curve table with its not-converged warning),
+``dice.png``, ``learning_curves.png`` and ``label_efficiency.png``.
 
 A ``real`` entry marked ``optional: true`` whose files are absent (the concrete
 scan of the ``cpu`` config on a fresh clone) is left out with a logged message.
 
-Each stage is skipped when its output is complete, so an interrupted run resumes.
+Each stage is skipped when its output is complete, so an interrupted run resumes (a
+training done under another compute plan is refused).
 
 Run from the checkout root::
 
@@ -63,10 +67,12 @@ from synthpack.scan.samples import SAMPLE_NAMES, sample_scan
 from synthpack.scan.core import Scan
 from synthpack.scan.split import central_block
 
-from .arms import ARM_KINDS, EXPORT_SUFFIXES, Arm, make_arms, subset_dataset
+from .arms import ARM_KINDS, EXPORT_SUFFIXES, Arm, dataset_images, make_arms, subset_dataset
+from .compute import ArmPlan, plan_compute
+from .curves import CurveRecorder, read_curve
 from .evaluate import evaluate, score, write_scores
 from .offline import offline_ultralytics
-from .report import compare_arms, report_markdown, save_chart, save_label_efficiency
+from .report import compare_arms, report_markdown, save_chart, save_label_efficiency, save_learning_curves
 from .train import TrainSettings, resolve_device, train
 
 logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
@@ -74,7 +80,10 @@ logger = logging.getLogger("training.experiment")  # not __name__: "__main__" un
 CONFIG_DIR = Path(__file__).parent / "configs"
 
 RESULT_COLUMNS = ("arm", "train_scan", "kind", "budget", "seed", "test_set", "dice", "dice_mean_of_slices",
-                  "instance_dice", "mask_map50", "n_slices", "n_true", "n_pred", "n_matched", "train_seconds")
+                  "instance_dice", "mask_map50", "n_slices", "n_true", "n_pred", "n_matched", "train_seconds",
+                  "epochs", "images_seen", "steps")
+#: Splits of the exports with truth images: val for the learning curves, test for the scores.
+TRUTH_SPLITS = ("val", "test")
 #: Relative paths of ``real:`` entries are taken from the checkout root.
 CHECKOUT = Path(__file__).resolve().parents[1]
 
@@ -263,7 +272,8 @@ def prepare_data(config: ExperimentConfig, out: Path) -> dict[str, Path]:
         for export in sorted(needed):
             exports[export] = out / "data" / (name + EXPORT_SUFFIXES[export])
             if not (exports[export] / "export.json").is_file():
-                export_yolo(exports[export], axis=config.axis, progress=False, **options[export])
+                export_yolo(exports[export], axis=config.axis, progress=False, truth_splits=TRUTH_SPLITS,
+                            **options[export])
         data[name] = exports["real"] / "data.yaml"  # the test set of scan `name`
         for arm in own:
             if arm.whole_export:
@@ -293,8 +303,32 @@ def _scores(folder: Path, weights: Path, test_data: Path, config: ExperimentConf
     return scores
 
 
-def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path]) -> tuple[list[dict], dict]:
-    """Train every arm once per seed and score it on every real scan's test slices.
+def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
+    """Every arm's epochs, images seen and steps (`training.compute.plan_compute`) from its dataset in `out`."""
+    sizes = {arm.name: dataset_images(out / "data", arm.name)["train"] for arm in config.arm_list}
+    return plan_compute(config.train, sizes)
+
+
+def _trained(run: Path, plan: ArmPlan) -> dict | None:
+    """The ``train.json`` of a finished training, or None; refused if it followed another plan.
+
+    A record from before the compute plans counts as ``fixed_epochs`` with its epochs.
+    """
+    record = _done(run / "train.json")
+    if record is None:
+        return None
+    recorded = record.get("plan") or {"compute": "fixed_epochs", "epochs": record["epochs"]}
+    wanted = plan.to_dict()
+    if any(recorded[key] != wanted[key] for key in ("compute", "epochs", "images") if key in recorded):
+        raise SynthpackInputError(
+            f"{run} was trained with {recorded['compute']} for {recorded['epochs']} epochs, this config plans "
+            f"{plan.compute} for {plan.epochs}: give a new --out folder (or delete that run)")
+    return record
+
+
+def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
+             plans: dict[str, ArmPlan]) -> tuple[list[dict], dict, dict]:
+    """Train every arm once per seed, as long as its plan says, and score it on every real scan's test slices.
 
     Returns
     -------
@@ -303,20 +337,29 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path]) -> tupl
     slices : dict
         ``(arm, seed, test set)`` -> per-slice ``[intersection, pred, true]`` foreground
         pixels, int64 (N, 3), slices in name order (for `training.stats.paired_bootstrap`).
+    curves : dict
+        Arm -> seed -> its learning curve (`training.curves.CurveRecorder` points; None for
+        a run trained without one).
     """
-    rows, slices = [], {}
+    rows, slices, curves = [], {}, {}
     config_dir = out / "ultralytics"
+    device = resolve_device(config.train.device)
     for arm in config.arm_list:
+        plan = plans[arm.name]
         for seed in config.seeds:
             run = out / "runs" / arm.name / f"seed{seed}"
-            record = _done(run / "train.json")
+            record = _trained(run, plan)
             if record is None:
                 start = time.perf_counter()
-                logger.info("training %s, seed %d", arm.name, seed)
+                logger.info("training %s, seed %d: %d epochs of %d images (%d images seen)", arm.name, seed,
+                            plan.epochs, plan.images, plan.images_seen)
                 settings = TrainSettings(**{**vars(config.train), "seed": seed})
-                train(data[arm.name], run, settings, config_dir=config_dir)
+                recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch, imgsz=config.train.imgsz,
+                                         conf=config.conf, device=device)
+                train(data[arm.name], run, settings, config_dir=config_dir, plan=plan, callbacks=recorder.callbacks)
                 record = _done(run / "train.json")
                 logger.info("trained %s in %.0f s", arm.name, time.perf_counter() - start)
+            curves.setdefault(arm.name, {})[seed] = read_curve(run)
             for test_set in config.real:
                 scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, run / "weights" / "best.pt",
                                  data[test_set], config, config_dir)
@@ -325,14 +368,16 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path]) -> tupl
                 rows.append({"arm": arm.name, "train_scan": arm.scan, "kind": arm.description,
                              "budget": arm.real_slices if arm.kind == "budget" else "", "seed": seed,
                              "test_set": test_set, "train_seconds": round(record["seconds"], 1),
+                             "epochs": plan.epochs, "images_seen": plan.images_seen, "steps": round(plan.steps, 1),
                              **{key: scores[key] for key in RESULT_COLUMNS if key in scores}})
                 logger.info("%s seed %d on %s: Dice %.3f", arm.name, seed, test_set, scores["dice"])
-    return rows, slices
+    return rows, slices, curves
 
 
-def write_results(config: ExperimentConfig, rows: list[dict], slices: dict, out: Path, seconds: float,
-                  device: str) -> None:
-    """``results.csv``, ``results.json``, ``report.md``, ``dice.png`` and ``label_efficiency.png`` in `out`."""
+def write_results(config: ExperimentConfig, rows: list[dict], slices: dict, curves: dict,
+                  plans: dict[str, ArmPlan], out: Path, seconds: float, device: str) -> None:
+    """``results.csv``, ``results.json``, ``report.md`` and the charts (``dice.png``, ``learning_curves.png``,
+    ``label_efficiency.png``) in `out`."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=RESULT_COLUMNS, lineterminator="\n")
     writer.writeheader()
@@ -341,14 +386,19 @@ def write_results(config: ExperimentConfig, rows: list[dict], slices: dict, out:
     texts = {
         "results.csv": buffer.getvalue(),
         "results.json": json.dumps({"config": config.name, "rows": rows, "seconds": seconds,
+                                    "compute": {arm: plan.to_dict() for arm, plan in plans.items()},
+                                    "curves": {arm: {str(seed): curve for seed, curve in by_seed.items()}
+                                               for arm, by_seed in curves.items()},
                                     "comparisons": [c.to_dict() for c in comparisons]}, indent=1),
-        "report.md": report_markdown(config, rows, comparisons, out, seconds, device),
+        "report.md": report_markdown(config, rows, comparisons, out, seconds, device, plans, curves),
     }
     for name, text in texts.items():
         with atomic_file(out / name) as staging:
             staging.write_text(text)
     with atomic_file(out / "dice.png") as staging:
-        save_chart(config, rows, staging)
+        save_chart(config, rows, plans, staging)
+    with atomic_file(out / "learning_curves.png") as staging:
+        save_learning_curves(config, curves, plans, staging)
     if config.budgets:
         with atomic_file(out / "label_efficiency.png") as staging:
             save_label_efficiency(config, rows, out, staging)
@@ -362,9 +412,10 @@ def run(config: str | os.PathLike | ExperimentConfig, out: str | os.PathLike) ->
     offline_ultralytics(out / "ultralytics")
     start = time.perf_counter()
     data = prepare_data(config, out)
-    rows, slices = run_arms(config, out, data)
+    plans = plan_arms(config, out)
+    rows, slices, curves = run_arms(config, out, data, plans)
     seconds = time.perf_counter() - start
-    write_results(config, rows, slices, out, seconds, resolve_device(config.train.device))
+    write_results(config, rows, slices, curves, plans, out, seconds, resolve_device(config.train.device))
     logger.info("report in %s (%.1f min)", out / "report.md", seconds / 60)
     return rows
 

@@ -8,7 +8,6 @@ of two arms on one test scan, with its bootstrap 95% interval over test slices a
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 from dataclasses import dataclass
@@ -18,10 +17,13 @@ import numpy as np
 
 from synthpack import __version__
 
-from .arms import Arm
+from .arms import Arm, dataset_images
+from .compute import COMPUTE_MODES, ArmPlan
+from .curves import RISE_LIMIT, TAIL, mean_curve, tail_rise
 from .stats import Difference, paired_bootstrap
 
-__all__ = ["COMPARISONS", "Comparison", "compare_arms", "report_markdown", "save_chart", "save_label_efficiency"]
+__all__ = ["COMPARISONS", "Comparison", "compare_arms", "compute_line", "convergence_lines", "report_markdown",
+           "save_chart", "save_label_efficiency", "save_learning_curves"]
 
 #: The paper's Dice scores (%), by training set, then test set (Tables 1 and 2).
 PAPER_DICE = {
@@ -145,18 +147,56 @@ def _ratios(summary: dict, scans: list[str], test_sets: list[str]) -> list[str]:
             "|---|" + "---|" * len(test_sets), *rows]
 
 
-def _images(out: Path, arm: str) -> dict:
-    folder = out / "data" / arm
-    record = folder / "dataset.json" if (folder / "dataset.json").is_file() else folder / "export.json"
-    return json.loads(record.read_text())["images"]
-
-
-def _dataset_lines(arms: list[Arm], out: Path) -> list[str]:
-    lines = ["| training set | train images | val images | test images |", "|---|---|---|---|"]
+def _dataset_lines(arms: list[Arm], out: Path, plans: dict[str, ArmPlan]) -> list[str]:
+    lines = ["| training set | train images | val images | test images | epochs | images seen | steps |",
+             "|---|---|---|---|---|---|---|"]
     for arm in arms:
-        images = _images(out, arm.name)
-        lines.append(f"| {arm.name} ({arm.description}) | {images['train']} | {images['val']} | {images['test']} |")
+        images, plan = dataset_images(out / "data", arm.name), plans[arm.name]
+        used = "" if plan.images == images["train"] else f" ({plan.images} used)"
+        lines.append(f"| {arm.name} ({arm.description}) | {images['train']}{used} | {images['val']} | "
+                     f"{images['test']} | {plan.epochs} | {plan.images_seen} | {plan.steps:.0f} |")
     return lines
+
+
+def compute_line(plans: dict[str, ArmPlan]) -> str:
+    """The report's sentence on training compute: the mode, clearly labelled, and its range of steps."""
+    if not plans:
+        return "No arm trained."
+    plan = next(iter(plans.values()))
+    seen = [p.images_seen for p in plans.values()]
+    steps = [p.steps for p in plans.values()]
+    span = (f"{min(seen)} to {max(seen)} training images seen, {min(steps):.0f} to {max(steps):.0f} steps"
+            if min(seen) != max(seen) else f"{seen[0]} training images seen, {steps[0]:.0f} steps")
+    return (f"**Training compute: {COMPUTE_MODES[plan.compute]}** ({span}; steps = images seen / batch "
+            f"{plan.batch}; each arm's in the Datasets table).")
+
+
+def convergence_lines(config, curves: dict) -> list[str]:
+    """The learning-curve table (every arm) and a warning line for each real-only arm still rising.
+
+    `curves`: arm -> seed -> points (`training.curves.CurveRecorder`). An arm's figures are
+    of its mean curve over the seeds (`training.curves.mean_curve`): its last validation
+    Dice, the best, and the rise over its last `TAIL` of steps (`training.curves.tail_rise`).
+    """
+    lines = [f"| training set | validations | last val Dice | best val Dice | rise over the last "
+             f"{100 * TAIL:.0f}% of steps |", "|---|---|---|---|---|"]
+    warnings = []
+    for arm in config.arm_list:
+        mean = mean_curve(list(curves.get(arm.name, {}).values()))
+        if mean is None:
+            lines.append(f"| {arm.name} | - | - | - | - |")
+            continue
+        steps, dice = mean
+        rise = tail_rise(steps, dice)
+        lines.append(f"| {arm.name} | {len(steps)} | {100 * dice[-1]:.1f}% | {100 * dice.max():.1f}% | "
+                     + ("-" if rise is None else f"{100 * rise:+.1f}") + " |")
+        if arm.kind == "real" and rise is not None and rise > RISE_LIMIT:
+            warnings.append(
+                f"**Warning: the real-only arm `{arm.name}` has not converged**: its validation Dice still rises "
+                f"by {100 * rise:+.1f} points over its last {100 * TAIL:.0f}% of steps (more than "
+                f"{100 * RISE_LIMIT:.0f}); its differences to other arms may be those of a longer training "
+                "(raise `train.images_seen` or `train.epochs`).")
+    return [*warnings, *([""] if warnings else []), *lines]
 
 
 def _budget_lines(config, summary: dict) -> list[str]:
@@ -175,18 +215,20 @@ def _budget_lines(config, summary: dict) -> list[str]:
 
 
 def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out: Path, seconds: float,
-                    device: str) -> str:
-    """The report: settings, datasets, Tables 1 and 2 with the paper's figures and the intervals, the new arms."""
+                    device: str, plans: dict[str, ArmPlan], curves: dict) -> str:
+    """The report: settings, compute, datasets, learning curves, Tables 1 and 2 with the paper's figures and the
+    intervals, the new arms."""
     summary = summarise(rows)
     tests = list(config.real)
     names = set(config.arms)
     pick = lambda *suffixes: [s + x for s in config.real for x in suffixes if s + x in names]  # noqa: E731
     t = config.train
+    equal = any(plan.compute == "equal_steps" for plan in plans.values())
     lines = [
         f"# Augmentation experiment `{config.name}`",
         "",
-        f"synthpack {__version__}; {t.model} from scratch (no pretrained weights) at {t.imgsz} px, {t.epochs} "
-        f"epoch{'s' if t.epochs != 1 else ''}, batch {t.batch}, optimizer {t.optimizer} (lr0 {t.lr0}), "
+        f"synthpack {__version__}; {t.model} from scratch (no pretrained weights) at {t.imgsz} px, "
+        f"batch {t.batch}, optimizer {t.optimizer} (lr0 {t.lr0}), "
         f"device `{device}` "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores); training seeds "
         f"{', '.join(map(str, config.seeds))}; {config.n_packs} synthetic pack(s) per real scan, built from "
@@ -199,6 +241,8 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "Differences: `a − b` in Dice points, paired by test slice and seed, with the bootstrap 95% interval "
         "over test slices and seeds in brackets; `*` where the interval excludes 0.",
         "",
+        compute_line(plans),
+        "",
         "## Datasets",
         "",
         "Real slices are split as in the paper (central 20% test; validation: the training slices next to "
@@ -206,7 +250,15 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "val slices of its scan; `scan@K` arms train on K real training slices spaced evenly over the training "
         "part (never a val or test slice).",
         "",
-        *_dataset_lines(config.arm_list, out),
+        *_dataset_lines(config.arm_list, out, plans),
+        "",
+        "## Learning curves: foreground Dice on the real val slices against steps",
+        "",
+        ("Every arm validates once per epoch of the largest arm, at the same steps," if equal else
+         "Every arm validates after each of its epochs,") + " and keeps its best validated weights (its model). "
+        "Figures of the mean curve over the seeds; chart: `learning_curves.png`.",
+        "",
+        *convergence_lines(config, curves),
         "",
         "## Table 1: real data alone and with synthetic packs",
         "",
@@ -255,7 +307,7 @@ def _pyplot():
     return plt
 
 
-def save_chart(config, rows: list[dict], path: Path) -> None:
+def save_chart(config, rows: list[dict], plans: dict[str, ArmPlan], path: Path) -> None:
     """Grouped bars of the Dice of every arm on every test set, the paper's figures as black marks."""
     plt = _pyplot()
     summary = summarise(rows)
@@ -272,7 +324,8 @@ def save_chart(config, rows: list[dict], path: Path) -> None:
     ax.set_xticks(np.arange(len(tests)), [f"test: {t}" for t in tests])
     ax.set_ylabel("foreground Dice (%)")
     ax.set_ylim(0, 100)
-    ax.set_title(f"{config.name}: {config.train.model}, {config.train.epochs} epochs")
+    compute = next(iter(plans.values())).compute.replace("_", " ") if plans else ""
+    ax.set_title(f"{config.name}: {config.train.model}, {compute}")
     ax.legend(fontsize=6, loc="lower right", ncol=max(1, len(arms) // 8))
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
@@ -288,7 +341,7 @@ def save_label_efficiency(config, rows: list[dict], out: Path, path: Path) -> No
     """
     plt = _pyplot()
     summary = summarise(rows)
-    n_train = {scan: _images(out, scan)["train"] for scan in config.real}
+    n_train = {scan: dataset_images(out / "data", scan)["train"] for scan in config.real}
     budgeted = [arm.scan for arm in config.arm_list if arm.kind == "budget"]
     fig, ax = plt.subplots(figsize=(6, 4))
     for index, scan in enumerate(dict.fromkeys(budgeted)):
@@ -305,6 +358,33 @@ def save_label_efficiency(config, rows: list[dict], out: Path, path: Path) -> No
     ax.set_ylim(0, 100)
     ax.set_title(f"{config.name}: label efficiency, {len(config.seeds)} seed(s)")
     ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def save_learning_curves(config, curves: dict, plans: dict[str, ArmPlan], path: Path) -> None:
+    """Validation Dice against steps of every arm (mean over seeds), one panel per real scan.
+
+    Real-only arms are drawn thick; arms without a curve are left out.
+    """
+    plt = _pyplot()
+    scans = list(dict.fromkeys(arm.scan for arm in config.arm_list)) or [""]
+    fig, axes = plt.subplots(1, len(scans), figsize=(5 * len(scans), 4), squeeze=False)
+    for ax, scan in zip(axes[0], scans):
+        for arm in (a for a in config.arm_list if a.scan == scan):
+            mean = mean_curve(list(curves.get(arm.name, {}).values()))
+            if mean is not None:
+                ax.plot(mean[0], 100 * mean[1], "o-", markersize=3, linewidth=2.5 if arm.kind == "real" else 1.2,
+                        label=arm.name)
+        ax.set_xlim(left=0)
+        ax.set_xlabel("steps (images seen / batch)")
+        ax.set_ylabel(f"foreground Dice on {scan}'s val slices (%)")
+        ax.set_ylim(0, 100)
+        ax.set_title(f"{scan}: {COMPUTE_MODES[next(iter(plans.values())).compute].split(':')[0]}" if plans else scan)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle(f"{config.name}: learning curves, {len(config.seeds)} seed(s)")
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)

@@ -21,8 +21,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 
+from .compute import COMPUTE_MODES, ArmPlan, scale_epoch_options
 from .offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
 
 logger = logging.getLogger(__name__)
@@ -39,7 +41,15 @@ class TrainSettings:
     imgsz : int
         Training image size, pixels (slices are letterboxed to it).
     epochs, batch : int
-        Epochs and images per batch.
+        Epochs and images per batch. Under ``compute: equal_steps`` `epochs` is that of the
+        arm with the most training images (unless `images_seen` is given) and the unit of
+        the options counted in epochs (`training.compute`).
+    compute : str
+        ``"equal_steps"`` (every arm of an experiment sees the same number of images) or
+        ``"fixed_epochs"`` (the paper's rule): `training.compute.COMPUTE_MODES`.
+    images_seen : int or None
+        Under ``equal_steps``, the training images every arm sees; None: the largest arm's
+        training images times `epochs`.
     device : str
         ``"auto"`` (the first GPU when there is one, else the CPU), ``"cpu"``, ``"0"``, ...
     seed : int
@@ -58,6 +68,8 @@ class TrainSettings:
     imgsz: int = 256
     epochs: int = 30
     batch: int = 16
+    compute: str = "equal_steps"
+    images_seen: int | None = None
     device: str = "auto"
     seed: int = 0
     optimizer: str = "SGD"
@@ -75,6 +87,14 @@ class TrainSettings:
                              "(other YOLO.train keywords go under 'options')")
         return cls(**values)
 
+    def __post_init__(self):
+        if self.compute not in COMPUTE_MODES:
+            raise SynthpackInputError(f"train.compute must be one of {', '.join(COMPUTE_MODES)}, "
+                                      f"got {self.compute!r}")
+        if self.images_seen is not None and (isinstance(self.images_seen, bool) or not isinstance(
+                self.images_seen, int) or self.images_seen <= 0):
+            raise SynthpackInputError(f"train.images_seen must be a positive number of images, got {self.images_seen!r}")
+
 
 def resolve_device(device: str) -> str:
     """``"auto"`` -> ``"0"`` when CUDA is available, else ``"cpu"``; other values unchanged."""
@@ -85,8 +105,40 @@ def resolve_device(device: str) -> str:
     return "0" if torch.cuda.is_available() else "cpu"
 
 
+def _validation_schedule(epochs: list[int] | None, wanted: bool, images: int | None):
+    """An ``on_train_epoch_end`` callback: validate after the given epochs only.
+
+    Ultralytics validates after every epoch (``val: true``) or only after the last one
+    (``val: false``), and keeps the last validation's fitness on the epochs it skips, which
+    would save those epochs' weights as ``best.pt``: the callback clears it, so only
+    validated weights are ever "best".
+
+    Parameters
+    ----------
+    epochs : list of int or None
+        1-based epochs to validate after (`training.compute.ArmPlan.validation_epochs`);
+        None: every epoch.
+    wanted : bool
+        The ``val`` option: False validates only after the last epoch, as Ultralytics does.
+    images : int or None
+        The plan's training images of an epoch, checked against the dataset Ultralytics built.
+    """
+    due = None if epochs is None else set(epochs)
+
+    def on_train_epoch_end(trainer) -> None:
+        n = len(trainer.train_loader.dataset)
+        if images is not None and n != images:
+            raise RuntimeError(f"Ultralytics trains on {n} images an epoch, the compute plan on {images}: "
+                               "training.compute.effective_images no longer matches Ultralytics")
+        trainer.args.val = wanted and (due is None or trainer.epoch + 1 in due)
+        trainer.fitness = None
+
+    return on_train_epoch_end
+
+
 def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettings,
-          config_dir: str | os.PathLike | None = None) -> Path:
+          config_dir: str | os.PathLike | None = None, *, plan: ArmPlan | None = None,
+          callbacks: dict | None = None) -> Path:
     """Train a model on the dataset `data` and return its best weights.
 
     Parameters
@@ -99,6 +151,12 @@ def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettin
     settings : TrainSettings
     config_dir : path-like, optional
         Ultralytics' config folder (default ``out/ultralytics``); see `offline_ultralytics`.
+    plan : training.compute.ArmPlan, optional
+        This arm's epochs (instead of ``settings.epochs``), the factor of its options counted
+        in epochs and its validation interval (`training.compute`); None: ``settings.epochs``,
+        a validation after every epoch.
+    callbacks : dict, optional
+        Ultralytics event -> callback, e.g. `training.curves.CurveRecorder.callbacks`.
 
     Returns
     -------
@@ -111,20 +169,31 @@ def train(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettin
     if not data.is_file():
         raise FileNotFoundError(f"{data} not found: give the data.yaml of a `synthpack export-yolo` folder")
     yolo = offline_ultralytics(config_dir or out / "ultralytics")
+    from ultralytics.utils import DEFAULT_CFG_DICT
+
+    epochs, options = settings.epochs, dict(settings.options)
+    if plan is not None:
+        epochs = plan.epochs
+        options.update(scale_epoch_options(options, DEFAULT_CFG_DICT, plan.epoch_scale))
     model = yolo(settings.model, task="segment")
+    model.add_callback("on_train_epoch_end", _validation_schedule(
+        plan.validation_epochs if plan else None, bool(options.get("val", True)), plan.images if plan else None))
+    for event, callback in (callbacks or {}).items():
+        model.add_callback(event, callback)
     device = resolve_device(settings.device)
     start = time.perf_counter()
     model.train(
-        data=str(data), imgsz=settings.imgsz, epochs=settings.epochs, batch=settings.batch, device=device,
+        data=str(data), imgsz=settings.imgsz, epochs=epochs, batch=settings.batch, device=device,
         seed=settings.seed, deterministic=True, optimizer=settings.optimizer, lr0=settings.lr0,
         workers=settings.workers, project=str(out.parent), name=out.name, exist_ok=True, verbose=False,
-        **OFFLINE_TRAIN_ARGS, **settings.options,
+        **OFFLINE_TRAIN_ARGS, **options,
     )
     seconds = time.perf_counter() - start
     best = out / "weights" / "best.pt"
     if not best.is_file():
         raise RuntimeError(f"training finished without {best}: see the Ultralytics log above")
-    record = {"data": str(data), "device": device, "seconds": seconds, **dataclasses.asdict(settings)}
+    record = {"data": str(data), "device": device, "seconds": seconds, **dataclasses.asdict(settings),
+              "epochs": epochs, "options": options, "plan": plan.to_dict() if plan else None}
     with atomic_file(out / "train.json") as staging:  # the experiment takes it as "this run is done"
         staging.write_text(json.dumps(record, indent=1))
     logger.info("trained %s on %s in %.0f s: %s", settings.model, data, seconds, best)
