@@ -157,7 +157,8 @@ def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_ne
 
 def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tuple[float, float, dict]:
     """Solid fraction and mean coordination of a rendered pack's bulk (the realism report's measures), and its record."""
-    config = PackConfig().replace(postprocess="none", pour={"n_particles": 150, "batch_size": 30, **pour_settings})
+    config = PackConfig().replace(postprocess="none", reconstruct={"view": "tube"},
+                                  pour={"n_particles": 150, "batch_size": 30, **pour_settings})
     pack = build_pack(library, config, seed, progress=False)
     labels, checks = np.asarray(pack.labels), pack.placements.checks
     region = bulk_region(labels.shape, pack.grid.origin, library.voxel_size, checks.packing_region)
