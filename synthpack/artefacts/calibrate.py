@@ -50,14 +50,17 @@ its cost is fixed and vanishes per voxel on big packs.
    per-slice radial table, so it costs one pass over the volume. Off where the source
    shows none (None in its statistics).
 
-4. **The guard** (`~synthpack.artefacts.guard`): the steps (the blur, the noise of each
-   phase, the cupping, the rings) are applied to the clean volume on the measured slices,
-   and the full-band histograms of grains, pores and edges (Wasserstein
-   distance over the contrast, against the source's `~synthpack.source.SourceStatistics.histogram_grains`
-   and the others) and the noise levels are measured: a step that makes any of them
-   worse and none better is dropped, and then steps are dropped until no figure is worse
-   than the clean volume's: calibration never makes a pack less like its source than no
-   post-processing. Each drop is a warning and is recorded (`Calibration.guard`).
+4. **The guard** (`~synthpack.artefacts.guard`): every subset of the steps (the blur, the
+   noise of each phase, the cupping, the rings) is applied to the clean volume on the
+   measured slices, and the full-band histograms of grains, pores and edges (Wasserstein
+   distance over the contrast, against the source's
+   `~synthpack.source.SourceStatistics.histogram_grains` and the others) and the noise
+   levels are measured. The steps applied are the largest subset that leaves no figure
+   worse than the clean volume's (beyond a small tolerance) unless that figure stays within
+   its realism target; a step whose removal makes some figure better and none worse is
+   dropped too: calibration never makes a pack less like its source than no
+   post-processing on a figure it misses. Each drop is a warning and is recorded
+   (`Calibration.guard`).
 
 The fit has no random part (the guard draws from its own fixed stream); with the pack's
 seed the noise realisation is reproducible too. It records the grid search and every
