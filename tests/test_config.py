@@ -53,6 +53,7 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
         ({"pour": {"restitution": 1.5}}, "'pour.restitution' is out of range"),
         ({"run": {"chunks": [64, 0, 64]}}, "'run.chunks' is out of range"),
         ({"reconstruct": {"pore_texture": {"sigma": -0.5}}}, "'reconstruct.pore_texture.sigma' is out of range"),
+        ({"reconstruct": {"pore_texture": {"rolloff": 0.0}}}, "'reconstruct.pore_texture.rolloff' is out of range"),
         ({"reconstruct": {"pore_texture": {"tile": 6.5}}}, "'reconstruct.pore_texture.tile' has the wrong type"),
         ({"reconstruct": {"pore_texture": {"size": 8}}}, "unknown config key 'reconstruct.pore_texture.size'"),
         ({"reconstruct": {"pore_texture": {"model": "fractal"}}}, "'reconstruct.pore_texture.model'"),

@@ -7,12 +7,14 @@ import pytest
 from scipy import ndimage
 
 from synthpack.render import Background, Grid, PoreTextureConfig, pose_maps, reconstruct
+from synthpack.render.pore_texture import MIN_ROLLOFF, NYQUIST
 from synthpack.measure.pore_histogram import MIN_QUANTILE_VOXELS, QUANTILE_SCORES, measure_pore_quantiles
 from synthpack.measure.pore_spectrum import (
     PORE_SPECTRUM_SIZE,
     frequency_radius,
     measure_pore_spectrum,
     shell_frequencies,
+    smooth_spectrum,
     spectrum_on_grid,
 )
 
@@ -136,9 +138,9 @@ def _standardized_quantiles(values: np.ndarray) -> np.ndarray:
 def test_quantile_mapping_recovers_a_non_gaussian_marginal():
     quantiles = _lognormal_quantiles()
     assert quantiles[len(quantiles) // 2] == 0.0 and np.all(np.diff(quantiles) >= 0)
-    spectrum = tuple(np.ones(29))  # white below the cutoff: many independent values in one tile
-    texture = PoreTextureConfig(cutoff=0.3, rolloff=0.1, tile=64)
-    box = (np.zeros(3, int), np.full(3, 64))
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    texture = PoreTextureConfig(tile=96)
+    box = (np.zeros(3, int), np.full(3, 96))
     mapped = texture.sample(*box, 7, 1.0, spectrum, quantiles).astype(np.float64)
     gaussian = texture.sample(*box, 7, 1.0, spectrum).astype(np.float64)
     expected = np.sqrt(texture.density(1.0, spectrum).mean())
@@ -148,12 +150,16 @@ def test_quantile_mapping_recovers_a_non_gaussian_marginal():
     np.testing.assert_allclose(_standardized_quantiles(mapped)[middle], np.asarray(quantiles)[middle], atol=0.04)
     # the Gaussian texture has the wrong shape: the log-normal's lower tail is much shorter
     assert np.abs(_standardized_quantiles(gaussian) - quantiles)[middle].max() > 0.3
-    # mapped in the band: no power beyond cutoff + rolloff (a map of the values alone would spread some there),
-    # and still the same field (its correlations kept)
-    beyond = frequency_radius(mapped.shape) > 0.4
-    power = np.abs(np.fft.fftn(mapped)) ** 2
-    assert power[beyond].sum() < 1e-9 * power.sum()
-    assert np.corrcoef(mapped.ravel(), gaussian.ravel())[0, 1] > 0.8  # a monotone map alone: about 0.91
+    # mapped in the band: from the roll-off on, the Gaussian field's own amplitudes (a map of the values alone
+    # would spread power over the roll-off and beyond), nothing beyond it; and still the same field
+    radius = frequency_radius(mapped.shape)
+    rolled = radius > texture.band()[0]
+    mapped_amplitude, gaussian_amplitude = np.abs(np.fft.fftn(mapped)), np.abs(np.fft.fftn(gaussian))
+    held = rolled & (gaussian_amplitude > 1e-3 * gaussian_amplitude[rolled].max())
+    ratio = mapped_amplitude[held] / gaussian_amplitude[held]  # one factor: the final standard deviation's
+    assert held.sum() > 1000 and ratio.max() / ratio.min() < 1.001 and ratio.mean() == pytest.approx(1.0, abs=0.05)
+    assert mapped_amplitude[radius > texture.band()[1] + 1e-9].max() < 1e-5 * gaussian_amplitude.max()
+    assert np.corrcoef(mapped.ravel(), gaussian.ravel())[0, 1] > 0.8
     assert texture.record(1.0, spectrum, 7, quantiles)["histogram"] is True
     assert PoreTextureConfig(histogram=False).record(1.0, spectrum, 7, quantiles)["histogram"] is False
     assert PoreTextureConfig(model="gaussian").record(1.0, spectrum, 7, quantiles)["histogram"] is False
@@ -180,3 +186,40 @@ def test_too_little_pore_interior_measures_no_quantiles():
     assert measure_pore_quantiles(values, mask) is None
     mask.ravel()[MIN_QUANTILE_VOXELS - 1] = True
     assert len(measure_pore_quantiles(values, mask)) == len(QUANTILE_SCORES)
+
+
+def test_smoothing_takes_out_the_estimates_spikes_and_the_grids_corners():
+    f = shell_frequencies(56)
+    clean = 100.0 * np.exp(-30.0 * f)  # log-linear: the smoothing keeps it
+    noisy = clean.copy()
+    noisy[20] *= 100.0  # a spike of the estimate's noise
+    noisy[25:27] = 0.0  # shells where the estimate fell below 0
+    noisy[40:] = np.abs(np.random.default_rng(0).standard_normal(16))  # the corners: noise above the spectrum
+    smooth = smooth_spectrum(noisy)
+    assert np.all(smooth[: PORE_SPECTRUM_SIZE // 2 + 1] > 0) and not smooth[PORE_SPECTRUM_SIZE // 2 + 1 :].any()
+    np.testing.assert_allclose(smooth[2:17], clean[2:17], rtol=1e-9)
+    assert np.abs(np.log(smooth[17:31] / clean[17:31])).max() < np.log(2)  # spike and gap gone (100x, 0)
+    assert not smooth_spectrum(np.zeros(56)).any()
+
+
+def test_the_band_ends_at_nyquist_and_the_rolloff_is_never_sharp():
+    assert PoreTextureConfig().band() == (0.1, pytest.approx(0.2))
+    assert PoreTextureConfig(cutoff=0.5).band() == (pytest.approx(0.4), 0.5)
+    spectrum = tuple(np.ones(56))
+    density = PoreTextureConfig(cutoff=1.0, tile=32).density(1.0, spectrum)
+    radius = frequency_radius(density.shape)
+    assert density[radius > NYQUIST].max() == 0.0 and density[(radius > 0) & (radius < 0.4)].min() > 0
+    assert MIN_ROLLOFF == 2 / PORE_SPECTRUM_SIZE
+
+
+def test_the_period_covers_the_volume_up_to_the_tile():
+    texture = PoreTextureConfig()
+    assert texture.period(None) == texture.tile == 256
+    assert texture.period((85, 109, 109)) >= 109 and texture.period((114, 205, 205)) >= 205
+    assert texture.period((20, 30, 30)) == PORE_SPECTRUM_SIZE  # the measured spectrum's largest scale
+    assert texture.period((10, 1000, 1000)) == 256 and PoreTextureConfig(tile=32).period((85, 109, 109)) == 32
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    extent = (8, 150, 24)
+    field = texture.sample(np.zeros(3, int), np.array(extent), 3, 1.0, spectrum, extent=extent)
+    assert field.shape == extent and not np.allclose(field[:, :22], field[:, 128:150])  # 128, the old tile
+    assert texture.record(1.0, spectrum, 3, extent=extent)["period"] == texture.period(extent)

@@ -242,7 +242,7 @@ def test_background_from_source_statistics():
     assert background.wall_radii(40.0, 43.0, 2.0) == (40.0, 43.0)  # none measured: the tube's
     assert background.texture_record(seed=5) == {"model": "gaussian", "cutoff": 0.1, "rolloff": 0.1, "sigma": 1.2,
                                                  "tile": 32, "histogram": False, "amplitude": pytest.approx(0.03),
-                                                 "seed": 5}
+                                                 "period": 32, "seed": 5}
     measured = Background.from_source(
         dataclasses.replace(statistics, pore_spectrum=(1e-3, 5e-4, 1e-4), pore_quantiles=(-1.0, 0.0, 1.0)),
         ReconstructConfig())

@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from synthpack.library.core import ParticleLibrary
 from synthpack.measure.edges import signed_distance
-from synthpack.measure.spectral_spikes import SpectralSpikes, slice_power_spectrum, spectral_spikes
+from synthpack.measure.spectral_spikes import MIN_SLICE_VOXELS, SpectralSpikes, slice_power_spectrum, spectral_spikes
 from synthpack.measure.spectrum import phase_interiors
 from synthpack.pipeline.config import PackConfig
 from synthpack.pipeline.generate import build_pack
@@ -78,8 +78,10 @@ def test_the_spectrum_holds_the_variance_and_a_thin_mask_measures_nothing():
     # the spectrum of the Laplacian of white noise of variance 1: 20 on average
     assert power.mean() == pytest.approx(20.0, rel=0.05)
     thin = np.zeros(SHAPE, bool)
-    thin[:, 10:12, :] = True  # two rows: no voxel with all four neighbours in the mask
+    thin[:, 10, :MIN_SLICE_VOXELS - 1] = True  # too few voxels in every slice
     assert len(spectral_spikes(field, thin)) == 0 and spectral_spikes(field, thin).slices == 0
+    thin[:, 10, MIN_SLICE_VOXELS - 1] = True
+    assert slice_power_spectrum(field, thin)[1] == SHAPE[0]
 
 
 def _pore_spikes(tomogram: np.ndarray, labels: np.ndarray, region: np.ndarray) -> SpectralSpikes:
@@ -99,23 +101,27 @@ def _pack_spikes_not_in_source(scan: Scan, library: ParticleLibrary, config: Pac
     return {name: spikes.not_in(reference) for name, spikes in found.items()}
 
 
+@pytest.mark.slow
 def test_a_pack_of_the_sample_has_no_pore_spike_that_the_source_lacks(large_scan, large_library):
-    config = PackConfig().replace(pour={"n_particles": 40, "batch_size": 20})
+    config = PackConfig().replace(pour={"n_particles": 60, "batch_size": 30, "tube_radius": 400.0})  # a bulk
     for name, extra in _pack_spikes_not_in_source(large_scan, large_library, config).items():
         assert len(extra) == 0, (name, extra.frequency, extra.height)
 
 
-@pytest.mark.parametrize("name, files, grains", [
-    ("concrete", ("concrete_neutron.tif", "concrete_neutron_labels_watershed.tif"), 60),
-    ("sand", ("sand.tif", "sand_labels_watershed.tif"), 60),
+@pytest.mark.slow
+@pytest.mark.parametrize("name, files", [
+    ("concrete", ("concrete_neutron.tif", "concrete_neutron_labels_watershed.tif")),
+    ("sand", ("sand.tif", "sand_labels_watershed.tif")),
 ])
-def test_a_pack_of_a_real_scan_has_no_pore_spike_that_the_scan_lacks(name, files, grains):
+def test_a_pack_of_a_real_scan_has_no_pore_spike_that_the_scan_lacks(name, files):
     folder = DATA / name
     if not folder.is_dir():
         pytest.skip(f"the {name} scan ({folder}) is absent")
     scan = Scan(tifffile.imread(folder / files[0]).astype(np.float32), tifffile.imread(folder / files[1]),
                 voxel_size=(1.0, 1.0, 1.0), unit="px", source=name)
     library = ParticleLibrary.from_scan(scan, workers=1, progress=False)
-    config = PackConfig().replace(pour={"n_particles": grains, "batch_size": 30})
+    # few grains in a tube six grain diameters across: deep enough for a bulk with pores to look at
+    radius = 3.0 * float(np.median(library.equivalent_diameters))
+    config = PackConfig().replace(pour={"n_particles": 80, "batch_size": 40, "tube_radius": radius})
     for volume, extra in _pack_spikes_not_in_source(scan, library, config).items():
         assert len(extra) == 0, (volume, extra.frequency, extra.height)

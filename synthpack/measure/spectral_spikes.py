@@ -5,12 +5,14 @@ frequencies; noise and texture spread theirs smoothly. This module finds the
 few: the 2D in-slice power spectrum of a phase's interior, averaged over slices,
 against a smoothed version of itself.
 
-**The spectrum** (`slice_power_spectrum`). In each slice (normal to `axis`), the
-Laplacian of the intensities (the five-point stencil) is taken where the mask
-holds a voxel and its four neighbours, minus its mean there, times that mask and
-a 2D Hann window (so the slice's borders do not wrap into an edge), and Fourier
-transformed; the squared moduli are summed over the slices that have at least
-`MIN_SLICE_VOXELS` such voxels, and divided by the sum of the squared weights. The
+**The spectrum** (`slice_power_spectrum`). In each slice (normal to `axis`) with at
+least `MIN_SLICE_VOXELS` voxels of the mask, the Laplacian of the intensities (the
+five-point stencil) at the mask's voxels, minus its mean there, times the mask and
+a 2D Hann window (so the slice's borders do not wrap into an edge), is Fourier
+transformed; the squared moduli are summed over slices and divided by the sum of
+the squared weights. The stencil reaches the four neighbours of a mask voxel: the
+mask should be a phase's interior (`~synthpack.measure.spectrum.phase_interiors`:
+at least 2.5 voxels from an edge), so that they are of the same phase. The
 Laplacian whitens the spectrum: it takes the steep large-scale power of a pore
 phase down by ``|H(f)|^2 = (4 sin^2 pi f_row + 4 sin^2 pi f_column)^2`` (0 at
 frequency 0, 64 at the corner), which would otherwise leak, through the mask's
@@ -60,10 +62,8 @@ WINDOW = 9
 SPIKE_SPREADS = 6.0
 #: A spike's power is at least this factor above the baseline.
 MIN_HEIGHT = 1.5
-#: A slice needs at least this many mask voxels with their four neighbours in the mask.
+#: A slice needs at least this many mask voxels to be used.
 MIN_SLICE_VOXELS = 64
-
-_CROSS = ndimage.generate_binary_structure(2, 1)
 
 
 def _hann(n: int) -> np.ndarray:
@@ -113,11 +113,10 @@ def slice_power_spectrum(volume: np.ndarray, mask: np.ndarray, axis: int = 0) ->
     weight = 0.0
     slices = 0
     for image, inside in zip(volume, mask):
-        core = ndimage.binary_erosion(inside, _CROSS)
-        if np.count_nonzero(core) < MIN_SLICE_VOXELS:
+        if np.count_nonzero(inside) < MIN_SLICE_VOXELS:
             continue
         whitened = ndimage.laplace(np.asarray(image, dtype=np.float64))
-        window = taper * core
+        window = taper * inside
         centred = (whitened - np.average(whitened, weights=window)) * window
         power += np.abs(np.fft.fft2(centred)) ** 2
         weight += float(np.sum(window**2))

@@ -26,15 +26,15 @@ Two models (`PoreTextureConfig.model`):
     in the logarithm of the density, a running median over shells takes out the
     estimate's noise spikes, then a running mean), kept below
     `PoreTextureConfig.cutoff` cycles per voxel and rolled off to 0 by a raised
-    cosine over the next `PoreTextureConfig.rolloff` (`PoreTextureConfig.band`:
-    at least one shell of the measured spectrum wide, and ending at `NYQUIST`,
-    0.5 cycles per voxel, at most, so that no power sits in the grid's corners,
-    where a spike of the estimate drew a voxel-scale checkerboard). So the
-    texture has no sharp edge in frequency and no spike, and nothing beyond the
-    band. The split is the image-formation model's: the texture carries the pore
-    phase's structure on scales of 5 voxels and more (at 0.1 cycles/voxel a
-    Gaussian PSF of 1 voxel keeps 82 % of the amplitude, so the calibrated blur
-    applied later barely changes it), and the calibrated noise step
+    cosine over the next `PoreTextureConfig.rolloff` (at least `MIN_ROLLOFF`, the
+    measured spectrum's resolution: a sharper cut would ring), the roll-off ending
+    at `NYQUIST`, 0.5 cycles per voxel, at most (`PoreTextureConfig.band`), so that
+    no power sits in the grid's corners, where a spike of the estimate drew a
+    voxel-scale checkerboard. So the texture has no sharp edge in frequency, no
+    spike, and nothing beyond the band. The split is the image-formation model's:
+    the texture carries the pore phase's structure on scales of 5 voxels and more
+    (at 0.1 cycles/voxel a Gaussian PSF of 1 voxel keeps 82 % of the amplitude, so
+    the calibrated blur applied later barely changes it), and the calibrated noise step
     (`~synthpack.artefacts.calibrate`) adds what the source's noise power
     spectrum holds beyond it, ring by ring, after the blur. Drawing the whole
     spectrum here instead would put the source's voxel-scale power into the
@@ -53,17 +53,19 @@ cement paste's histogram is heavy-tailed. The measured texture's values are
 mapped, voxel by voxel, through the Gaussian CDF and then the source's pore
 quantile function (`~synthpack.source.SourceStatistics.pore_quantiles`,
 `~synthpack.measure.pore_histogram.map_to_quantiles`). A map of the values alone
-spreads part of the power beyond the band (its harmonics: 1 % of the power for
-the heavy-tailed concrete paste, as much as the scan's noise there). So the map
-is followed by `BAND_ITERATIONS` alternations (iterated amplitude-adjusted
-surrogates, after Schreiber and Schmitz): the frequencies beyond the band set
-to 0, then the values mapped onto the histogram again by their ranks; the last
-step is the band's. The texture keeps the Gaussian field's correlations, has no
-power beyond the band, and has the source's histogram shape within 1 to 2 % of
-its spread (Wasserstein distance over standard deviation, with the concrete and
-sand scans' quantiles: 0.009 and 0.015, against 0.20 and 0.14 for Gaussian
-values); its standard deviation is set to the expected one again, its
-median is about 0, and `PoreTextureConfig.density` stays the Gaussian field's.
+spreads part of the power beyond the band and over the roll-off (its harmonics:
+1 % of the power for the heavy-tailed concrete paste, as much as the scan's noise
+there). So the map is followed by `BAND_ITERATIONS` alternations (iterated
+amplitude-adjusted surrogates, after Schreiber and Schmitz): from the roll-off's
+start on, the Gaussian field's own Fourier amplitudes with the values' phases (so the roll-off
+is the designed one and nothing is beyond it), then the values mapped onto the
+histogram again by their ranks; the last step is the amplitudes'. Below the
+roll-off the spectrum is the mapped values'. The texture keeps the Gaussian field's
+correlations, has no power beyond the band, and has the source's histogram shape
+within 1 to 2 % of its spread (Wasserstein distance over standard deviation, with
+the concrete and sand scans' quantiles: 0.011 and 0.016, against 0.20 and 0.14
+for Gaussian values); its standard deviation is set to the expected one again,
+its median is about 0, and `PoreTextureConfig.density` stays the Gaussian field's.
 A source without measured quantiles gets Gaussian values.
 """
 
@@ -78,18 +80,20 @@ import numpy as np
 from scipy import fft, special
 
 from .._shared.arrays import periodic_window
-from .._shared.schema import non_negative, one_of, positive, setting
+from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from .._shared.seeds import generator
 from .._shared.text import sig
 from ..measure.pore_histogram import map_to_quantiles
 from ..measure.pore_spectrum import PORE_SPECTRUM_SIZE, frequency_radius, smooth_spectrum, spectrum_on_grid
 
-__all__ = ["BAND_ITERATIONS", "NYQUIST", "PoreTextureConfig"]
+__all__ = ["BAND_ITERATIONS", "MIN_ROLLOFF", "NYQUIST", "PoreTextureConfig"]
 
 logger = logging.getLogger(__name__)
 
 #: The measured texture's band ends here at most, cycles/voxel: the sphere the frequency grid holds in every direction.
 NYQUIST = 0.5
+#: The narrowest roll-off, cycles/voxel: the measured spectrum's resolution (its taper's, two shells).
+MIN_ROLLOFF = 2.0 / PORE_SPECTRUM_SIZE
 #: The mapped texture alternates this many times between its band and the source's histogram (ending in the band).
 BAND_ITERATIONS = 10
 #: The mapped texture's histogram is matched at this many quantiles (between its band steps).
@@ -112,8 +116,8 @@ class PoreTextureConfig:
     cutoff : float
         Measured model: highest frequency of the source's pore spectrum kept whole, cycles/voxel.
     rolloff : float
-        Measured model: width of the raised-cosine roll-off above `cutoff`, cycles/voxel (at least one shell of
-        the measured spectrum, ``1 / PORE_SPECTRUM_SIZE``, is used).
+        Measured model: width of the raised-cosine roll-off above `cutoff`, cycles/voxel, from `MIN_ROLLOFF`
+        (the measured spectrum's resolution) to `NYQUIST`.
     sigma : float
         Gaussian model: correlation length, Gaussian sigma, voxels (0: white noise).
     tile : int
@@ -127,8 +131,8 @@ class PoreTextureConfig:
                          "gaussian: noise smoothed by sigma, with the source's pore spread")
     cutoff: float = setting(0.1, non_negative, "measured model: the source's pore spectrum is kept up to this "
                             "frequency, cycles/voxel")
-    rolloff: float = setting(0.1, non_negative, "measured model: width of the raised-cosine roll-off above cutoff, "
-                             "cycles/voxel (at least 1/64)")
+    rolloff: float = setting(0.1, in_range(MIN_ROLLOFF, NYQUIST), "measured model: width of the raised-cosine "
+                             "roll-off above cutoff, cycles/voxel (a sharper cut would ring)")
     sigma: float = setting(0.8, non_negative, "gaussian model: correlation length of the pore texture, Gaussian "
                            "sigma, voxels")
     tile: int = setting(256, positive, "largest period of the pore texture, voxels: it covers a pack up to this "
@@ -159,12 +163,10 @@ class PoreTextureConfig:
     def band(self) -> tuple[float, float]:
         """The measured model's roll-off, cycles/voxel: from 1 at the first frequency to 0 at the second.
 
-        ``(cutoff, cutoff + rolloff)``, the roll-off at least one shell
-        (``1 / PORE_SPECTRUM_SIZE``) wide and ending at `NYQUIST` at most.
+        ``(cutoff, cutoff + rolloff)``, moved down to end at `NYQUIST` where it would end beyond.
         """
-        shell = 1.0 / PORE_SPECTRUM_SIZE
-        end = min(self.cutoff + max(self.rolloff, shell), NYQUIST)
-        return min(self.cutoff, end - shell), end
+        start = min(self.cutoff, NYQUIST - self.rolloff)
+        return start, start + self.rolloff
 
     def density(self, pore_std: float, pore_spectrum: tuple[float, ...] | None,
                 extent: Sequence[int] | None = None) -> np.ndarray:
@@ -271,14 +273,18 @@ def _onto_histogram(values: np.ndarray, sigma: float, quantiles: np.ndarray) -> 
     return table[index] + position * slope[index]
 
 
-def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, band: np.ndarray) -> np.ndarray:
-    """The Gaussian `field` (standard deviation `sigma`) with the histogram of `quantiles` and no power outside
-    `band` (bool, the rfftn grid's frequencies kept): the map onto the histogram, then `BAND_ITERATIONS` times the
-    band's frequencies alone and, but for the last time, the histogram again (by the values' ranks)."""
+def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, rolled: np.ndarray) -> np.ndarray:
+    """The Gaussian `field` (standard deviation `sigma`) with the histogram of `quantiles`, no power beyond its band
+    and its own roll-off: the map onto the histogram, then `BAND_ITERATIONS` times the field's own Fourier
+    amplitudes (0 beyond the band) where `rolled` (bool, on the rfftn grid: the roll-off and beyond) with the
+    values' phases, and, but for the last time, the histogram again (by the values' ranks)."""
+    spectrum = fft.rfftn(field)
+    amplitudes = np.abs(spectrum[rolled]).astype(np.float32)
     values = map_to_quantiles(field, sigma, quantiles)
     for step in range(BAND_ITERATIONS):
         spectrum = fft.rfftn(values.astype(np.float32))
-        spectrum[~band] = 0.0
+        outer = spectrum[rolled]
+        spectrum[rolled] = outer * (amplitudes / np.maximum(np.abs(outer), np.finfo(np.float32).tiny))
         values = fft.irfftn(spectrum, s=field.shape)
         if step < BAND_ITERATIONS - 1:
             values = _onto_histogram(values, sigma, quantiles)
@@ -307,9 +313,8 @@ def _periodic_field(
     if realised > 0:
         field *= expected / realised
         if texture.maps_histogram(pore_spectrum, pore_quantiles):
-            band = density > 0
-            band[0, 0, 0] = True  # the mapped values' mean
-            field = _mapped_in_band(field, expected, np.asarray(pore_quantiles), band)
+            rolled = frequency_radius(shape)[..., : period // 2 + 1] > texture.band()[0]
+            field = _mapped_in_band(field, expected, np.asarray(pore_quantiles), rolled)
             field *= expected / field.std()
     field = field.astype(np.float32)
     field.flags.writeable = False
