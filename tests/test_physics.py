@@ -385,9 +385,10 @@ def test_bad_engine_option_values_raise():
 
 
 def test_deeply_buried_grains_leave_the_world_without_harm(large_library, narrow_tube, caplog):
-    tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)
+    tall = Tube(narrow_tube.inner_radius, 3 * narrow_tube.height, 30.0, 30.0)  # poured freely: a dense target
+    # shrinks the shells past full compaction, and their hulls then overlap by design
     with caplog.at_level("DEBUG", logger="synthpack.physics.driver"):
-        placements = pour(large_library, PourConfig(n_particles=140, batch_size=20,
+        placements = pour(large_library, PourConfig(n_particles=140, batch_size=20, target_solid_fraction=None,
                                                     engine_options={"record_snapshots": True}),
                           4, container=tall, progress=False)
     assert any("Retired" in r.message for r in caplog.records)
