@@ -156,7 +156,7 @@ def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_ne
 
 
 def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tuple[float, float, dict]:
-    """Solid fraction and mean coordination of a rendered pack's bulk (the realism report's measures), and its record."""
+    """Solid fraction and mean coordination of a rendered pack's bulk (as the realism report measures), its record."""
     config = PackConfig().replace(postprocess="none", reconstruct={"view": "tube"},
                                   pour={"n_particles": 150, "batch_size": 30, **pour_settings})
     pack = build_pack(library, config, seed, progress=False)
@@ -169,7 +169,8 @@ def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tup
 
 def test_a_spaced_pour_reaches_the_target_coordination_and_still_the_solid_fraction(large_library):
     """Equal shells keep every grain apart; with some grains bare, they touch about as often as asked."""
-    settings = {"target_solid_fraction": 0.3, "tube_radius": 3.2 * float(np.median(large_library.equivalent_diameters))}
+    radius = 3.2 * float(np.median(large_library.equivalent_diameters))
+    settings = {"target_solid_fraction": 0.3, "tube_radius": radius}
     apart = _bulk_structure(large_library, 1, target_coordination="none", **settings)
     touching = _bulk_structure(large_library, 1, target_coordination=1.5, **settings)
     assert apart[1] < 0.75  # equal shells: the few grains whose voxels meet across a thin shell
@@ -180,7 +181,8 @@ def test_a_spaced_pour_reaches_the_target_coordination_and_still_the_solid_fract
         assert fraction == pytest.approx(0.3, abs=0.03)
 
 
-@pytest.mark.parametrize("value, expected", [("source", "source"), (None, None), ("none", None), (1.5, 1.5), (0, 0.0)])
+@pytest.mark.parametrize("value, expected",
+                         [("source", "source"), (None, None), ("none", None), (1.5, 1.5), (0, 0.0)])
 def test_the_config_takes_a_target_coordination(value, expected):
     assert PackConfig.from_dict({"pour": {"target_coordination": value}}).pour.target_coordination == expected
 
@@ -192,7 +194,8 @@ def test_a_bad_target_coordination_is_refused_with_the_key(value):
 
 
 def test_the_source_coordination_is_the_source_scans(large_library):
-    assert resolve_coordination("source", large_library) == large_library.statistics.coordination > 3  # a dense pack
+    source = large_library.statistics.coordination
+    assert resolve_coordination("source", large_library) == source > 3  # a dense pack
     assert resolve_coordination(None, large_library) is None and resolve_coordination(0.5, large_library) == 0.5
 
 

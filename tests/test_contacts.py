@@ -1,4 +1,4 @@
-"""Grain contacts (synthpack.measure.contacts): counted by shared voxel faces, on complete grains centred in a region."""
+"""Grain contacts (synthpack.measure.contacts): shared voxel faces, on the complete grains centred in a region."""
 
 from pathlib import Path
 
@@ -12,7 +12,7 @@ CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
 
 
 def _cubes() -> np.ndarray:
-    """Grains 1-2-3 in a row (1 and 2, 2 and 3 face to face), 4 apart by one pore voxel, 5 touching 4 by an edge only."""
+    """Grains 1-2-3 in a row (face to face), 4 one pore voxel from 3, 5 touching 4 by an edge only."""
     labels = np.zeros((20, 20, 40), dtype=np.int32)
     labels[5:10, 5:10, 2:7] = 1
     labels[5:10, 5:10, 7:12] = 2

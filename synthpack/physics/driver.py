@@ -23,8 +23,8 @@ Packing to a target (:mod:`synthpack.physics.compaction`) attaches here, so ever
 gets it: before a batch spawns, the :class:`~synthpack.physics.compaction.PackingController`
 gives its knob; the batch spawns at the knob's friction with collision shells inflated
 by its inflation, each grain's own where some grains of a spaced pour are bare
-(:func:`~synthpack.physics.shells.shell_inflations`, :meth:`World.add_batch`); a compacted batch falls at that friction
-until nearly still, gets the material's friction back (:meth:`World.set_friction`) and
+(:func:`~synthpack.physics.shells.shell_inflations`, :meth:`World.add_batch`); a compacted
+batch falls at that friction until nearly still, gets the material's friction back (:meth:`World.set_friction`) and
 settles; once it is locked, the controller measures the bulk it completed.
 """
 

@@ -1,4 +1,4 @@
-"""Spacing shells for a target coordination: which grains of a spaced pour collide bare, how thick the others' shells are.
+"""Spacing shells for a target coordination: which grains of a spaced pour collide bare, the others' shells.
 
 A pour looser than a free pour spaces its grains with collision shells
 (:mod:`synthpack.physics.compaction`: every grain inflated by ``-u`` of its size), so
