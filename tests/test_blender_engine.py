@@ -319,7 +319,9 @@ def test_the_script_reads_the_saved_scene_without_importing_synthpack(monkeypatc
 def test_the_driver_packs_a_blender_pour_to_a_target(large_library, target):
     """Compaction attaches to the driver, so Blender gets it: denser by a friction schedule, looser by spacing.
 
-    A free Blender pour of these 150 grains packs at 0.527 (measured).
+    A free Blender pour of these 150 grains packs at 0.527 (measured). Equal shells (no target
+    coordination): the large sample's own seven contacts per grain would leave most grains bare,
+    which no spaced pour of 0.30 allows.
     """
     assert PourConfig(engine="blender", target_solid_fraction=target).target_solid_fraction == target
     tube = Tube.for_library(large_library, 150, packing_fraction=0.3,
