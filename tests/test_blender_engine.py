@@ -326,7 +326,8 @@ def test_the_driver_packs_a_blender_pour_to_a_target(large_library, target):
     assert PourConfig(engine="blender", target_solid_fraction=target).target_solid_fraction == target
     tube = Tube.for_library(large_library, 150, packing_fraction=0.3,
                             inner_radius=2.5 * float(np.median(large_library.equivalent_diameters)))
-    config = PourConfig(n_particles=150, batch_size=30, engine="blender", target_solid_fraction=target)
+    config = PourConfig(n_particles=150, batch_size=30, engine="blender", target_solid_fraction=target,
+                        target_coordination="none")
     packed = physics.pour(large_library, config, 1, container=tube, progress=False)
     checks = packed.checks
     assert checks.target_reached is True and abs(checks.packing_fraction - target) <= TARGET_TOLERANCE
