@@ -65,7 +65,7 @@ def test_huge_tube_refused_with_the_memory_estimate(tmp_path, library_dir):
 
 def test_huge_scale_refused_with_the_memory_estimate(tmp_path, library_dir):
     config = tmp_path / "c.yaml"
-    config.write_text("pour:\n  n_particles: 10\n  scale: 1000\n")
+    config.write_text("pour:\n  n_particles: 10\n  scale: 1000\nreconstruct:\n  view: tube\n")  # the tube asked for: no fallback warning
     out = tmp_path / "packs"
     _refused(["generate", "--library", str(library_dir), "--out", str(out), "--config", str(config)],
              "of memory but", tmp_path, out)
