@@ -202,7 +202,8 @@ def build_pack(
         n_labels=_grains_present(render.labels, len(placements), chunks, threads, every=render.crop is None),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
-        view=_view_record(view, config.reconstruct.view, placements, render.crop),
+        view=_view_record("tube" if render.crop is None else "interior", config.reconstruct.view, placements,
+                          render.crop),
         wall=None if render.wall is None else render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
@@ -266,7 +267,8 @@ def _render(
     Placement ``k``'s grain is ``library[placements.indices[k]]``, or ``grains.particles[k]`` with `grains`.
     On the torch `device` (`synthpack.render.torch_render`), or with NumPy where it is None. The grid
     covers the tube and its wall (`view` ``"tube"``), or only the interior crop
-    (`~synthpack.physics.container.crop_box`), with no wall.
+    (`~synthpack.physics.container.crop_box`), with no wall. A pour whose bulk holds no crop is
+    refused for ``reconstruct.view: interior`` and shown as the tube, with a warning, for ``auto``.
     """
     config = pack.reconstruct
     particles, placed = (library, placements.indices) if grains is None else (
@@ -278,10 +280,13 @@ def _render(
         extent = crop_extent(library, parse_scale(pack.pour.scale)[1])
         crop = crop_box(placements.checks.packing_region, (extent[1], extent[2]))
         if crop is None:
-            raise SynthpackInputError(
-                f"the pour's bulk ({placements.checks.fill_height:g} high in a tube of radius "
-                f"{tube.inner_radius:g}) holds no interior crop: pour more grains (pour.n_particles), "
-                "or show the tube (reconstruct.view: tube)")
+            why = (f"the pour's bulk ({placements.checks.fill_height:g} high in a tube of radius "
+                   f"{tube.inner_radius:g}) holds no interior crop: pour more grains (pour.n_particles), "
+                   "or show the tube (reconstruct.view: tube)")
+            if pack.reconstruct.view != "auto":
+                raise SynthpackInputError(why)
+            _warn_tube(why)  # auto: the tube after all
+    if crop is not None:
         grid = Grid.box(*crop, library.voxel_size)
     else:
         wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
