@@ -116,14 +116,15 @@ def test_quiet_hides_the_progress_bars_of_library_build(scan_files, tmp_path):
 
 def test_a_warning_of_packs_built_by_dask_workers_is_shown_once(scan_files):
     config = scan_files / "calibrated.yaml"
-    # 20 grains: no bulk to fit in (and no target asked, whose per-pack warnings would differ in their figures)
+    # 20 grains of a tiny scan: nothing to fit (and no target asked, whose per-pack warnings would differ)
     config.write_text("postprocess: calibrated\npour:\n  target_solid_fraction: null\n", encoding="utf-8")
     run = _generate(scan_files, "dask", "--n-packs", "2", "-q", config=config.name, workers=2)
     assert run.returncode == 0, run.stderr
     lines = run.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("synthpack: postprocess: calibrated cannot be fitted"), lines
-    assert all("no bulk" in json.loads((scan_files / "dask" / f"pack_000{k}" / "manifest.json").read_text())
-               ["postprocess_fallback"] for k in range(2))
+    reasons = {json.loads((scan_files / "dask" / f"pack_000{k}" / "manifest.json").read_text())
+               ["postprocess_fallback"] for k in range(2)}
+    assert len(reasons) == 1 and reasons.pop() in lines[0]  # both packs fell back for the one reason shown
 
 
 def test_figures_are_rounded_by_their_meaning():

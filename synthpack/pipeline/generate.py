@@ -109,8 +109,9 @@ def resolve_view(library: ParticleLibrary, config: PackConfig) -> str:
 
 @functools.cache
 def _warn_tube(why: str) -> None:
-    """Warn, once per process and reason, that a pack of an interior-crop source shows the tube."""
-    logger.warning("The source scan is an interior crop, but the pack shows the tube: %s", why)
+    """Say (at INFO, one short line; why at DEBUG) that ``view: auto`` shows the tube for an interior-crop source."""
+    logger.info("view auto: the tube (too few grains for an interior crop of the source; -v says why)")
+    logger.debug("The source scan is an interior crop, but the pack shows the tube: %s", why)
 
 
 def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:

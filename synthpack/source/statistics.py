@@ -187,11 +187,9 @@ class SourceStatistics:
         parts = [f"grains {sig(self.grain_mean)}", f"pores {sig(self.pore_mean)} ± {sig(self.pore_std)}",
                  f"noise {sig(self.noise_std)}", edge]
         if self.solid_fraction is not None:
-            parts.append(f"solid fraction {fraction(self.solid_fraction)}")
+            parts.append(f"solid {fraction(self.solid_fraction)}")
         if self.coordination is not None:
-            parts.append(f"{sig(self.coordination)} contacts per grain")
-        if self.interior_crop:
-            parts.append("an interior crop (no wall, grains to the edges)")
+            parts.append(f"{sig(self.coordination, 2)} contacts/grain")
         return ", ".join(parts)
 
     def to_dict(self) -> dict[str, float | list[float]]:
