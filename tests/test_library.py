@@ -120,7 +120,7 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
     assert list(meta["phases"]) == ["pore_mean", "pore_std", "grain_mean", "noise_std", "edge_width", "edge_shift",
                                     "edge_sigma", "noise_grain_std", "noise_pore_std", "nps_grains", "nps_pores",
                                     "pore_spectrum", "pore_quantiles", "scan_axis", "cupping_error",
-                                    "solid_fraction"]  # the sample shows no scanner artefact
+                                    "solid_fraction", "coordination"]  # the sample shows no scanner artefact
     assert large_library[:2].statistics is large_library.statistics
 
 
