@@ -167,16 +167,19 @@ def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tup
     return solid_fraction(labels, region), float(coordination_numbers(labels)[grains].mean()), checks.compaction
 
 
+# the bulk of a 150-grain pour holds about 60 grains, and its contacts follow its density: seed 1 gives 0.84
+# contacts per grain at 0.289, seed 2 1.40 at 0.311 (target 1.0 at 0.30); this checks that bare grains bring
+# the contacts near the target, not how closely in so short a pour (the concrete scan's 300 grains: README)
 def test_a_spaced_pour_reaches_the_target_coordination_and_still_the_solid_fraction(large_library):
     """Equal shells keep every grain apart; with some grains bare, they touch about as often as asked."""
     radius = 3.2 * float(np.median(large_library.equivalent_diameters))
     settings = {"target_solid_fraction": 0.3, "tube_radius": radius}
     apart = _bulk_structure(large_library, 1, target_coordination="none", **settings)
-    touching = _bulk_structure(large_library, 1, target_coordination=1.5, **settings)
+    touching = _bulk_structure(large_library, 1, target_coordination=1.0, **settings)  # the concrete scan's 1.05
     assert apart[1] < 0.75  # equal shells: the few grains whose voxels meet across a thin shell
     assert "bare_grains" not in apart[2]
-    assert touching[1] == pytest.approx(1.5, rel=0.3)
-    assert touching[2]["bare_grains"] == 5 * round(30 * bare_fraction(1.5))
+    assert touching[1] == pytest.approx(1.0, rel=0.3)
+    assert touching[2]["bare_grains"] == 5 * round(30 * bare_fraction(1.0))
     for fraction, _, _ in (apart, touching):
         assert fraction == pytest.approx(0.3, abs=0.03)
 
