@@ -56,9 +56,9 @@ from scipy import ndimage
 __all__ = ["MIN_HEIGHT", "MIN_SLICE_VOXELS", "SPIKE_SPREADS", "SpectralSpikes", "WINDOW", "slice_power_spectrum",
            "spectral_spikes"]
 
-#: Side (frequencies) of the square the baseline's median is taken over.
+#: Width of the baseline's rings and side of its median filter's square, frequencies.
 WINDOW = 9
-#: A spike's log height is more than this many robust spreads above the median log height.
+#: A spike's log height is more than this many spreads (its ring's robust spread of the log heights).
 SPIKE_SPREADS = 6.0
 #: A spike's power is at least this factor above the baseline.
 MIN_HEIGHT = 1.5
