@@ -21,9 +21,9 @@ Used as they are, that rim would be blurred twice (by the scan, then by the pack
 point-spread function). So the crop is prepared once: every voxel within `rim`
 voxels of the grain's surface, and every voxel outside it, takes the value of the
 nearest voxel deeper than `rim` (the grain's interior texture, extrapolated outwards);
-a grain too thin to have such voxels uses its deepest ones. The preparation is in the grain's own frame, before any pose, so a
-run prepares each library grain once: `PartialVolume.prepare` keeps what it made
-(`synthpack.render.crop_cache`) for the next pack.
+a grain too thin to have such voxels uses its deepest ones. The preparation is in
+the grain's own frame, before any pose, so a run prepares each library grain once:
+`PartialVolume.prepare` keeps what it made (`synthpack.render.crop_cache`) for the next pack.
 """
 
 from __future__ import annotations
