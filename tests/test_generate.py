@@ -10,6 +10,7 @@ import synthpack.store.pack as pack_module
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError, SynthpackInputError
 from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed, resolve_view
+from synthpack.physics.container import interior_radius
 from synthpack.realism import Specimen
 from synthpack.store.pack import is_complete_pack, open_pack
 from synthpack.render.pore_texture import PoreTextureConfig
@@ -173,6 +174,12 @@ def test_a_source_with_a_container_keeps_the_tube_and_few_grains_fall_back_to_it
     with pytest.raises(SynthpackInputError, match=r"too few for an interior crop.*pour at least \d+"):
         resolve_view(large_library, SMALL.replace(reconstruct={"view": "interior"}))
     assert resolve_view(large_library, INTERIOR.replace(reconstruct={"view": "tube"})) == "tube"
+    narrow = INTERIOR.replace(pour={"tube_radius": 400.0})  # a given tube too narrow for a crop: the tube, before the pour
+    assert resolve_view(large_library, narrow) == "tube"
+    with pytest.raises(SynthpackInputError, match=r"tube of radius 400 .*holds no interior crop"):
+        resolve_view(large_library, narrow.replace(reconstruct={"view": "interior"}))
+    wide = interior_radius(large_library, 200)
+    assert resolve_view(large_library, INTERIOR.replace(pour={"tube_radius": wide})) == "interior"
 
 
 def test_a_tube_pack_records_its_view(small_pack):

@@ -140,17 +140,25 @@ def test_nps_ratio_sees_texture_in_the_lowest_and_in_the_corner_ring():
     white = _noise(7, blur=0.0)
     mask = np.ones(SHAPE, dtype=bool)
     reference = noise_power_spectrum(white, mask)
-    x = np.arange(SHAPE[2])
-    # a wave of 1/8 cycles/voxel along x: power 1/2 in ring 1, where white noise of variance 1 has 8/64
-    low = nps_ratio(noise_power_spectrum(white + np.sin(2 * np.pi * x / 8), mask), reference)
+    x, z = np.arange(SHAPE[2]), np.arange(SHAPE[0])[:, None, None]
+    # noise, not structure: a wave that changes from slice to slice (the NPS sees only what does).
+    # A wave of 1/8 cycles/voxel along x whose phase steps by theta per slice, 2 - 2 cos theta = sqrt(6):
+    # its normalised second difference across slices has power 1/2 in ring 1, where white noise of
+    # variance 1 has 8/64
+    phase = z * np.arccos(1.0 - np.sqrt(6.0) / 2.0)
+    low = nps_ratio(noise_power_spectrum(white + np.sin(2 * np.pi * x / 8 + phase), mask), reference)
     assert low["worst_frequency"] == 0.125 and low["ratio"][0] == pytest.approx(5.0, rel=0.1)
     np.testing.assert_allclose(low["ratio"][1:], 1.0, atol=0.1)
-    # a checkerboard (0.5, 0.5 cycles/voxel): all in the corner ring, the one frequency (4, 4) of ring 6
+    # a checkerboard (0.5, 0.5 cycles/voxel) whose sign flips from slice to slice: all in the corner
+    # ring, the one frequency (4, 4) of ring 6
     y = np.arange(SHAPE[1])
-    checker = 0.5 * (-1.0) ** (y[:, None] + x[None, :])
+    checker = 0.5 * (-1.0) ** (z + y[:, None] + x[None, :])
     high = nps_ratio(noise_power_spectrum(white + checker, mask), reference)
     assert high["worst_frequency"] == 0.75 and high["ratio"][-1] > 10
     np.testing.assert_allclose(high["ratio"][:-1], 1.0, atol=0.1)
+    # structure, the same in every slice, is not noise: the same wave without its changing phase
+    still = nps_ratio(noise_power_spectrum(white + np.sin(2 * np.pi * x / 8), mask), reference)
+    assert still["max_abs_log2"] < 0.1
 
 
 def _balls(seed: int, shading: float = 0.0) -> Specimen:

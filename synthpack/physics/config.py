@@ -9,7 +9,7 @@ from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from ..errors import SynthpackInputError
 from .scene import COLLISION_SHAPES, Material, SettleCriteria
 from .compaction import MAX_TARGET, TARGET_SOURCE, expected_fraction, parse_target
-from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube, interior_grains, interior_radius
+from .container import DEFAULT_PACKING_FRACTION, LibraryLike, Tube, holds_crop, interior_grains, interior_radius
 from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 from .shells import parse_coordination
@@ -133,7 +133,8 @@ class PourConfig:
         Raises
         ------
         SynthpackInputError
-            With `interior`, where ``n_particles`` grains cannot hold a crop (it says how many can).
+            With `interior`, where ``n_particles`` grains, or the given ``tube_radius``, cannot hold a
+            crop (it says what can).
         """
         scale = parse_scale(self.scale)[1]
         fraction = expected_fraction(self.target_solid_fraction, library, DEFAULT_PACKING_FRACTION)
@@ -146,5 +147,11 @@ class PourConfig:
                     f"{self.n_particles} grains are too few for an interior crop of these grains: pour at least "
                     f"{needed} (pour.n_particles), or show the tube (reconstruct.view: tube)."
                 )
+        elif interior and not holds_crop(library, self.n_particles, radius, scale=scale, packing_fraction=fraction):
+            raise SynthpackInputError(
+                f"a tube of radius {radius:g} (pour.tube_radius) with {self.n_particles} grains holds no interior "
+                "crop of these grains: widen it or leave it out, pour more grains (pour.n_particles), "
+                "or show the tube (reconstruct.view: tube)."
+            )
         return Tube.for_library(library, self.n_particles, scale=scale, inner_radius=radius,
                                 height=self.tube_height, packing_fraction=fraction)

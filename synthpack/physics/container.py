@@ -24,7 +24,7 @@ from .scene import TubeSpec
 logger = logging.getLogger(__name__)
 
 __all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box",
-           "crop_extent", "interior_grains", "interior_radius"]
+           "crop_extent", "holds_crop", "interior_grains", "interior_radius"]
 
 #: Packing fraction assumed when sizing a tube for a number of grains: a loose
 #: random packing of angular grains poured under gravity.
@@ -267,10 +267,11 @@ class _CropSizing:
         """Inner radius of the tube that holds the crop ``t``."""
         return t * math.hypot(self.extent[1], self.extent[2]) / 2.0 + CROP_WALL_MARGIN * self.diameter
 
-    def grains(self, t: float) -> float:
-        """Grains whose expected fill in that tube reaches the top of the crop ``t``."""
+    def grains(self, t: float, radius: float | None = None) -> float:
+        """Grains whose expected fill in the tube of `radius` (None: the one that holds it) reaches the top of the crop ``t``."""
         fill = t * self.extent[0] + (_FLOOR_MARGIN + _TOP_MARGIN) * self.diameter
-        return self.packing_fraction * math.pi * self.radius(t) ** 2 * fill / self.grain_volume
+        radius = self.radius(t) if radius is None else radius
+        return self.packing_fraction * math.pi * radius**2 * fill / self.grain_volume
 
 
 def interior_radius(
@@ -327,6 +328,34 @@ def interior_grains(library: LibraryLike, *, scale: float = 1.0,
     """The fewest grains whose pour holds an interior crop `MIN_CROP` diameters across (see `interior_radius`)."""
     sizing = _CropSizing(library, scale, packing_fraction)
     return math.ceil(sizing.grains(sizing.smallest))
+
+
+def holds_crop(
+    library: LibraryLike, n_particles: int, radius: float, *, scale: float = 1.0,
+    packing_fraction: float = DEFAULT_PACKING_FRACTION,
+) -> bool:
+    """Whether a pour of `n_particles` grains into a tube of inner `radius` is expected to hold an interior crop.
+
+    The smallest crop (`MIN_CROP` median diameters on its shortest side, `interior_radius`)
+    must fit inside `CROP_WALL_MARGIN` diameters from the wall, and the expected fill must reach its top.
+
+    Parameters
+    ----------
+    library : ParticleLibrary
+        The grains and the source scan's shape.
+    n_particles : int
+        Number of grains to pour.
+    radius : float
+        Inner radius of the tube, physical units (a given ``pour.tube_radius``).
+    scale, packing_fraction : float
+        As `interior_radius`.
+
+    Returns
+    -------
+    bool
+    """
+    sizing = _CropSizing(library, scale, packing_fraction)
+    return radius >= sizing.radius(sizing.smallest) and n_particles >= sizing.grains(sizing.smallest, radius)
 
 
 def crop_box(region: Mapping[str, float], lateral: tuple[float, float]) -> tuple[np.ndarray, np.ndarray] | None:
