@@ -73,7 +73,7 @@ _OUTPUTS: dict[str, tuple[tuple[str, str], ...]] = {
 DEMO_OUTPUT = Output("demo folder", marker="library/library.json")
 
 #: The `label` command's TIFF: never replaced without --overwrite (it may have been corrected by hand since).
-LABELS_OUTPUT = Output("label volume", folder=False)
+LABELS_OUTPUT = Output("label volume", folder=False, never_replaced="it may have been corrected by hand since")
 
 #: The `label` command's options that are `LabelConfig` (validated by it), with their types.
 _LABEL_OPTIONS = (("threshold", float), ("contrast", str), ("sigma", float), ("smoothing", float),
@@ -302,7 +302,8 @@ def _cmd_pour(args: argparse.Namespace) -> None:
     packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
                else f"{checks.packing_fraction:.3f}")
     if checks.target_packing_fraction is not None:
-        packing += f" (target {checks.target_packing_fraction:.3f}: {'reached' if checks.target_reached else 'NOT reached'})"
+        verdict = {True: "reached", False: "NOT reached", None: "not judged, no bulk"}[checks.target_reached]
+        packing += f" (target {checks.target_packing_fraction:.3f}: {verdict})"
     print(f"poured {len(placements)} grains in {len(checks.steps_per_batch)} batches: "
           f"{checks.n_outside} outside the tube, packing fraction {packing}, "
           f"max interpenetration {checks.max_grain_penetration_voxels:.2f} voxels; wrote {args.out}")

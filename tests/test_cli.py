@@ -70,7 +70,7 @@ def test_input_errors_are_one_line_with_exit_code_2(tmp_path):
     assert not (tmp_path / "lib").exists()
 
 
-def test_pour_and_generate_with_the_same_settings_pour_the_same_pack_in_the_same_tube(tmp_path, large_library):
+def test_pour_and_generate_with_the_same_settings_pour_the_same_pack_in_the_same_tube(tmp_path, large_library, capsys):
     """One PourConfig from the options of either command, one tube sizing (`PourConfig.tube`), one `pour`.
 
     A looser target than the default packing fraction sizes a taller tube; ``synthpack pour`` with a
@@ -86,6 +86,8 @@ def test_pour_and_generate_with_the_same_settings_pour_the_same_pack_in_the_same
                  "--seed", str(pack_seed(0, 0))]) == 0
     poured = Placements.load(tmp_path / "p.json")
     assert len(poured) == 8 and poured.checks.n_outside == 0
+    # 8 grains have no bulk: the summary says the target was not judged, not that it was missed
+    assert poured.checks.target_reached is None and "(target 0.400: not judged, no bulk)" in capsys.readouterr().out
     config = tmp_path / "pack.yaml"
     config.write_text("postprocess: none\nreconstruct:\n  wall: false\n")
     assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "packs"), *settings,

@@ -75,12 +75,16 @@ class Output:
         For a folder: a file whose presence marks synthpack's own output of this kind.
     is_ours : callable, optional
         ``is_ours(path) -> bool`` for outputs that need more than a marker file.
+    never_replaced : str, optional
+        For an output that is never replaced unasked, even synthpack's own: why, for the
+        message (``"it may have been corrected by hand since"``).
     """
 
     what: str
     folder: bool = True
     marker: str | None = None
     is_ours: Callable[[Path], bool] = _never
+    never_replaced: str | None = None
 
     def owns(self, path: Path) -> bool:
         """Whether `path` holds synthpack's own earlier output of this kind."""
@@ -186,14 +190,24 @@ def check_output(path: str | os.PathLike, output: Output, *, overwrite: bool = F
             )
         if not output.folder and final.is_dir():
             raise SynthpackInputError(f"{final} is a folder, but the {output.what} is a file: give a file name")
+        if not overwrite and output.never_replaced is not None:
+            raise SynthpackInputError(
+                f"{final} exists, and {_a(output.what)} is never replaced unasked ({output.never_replaced}): "
+                "choose a new file name, or pass --overwrite (overwrite=True in Python) to replace it"
+            )
         if not (overwrite or _replaceable(final, output)):
             kept = "write into it (files of other names in it are kept)" if output.folder else "replace it"
             raise SynthpackInputError(
-                f"{final} exists and is not a {output.what} written by synthpack: choose a new "
-                f"{'or empty folder' if output.folder else 'file name'}, or pass --overwrite to {kept}"
+                f"{final} exists and is not {_a(output.what)} written by synthpack: choose a new "
+                f"{'or empty folder' if output.folder else 'file name'}, or pass --overwrite (overwrite=True in Python) to {kept}"
             )
     _writable_parent(final)
     return final
+
+
+def _a(what: str) -> str:
+    """``"an evaluation report"``, ``"a pack"``: `what` with its indefinite article."""
+    return f"{'an' if what[:1].lower() in 'aeiou' else 'a'} {what}"
 
 
 def _replaceable(final: Path, output: Output) -> bool:
@@ -343,7 +357,7 @@ def _clash_error(final: Path, output: Output, clashes: list[str]) -> SynthpackIn
     first = clashes[0] + (f" (and {len(clashes) - 1} more)" if len(clashes) > 1 else "")
     return SynthpackInputError(
         f"cannot write the {output.what} {final}: {first} was not written by synthpack, and the new "
-        f"{output.what} writes there; nothing was changed: move it out of {final}, or pass --overwrite "
+        f"{output.what} writes there; nothing was changed: move it out of {final}, or pass --overwrite (overwrite=True in Python) "
         "to replace files of the same names"
     )
 
