@@ -13,6 +13,13 @@ from synthpack.scan.samples import sample_scan
 from synthpack.scan.core import Scan
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the test files that hold a `slow` test first, so that the two workers of ``.ci/run``
+    (pytest-xdist, a file per worker) end together rather than one waiting on a long file at the end."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)  # stable: the order within each group stays
+
+
 @pytest.fixture(scope="session")
 def large_scan() -> Scan:
     """The built-in 'large' sample scan (seed 0)."""

@@ -315,6 +315,7 @@ def test_the_script_reads_the_saved_scene_without_importing_synthpack(monkeypatc
 
 @pytest.mark.blender
 @requires_blender
+@pytest.mark.slow
 @pytest.mark.parametrize("target", [0.57, 0.30])
 def test_the_driver_packs_a_blender_pour_to_a_target(large_library, target):
     """Compaction attaches to the driver, so Blender gets it: denser by a friction schedule, looser by spacing.

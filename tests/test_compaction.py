@@ -170,6 +170,7 @@ def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tup
 # the bulk of a 150-grain pour holds about 60 grains, and its contacts follow its density: seed 1 gives 0.84
 # contacts per grain at 0.289, seed 2 1.40 at 0.311 (target 1.0 at 0.30); this checks that bare grains bring
 # the contacts near the target, not how closely in so short a pour (the concrete scan's 300 grains: README)
+@pytest.mark.slow
 def test_a_spaced_pour_reaches_the_target_coordination_and_still_the_solid_fraction(large_library):
     """Equal shells keep every grain apart; with some grains bare, they touch about as often as asked."""
     radius = 3.2 * float(np.median(large_library.equivalent_diameters))

@@ -81,7 +81,7 @@ def test_compare_reports_a_dark_grain_pack(dark_pack, dark_scan, tmp_path):
     write_tiff(tmp_path / "tomogram.tif", dark_scan.tomogram, dark_scan.voxel_size, dark_scan.unit)
     write_tiff(tmp_path / "labels.tif", dark_scan.labels, dark_scan.voxel_size, dark_scan.unit, labels=True)
     assert main(["-q", "compare", "--source", str(tmp_path / "tomogram.tif"), str(tmp_path / "labels.tif"),
-                 "--packs", str(dark_pack), "--out", str(tmp_path / "report"), "--patch", "12"]) == 0
+                 "--packs", str(dark_pack), "--out", str(tmp_path / "report"), "--patch", "12", "--no-cnn"]) == 0
     report = json.loads((tmp_path / "report" / "realism.json").read_text())
     source, (pack,) = report["source"]["figures"], report["packs"]
     assert source["grain_level"] < source["pore_level"]
@@ -92,6 +92,7 @@ def test_compare_reports_a_dark_grain_pack(dark_pack, dark_scan, tmp_path):
 
 
 @pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
+@pytest.mark.slow
 def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
     scan = ["--tomogram", str(CONCRETE / "concrete_neutron.tif"),
             "--labels", str(CONCRETE / "concrete_neutron_labels_watershed.tif"), "--voxel-size", "1", "--unit", "px"]
@@ -100,7 +101,8 @@ def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
     manifest = json.loads((tmp_path / "packs" / "pack_0000" / "manifest.json").read_text())
     assert manifest["postprocess_mode"] in ("calibrated", "match_source")
     assert ("calibration" in manifest) != ("postprocess_fallback" in manifest)  # fitted, or why not
-    assert main(["-q", "compare", *scan, "--packs", str(tmp_path / "packs"), "--out", str(tmp_path / "report")]) == 0
+    assert main(["-q", "compare", *scan, "--packs", str(tmp_path / "packs"), "--out", str(tmp_path / "report"),
+                 "--no-cnn"]) == 0  # the CNN's run on a report: tests/test_realism.py
     report = json.loads((tmp_path / "report" / "realism.json").read_text())
     assert report["source"]["figures"]["grain_level"] < report["source"]["figures"]["pore_level"]
     assert 0.5 <= report["packs"][0]["distances"]["classifier"]["logistic"]["auc"] <= 1.0

@@ -39,6 +39,7 @@ def _without_timings(manifest: dict) -> dict:
     return manifest
 
 
+@pytest.mark.slow
 def test_a_tiny_pack_is_strict_json_and_repeats_byte_for_byte(tmp_path):
     """4 grains: no bulk region, so the packing fraction is unknown (it was a bare NaN in the manifest)."""
     config = tmp_path / "pack.yaml"

@@ -130,14 +130,16 @@ def _stderr_lines(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if line]
 
 
-def test_a_local_cluster_run_leaves_stderr_quiet(tmp_path):
+@pytest.mark.slow
+def test_a_local_cluster_run_leaves_stderr_quiet(large_library, tmp_path):
     """Issue 13 case 13: a run succeeded, then printed a CommClosedError traceback while the cluster shut down."""
     config = tmp_path / "config.yaml"
     # packs of 8 grains have no bulk to calibrate in or to judge a target by: neither asked, so no warning
     config.write_text("postprocess: none\npour:\n  target_solid_fraction: null\n")
+    library = large_library.save(tmp_path / "library")  # the cluster's start and shutdown are tested, not the build
     for run in range(3):
         out = tmp_path / f"run{run}"
-        result = subprocess.run(_cli("generate", "--sample", "large", "--n-packs", "3", "--workers", "2",
+        result = subprocess.run(_cli("generate", "--library", str(library), "--n-packs", "3", "--workers", "2",
                                      "--n-particles", "8", "--batch-size", "8", "--config", str(config),
                                      "--out", str(out)),
                                 capture_output=True, text=True, timeout=300)

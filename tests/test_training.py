@@ -77,7 +77,7 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
         assert (smoke / name).stat().st_size > 0
     rows = list(csv.DictReader((smoke / "results.csv").open()))
     arms = {row["arm"] for row in rows}
-    assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn", "small+syn-nopp",
+    assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn",
                     "large:syn", "large:syn-rand", "large@5", "large@5+syn"}
     assert {(row["arm"], row["test_set"]) for row in rows} == {(a, t) for a in arms for t in ("large", "small")}
     for row in rows:
@@ -196,7 +196,7 @@ def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_wh
 def test_synthetic_arms_add_pack_slices_to_the_real_training_slices(smoke):
     for scan in ("large", "small"):
         real = json.loads((smoke / "data" / scan / "export.json").read_text())["images"]
-        for arm in (scan + "+syn", scan + "+syn-nopp"):
+        for arm in [scan + "+syn"] + [scan + "+syn-nopp"] * (scan == "large"):
             mixed = json.loads((smoke / "data" / arm / "export.json").read_text())["images"]
             assert mixed["val"] == real["val"] and mixed["test"] == real["test"]
             assert mixed["train"] > real["train"]
