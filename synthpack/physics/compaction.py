@@ -63,7 +63,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import trimesh
@@ -118,6 +118,44 @@ _MIN_LAYER = 0.25  # thinner new bulk layers are measured with the next batch
 _SURFACE_CELL = 0.5  # side of the columns the pack's surface height is taken in, in margins
 
 
+def parse_source_number(
+    value: Any, name: str, *, nones: tuple[str, ...], valid: Callable[[float], bool], expected: str,
+) -> float | str | None:
+    """A target given as ``"source"``, as None (or a word in `nones`, any case), or as a number `valid` accepts.
+
+    The one parser of the pour's targets (`parse_target`, `~synthpack.physics.shells.parse_coordination`).
+
+    Parameters
+    ----------
+    value : Any
+        The setting as given (YAML, a CLI option, Python).
+    name : str
+        Its name, for the message.
+    nones : tuple of str
+        Words that mean None (``"none"``, ``"null"``, ...).
+    valid : callable
+        ``valid(number) -> bool`` for a finite number.
+    expected : str
+        What the message says the setting must be.
+
+    Raises
+    ------
+    SynthpackInputError
+        For anything else (booleans too).
+    """
+    if value is None or value == TARGET_SOURCE:
+        return value
+    if isinstance(value, str) and value.strip().lower() in nones:
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if isinstance(value, bool) or not (math.isfinite(number) and valid(number)):
+        raise SynthpackInputError(f"{name} must be {expected}; got {value!r}.")
+    return number
+
+
 def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str | None:
     """A checked target: ``"source"``, a number in (0, :data:`MAX_TARGET`], or None (a free pour).
 
@@ -126,20 +164,9 @@ def parse_target(value: Any, name: str = "target_solid_fraction") -> float | str
     SynthpackInputError
         For anything else.
     """
-    if value is None or value == TARGET_SOURCE:
-        return value
-    if isinstance(value, str) and value.strip().lower() in ("none", "null", "free"):
-        return None
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = math.nan
-    if isinstance(value, bool) or not 0.0 < number < 1.0:
-        raise SynthpackInputError(
-            f"{name} must be 'source', a solid fraction in (0, 1) such as 0.55, or none for a free pour; "
-            f"got {value!r}."
-        )
-    if number > MAX_TARGET:
+    number = parse_source_number(value, name, nones=("none", "null", "free"), valid=lambda v: 0.0 < v < 1.0,
+                                 expected="'source', a solid fraction in (0, 1) such as 0.55, or none for a free pour")
+    if isinstance(number, float) and number > MAX_TARGET:
         raise SynthpackInputError(
             f"{name} {number:g} cannot be reached: no pour of rigid grains packs denser than about "
             f"{MAX_TARGET:g} (spheres 0.64); give at most {MAX_TARGET:g}, or 'source'."

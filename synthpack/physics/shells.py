@@ -36,8 +36,7 @@ from typing import Any
 import numpy as np
 
 from .._shared.seeds import generator
-from ..errors import SynthpackInputError
-from .compaction import TARGET_SOURCE
+from .compaction import TARGET_SOURCE, parse_source_number
 
 logger = logging.getLogger(__name__)
 
@@ -66,20 +65,11 @@ def parse_coordination(value: Any, name: str = "target_coordination") -> float |
     SynthpackInputError
         For anything else.
     """
-    if value is None or value == TARGET_SOURCE:
-        return value
-    if isinstance(value, str) and value.strip().lower() in ("none", "null"):
-        return None
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = math.nan
-    if isinstance(value, bool) or not (math.isfinite(number) and number >= 0):
-        raise SynthpackInputError(
-            f"{name} must be 'source', a mean number of contacts per grain >= 0 such as 1.0, or none "
-            f"(every grain of a spaced pour in an equal shell); got {value!r}."
-        )
-    return number
+    return parse_source_number(
+        value, name, nones=("none", "null"), valid=lambda v: v >= 0.0,
+        expected="'source', a mean number of contacts per grain >= 0 such as 1.0, or none "
+                 "(every grain of a spaced pour in an equal shell)",
+    )
 
 
 def resolve_coordination(value: Any, library: Any) -> float | None:
