@@ -290,8 +290,6 @@ def _cmd_compare(args: argparse.Namespace) -> None:
 
 
 def _cmd_pour(args: argparse.Namespace) -> None:
-    import math
-
     from .library.core import ParticleLibrary
     from .physics import pour
 
@@ -299,13 +297,8 @@ def _cmd_pour(args: argparse.Namespace) -> None:
     placements = pour(ParticleLibrary.load(args.library), config, args.seed, progress=not args.quiet)
     placements.save(args.out, overwrite=args.overwrite)
     checks = placements.checks
-    packing = ("n/a (pack shallower than ~3 grain diameters)" if math.isnan(checks.packing_fraction)
-               else f"{checks.packing_fraction:.3f}")
-    if checks.target_packing_fraction is not None:
-        verdict = {True: "reached", False: "NOT reached", None: "not judged, no bulk"}[checks.target_reached]
-        packing += f" (target {checks.target_packing_fraction:.3f}: {verdict})"
     print(f"poured {len(placements)} grains in {len(checks.steps_per_batch)} batches: "
-          f"{checks.n_outside} outside the tube, packing fraction {packing}, "
+          f"{checks.n_outside} outside the tube, packing fraction {checks.packing_text()}, "
           f"max interpenetration {checks.max_grain_penetration_voxels:.2f} voxels; wrote {args.out}")
 
 

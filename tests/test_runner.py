@@ -156,8 +156,9 @@ def test_ctrl_c_keeps_the_complete_packs_and_says_so_in_one_line(large_library, 
     command = _cli("generate", "--library", str(tmp_path / "library"), "--n-packs", "6", "--workers", "2",
                    "--n-particles", "60", "--batch-size", "20", "--out", str(out),
                    "--target-solid-fraction", "none")  # 60 grains are too few to reach the source's: a warning
+    # a terminal's run gets Ctrl-C; a pytest-xdist worker ignores SIGINT, and its children would inherit that
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 240
     while not (out / "pack_0000" / "manifest.json").exists() and process.poll() is None:
         assert time.monotonic() < deadline, "no pack completed in time"

@@ -118,6 +118,15 @@ class PourChecks:
             values["packing_fraction"] = float("nan")
         return cls(**values)
 
+    def packing_text(self) -> str:
+        """The packing fraction and its target's verdict, for people: ``"0.581 (target 0.580: reached)"``."""
+        text = ("n/a (pack shallower than ~3 grain diameters)" if np.isnan(self.packing_fraction)
+                else f"{self.packing_fraction:.3f}")
+        if self.target_packing_fraction is None:
+            return text
+        verdict = {True: "reached", False: "NOT reached", None: "not judged, no bulk"}[self.target_reached]
+        return f"{text} (target {self.target_packing_fraction:.3f}: {verdict})"
+
     def summary(self) -> str:
         """One line for logs."""
         return (
