@@ -25,8 +25,8 @@ def test_dumps_writes_non_finite_numbers_as_null_and_numpy_as_python():
         dumps({"x": object()})
 
 
-def _generate(out, config):
-    run = subprocess.run([sys.executable, "-m", "synthpack", "-q", "generate", "--sample", "small", "--config",
+def _generate(out, config, library):
+    run = subprocess.run([sys.executable, "-m", "synthpack", "-q", "generate", "--library", str(library), "--config",
                           str(config), "--n-particles", "4", "--batch-size", "4", "--seed", "2", "--out", str(out)],
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -40,11 +40,12 @@ def _without_timings(manifest: dict) -> dict:
 
 
 @pytest.mark.slow
-def test_a_tiny_pack_is_strict_json_and_repeats_byte_for_byte(tmp_path):
+def test_a_tiny_pack_is_strict_json_and_repeats_byte_for_byte(tmp_path, large_library):
     """4 grains: no bulk region, so the packing fraction is unknown (it was a bare NaN in the manifest)."""
     config = tmp_path / "pack.yaml"
     config.write_text("postprocess: randomised\n")
-    first, second = (_generate(tmp_path / name, config) for name in ("a", "b"))
+    library = large_library.save(tmp_path / "library")
+    first, second = (_generate(tmp_path / name, config, library) for name in ("a", "b"))
     manifests = [_strict((pack / "manifest.json").read_text()) for pack in (first, second)]
     placements = _strict((first / "placements.json").read_text())
     assert manifests[0]["pour_checks"]["packing_fraction"] is None and placements["checks"]["packing_fraction"] is None
