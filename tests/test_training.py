@@ -2,6 +2,7 @@
 
 import csv
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -78,20 +79,49 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
     rows = list(csv.DictReader((smoke / "results.csv").open()))
     arms = {row["arm"] for row in rows}
     assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn",
-                    "large:syn", "large:syn-rand", "large@5", "large@5+syn"}
+                    "large:syn", "large:syn-rand", "large@5", "large@5+syn", "unet_large", "unet_large+syn"}
     assert {(row["arm"], row["test_set"]) for row in rows} == {(a, t) for a in arms for t in ("large", "small")}
     for row in rows:
-        assert 0.0 <= float(row["dice"]) <= 1.0
+        assert 0.0 <= float(row["dice"]) <= 1.0 and 0.0 <= float(row["instance_f1"]) <= 1.0
         assert int(row["n_slices"]) == 26  # central 20% of 128 slices
+        assert row["family"] == ("unet" if row["arm"].startswith("unet_") else "yolo")
+        assert (row["mask_map50"] == "") == (row["family"] == "unet")  # Ultralytics' mAP50: YOLO only
     report = (smoke / "report.md").read_text()
     for heading in ("Table 1", "Table 2", "(94.5%)", "(90.9%)", "Synthetic packs alone", "Label efficiency",
-                    "large+syn − large |", "large:syn-rand − large:syn |", "large@5+syn − large@5 |"):
+                    "large+syn − large |", "large:syn-rand − large:syn |", "large@5+syn − large@5 |",
+                    "unet_large+syn − unet_large |", "unet_large − large |", "test: large, F1@0.5", "U-Net arms"):
         assert heading in report
     assert (smoke / "label_efficiency.png").stat().st_size > 0
     comparisons = json.loads((smoke / "results.json").read_text())["comparisons"]
     assert {(c["a"], c["b"]) for c in comparisons} >= {("large:syn", "large"), ("large@5+syn", "large@5")}
     for c in comparisons:
         assert c["low"] <= c["difference"] <= c["high"] and c["n_slices"] == 26
+        assert c["f1"]["low"] <= c["f1"]["difference"] <= c["f1"]["high"] and c["f1"]["n_slices"] == 26
+
+
+@pytest.mark.slow
+def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictions_and_scores(smoke):
+    plans = json.loads((smoke / "results.json").read_text())["compute"]
+    steps = {}
+    for arm in ("unet_large", "unet_large+syn"):
+        plan = plans[arm]
+        assert plan == plans[arm.removeprefix("unet_")]  # the YOLO arm's plan of the same dataset
+        record = json.loads((smoke / "runs" / arm / "seed0" / "train.json").read_text())
+        assert record["family"] == "unet" and record["plan"] == plan and record["images_seen"] == plan["images_seen"]
+        assert record["steps_taken"] == math.ceil(plan["images_seen"] / plan["batch"])
+        steps[arm] = record["steps_taken"]
+        assert (smoke / "runs" / arm / "seed0" / "weights" / "best.pt").is_file()
+        for test_set in ("large", "small"):
+            folder, truth = smoke / "eval" / arm / "seed0" / test_set, smoke / "data" / test_set / "truth" / "test"
+            names = sorted(p.name for p in truth.glob("*.png"))
+            assert names and names == sorted(p.name for p in (folder / "pred").glob("*.png"))
+            assert read_label_image(folder / "pred" / names[0]).shape == read_label_image(truth / names[0]).shape
+            scores, again = json.loads((folder / "scores.json").read_text()), score(folder / "pred", truth)
+            assert scores["mask_map50"] is None
+            assert (scores["dice"], scores["instance_f1"]) == (again["dice"], again["instance_f1"])
+    # 45 and 82 training images (half of 90 and of 163): the same steps
+    assert plans["unet_large"]["images"] != plans["unet_large+syn"]["images"]
+    assert steps["unet_large"] == steps["unet_large+syn"]
 
 
 @pytest.mark.slow
@@ -186,8 +216,9 @@ def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_wh
     present = (ROOT.parent / "shared" / "data" / "concrete" / "concrete_neutron.tif").is_file()
     assert ("concrete" in config.real) == present
     names = set(config.arms)
-    for scan in config.real:  # every scan: real, real + packs, packs alone
+    for scan in config.real:  # every scan, both model families: real, real + packs, packs alone
         assert {scan, scan + "+syn", scan + ":syn"} <= names
+        assert {"unet_" + scan, "unet_" + scan + "+syn", "unet_" + scan + ":syn"} <= names
     # the kinds beyond the paper on the built-in sample
     assert {"large:syn-rand", f"large@{config.budgets[0]}", f"large@{config.budgets[0]}+syn"} <= names
 
@@ -246,6 +277,33 @@ def test_evaluate_scores_a_damaged_prediction_below_one(tmp_path):
     scores = score(pred, truth)
     assert scores["dice"] == pytest.approx(2 * 100 / (100 + 260))
     assert scores["n_matched"] == 1 and scores["n_true"] == 2
+
+
+def test_instance_f1_is_one_for_perfect_predictions_zero_for_none_and_counts_a_split_grain(tmp_path):
+    folders = {name: tmp_path / name for name in ("truth", "perfect", "none", "split")}
+    for folder in folders.values():
+        folder.mkdir()
+    first = np.zeros((40, 40), np.int32)
+    first[5:15, 5:15], first[20:30, 20:36] = 1, 2
+    second = np.zeros((40, 40), np.int32)
+    second[2:12, 25:35] = 1
+    split = first.copy()
+    split[20:30, 30:36] = 3  # grain 2 cut in two: 100 of its 160 pixels (IoU 0.625) and 60 (IoU 0.375)
+    for name, labels in (("a", first), ("b", second)):
+        write_label_image(folders["truth"] / name, labels)
+        write_label_image(folders["perfect"] / name, labels)
+        write_label_image(folders["none"] / name, np.zeros_like(labels))
+        write_label_image(folders["split"] / name, split if name == "a" else labels)
+    assert score(folders["perfect"], folders["truth"])["instance_f1"] == 1.0
+    assert score(folders["none"], folders["truth"])["instance_f1"] == 0.0
+    scores = score(folders["split"], folders["truth"])
+    assert scores["dice"] == 1.0  # the same foreground
+    # slice a: 2 of 3 predicted and 2 true instances matched; slice b: 1 of 1 and 1; pooled 2 * 3 / (4 + 3)
+    assert [(s["n_matched"], s["n_pred"], s["n_true"]) for s in scores["slices"]] == [(2, 3, 2), (1, 1, 1)]
+    assert scores["instance_f1"] == pytest.approx(6 / 7)
+    counts = {name: np.array([[[s["n_matched"], s["n_pred"], s["n_true"]] for s in score(folders[name],
+                              folders["truth"])["slices"]]]) for name in ("split", "perfect")}
+    assert paired_bootstrap(counts["split"], counts["perfect"]).difference == pytest.approx(6 / 7 - 1)
 
 
 def test_unknown_experiment_config_is_a_clear_error(tmp_path):

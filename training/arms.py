@@ -15,7 +15,9 @@ kind              arm name             trains on
 ================  ===================  ============================================================
 
 Every arm validates on the scan's real val slices (model selection) and is tested on
-the real test block; no arm ever trains on a val or test slice. Arms that take part
+the real test block; no arm ever trains on a val or test slice. Each arm is trained by one
+model family (`MODEL_FAMILIES`): YOLO arms are named as above, U-Net arms take the prefix
+``unet_`` (``unet_large+syn``) and the same dataset (`Arm.dataset`). Arms that take part
 of an export's training images (``syn-only``, ``syn-rand``, ``budget``) get a
 dataset folder of their own (`subset_dataset`) whose ``data.yaml`` lists those
 images in a ``train.txt`` and points at the export's own val and test images.
@@ -34,7 +36,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 from synthpack.scan.split import slice_splits
 
-__all__ = ["ARM_KINDS", "Arm", "budget_slices", "dataset_images", "make_arms", "subset_dataset"]
+__all__ = ["ARM_KINDS", "MODEL_FAMILIES", "Arm", "budget_slices", "dataset_images", "make_arms", "subset_dataset"]
 
 #: Arm kinds and what they train on.
 ARM_KINDS = {
@@ -44,6 +46,11 @@ ARM_KINDS = {
     "syn-only": "synthetic only",
     "syn-rand": "synthetic only, randomised post-processing",
     "budget": "K real slices, without / with synthetic",
+}
+#: Model families, the prefix of their arms' names and what they are, in the report's words.
+MODEL_FAMILIES = {
+    "yolo": ("", "YOLOv8-seg (Ultralytics), instances from its masks"),
+    "unet": ("unet_", "2D U-Net (MONAI) on the border-core target, instances by watershed from interior seeds"),
 }
 #: Export of each pack variant, by its suffix: calibrated packs, their clean tomograms, randomised packs.
 EXPORT_SUFFIXES = {"real": "", "syn": "+syn", "syn-nopp": "+syn-nopp", "syn-rand": "+syn-rand"}
@@ -56,7 +63,8 @@ class Arm:
     Attributes
     ----------
     name : str
-        E.g. ``large``, ``large+syn``, ``large:syn``, ``large@10+syn``.
+        E.g. ``large``, ``large+syn``, ``large:syn``, ``large@10+syn``; ``unet_large`` for
+        the U-Net family.
     scan : str
         The real scan it belongs to (its val slices select the model).
     kind : str
@@ -67,6 +75,8 @@ class Arm:
         Real training slices it keeps: None for all of them, else that many (`budget_slices`).
     synthetic : bool
         Whether it keeps the export's synthetic training slices.
+    family : str
+        Its model family, a key of `MODEL_FAMILIES`.
     """
 
     name: str
@@ -75,6 +85,12 @@ class Arm:
     export: str
     real_slices: int | None = None
     synthetic: bool = True
+    family: str = "yolo"
+
+    @property
+    def dataset(self) -> str:
+        """Its dataset's name (``data/<dataset>``): `name` without the family's prefix."""
+        return self.name[len(MODEL_FAMILIES[self.family][0]):]
 
     @property
     def whole_export(self) -> bool:
@@ -89,26 +105,31 @@ class Arm:
         return ARM_KINDS[self.kind]
 
 
-def make_arms(kinds: dict[str, list[str]], budgets: list[int]) -> list[Arm]:
-    """The arms of `kinds` (kind -> real scan names), with `budgets` for ``budget``, scan by scan."""
+def make_arms(kinds: dict[str, list[str]], budgets: list[int], family: str = "yolo") -> list[Arm]:
+    """The arms of `kinds` (kind -> real scan names), with `budgets` for ``budget``, scan by scan, of `family`."""
     scans = list(dict.fromkeys(scan for names in kinds.values() for scan in names))
+    prefix = MODEL_FAMILIES[family][0]
     arms = []
+
+    def add(name: str, *fields, **options) -> None:
+        arms.append(Arm(prefix + name, *fields, **options, family=family))
+
     for scan in scans:
         wanted = {kind for kind, names in kinds.items() if scan in names}
         if "real" in wanted:
-            arms.append(Arm(scan, scan, "real", "real"))
+            add(scan, scan, "real", "real")
         if "syn" in wanted:
-            arms.append(Arm(scan + "+syn", scan, "syn", "syn"))
+            add(scan + "+syn", scan, "syn", "syn")
         if "syn-nopp" in wanted:
-            arms.append(Arm(scan + "+syn-nopp", scan, "syn-nopp", "syn-nopp"))
+            add(scan + "+syn-nopp", scan, "syn-nopp", "syn-nopp")
         if "syn-only" in wanted:
-            arms.append(Arm(scan + ":syn", scan, "syn-only", "syn", real_slices=0))
+            add(scan + ":syn", scan, "syn-only", "syn", real_slices=0)
         if "syn-rand" in wanted:
-            arms.append(Arm(scan + ":syn-rand", scan, "syn-rand", "syn-rand", real_slices=0))
+            add(scan + ":syn-rand", scan, "syn-rand", "syn-rand", real_slices=0)
         if "budget" in wanted:
             for k in budgets:
-                arms.append(Arm(f"{scan}@{k}", scan, "budget", "real", real_slices=k, synthetic=False))
-                arms.append(Arm(f"{scan}@{k}+syn", scan, "budget", "syn", real_slices=k))
+                add(f"{scan}@{k}", scan, "budget", "real", real_slices=k, synthetic=False)
+                add(f"{scan}@{k}+syn", scan, "budget", "syn", real_slices=k)
     return arms
 
 
@@ -170,14 +191,14 @@ def subset_dataset(export: Path, out: Path, arm: Arm) -> dict[str, int]:
         images += [export / "images" / "train" / f"{source['name']}_a{axis}_s{i:04d}.png" for i in slices]
     missing = [p for p in images if not p.is_file()]
     if missing or not images:
-        raise FileNotFoundError(f"{arm.name}: no training images in {export}" if not images else
-                                f"{arm.name}: {len(missing)} images missing from {export}, e.g. {missing[0]}")
+        raise FileNotFoundError(f"{arm.dataset}: no training images in {export}" if not images else
+                                f"{arm.dataset}: {len(missing)} images missing from {export}, e.g. {missing[0]}")
     out.mkdir(parents=True, exist_ok=True)
     data = yaml.safe_load((export / "data.yaml").read_text())
     data.update(train=str((out / "train.txt").resolve()))
     counts = {"train": len(images), "val": summary["images"]["val"], "test": summary["images"]["test"]}
     texts = {"train.txt": "".join(f"{p.resolve()}\n" for p in images), "data.yaml": yaml.safe_dump(data),
-             "dataset.json": json.dumps({"arm": arm.name, "export": str(export), "images": counts,
+             "dataset.json": json.dumps({"arm": arm.dataset, "export": str(export), "images": counts,
                                          "real_slices": chosen}, indent=1)}
     for name, text in texts.items():  # dataset.json last
         with atomic_file(out / name) as staging:

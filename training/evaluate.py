@@ -1,13 +1,16 @@
 """Score a trained YOLO segmentation model on the test slices of a `synthpack export-yolo` folder.
 
-Three figures per test set (and the per-slice foreground counts behind the Dice):
+Four figures per test set (and the per-slice counts behind the Dice and the F1):
 
 - **Dice**: foreground Dice of the predicted against the true particle masks
   (paper eq. 12), pooled over every pixel of the test slices (and the mean of the
   per-slice values);
 - **instance Dice**: Dice of instances matched one to one by IoU >= 0.5,
   unmatched instances counting 0 (`synthpack.metrics`);
-- **mask mAP50**: Ultralytics' own mask mAP at IoU 0.5 on the same slices.
+- **instance F1**: matched-instance F1 at IoU 0.5, ``2 matched / (predicted + true)``
+  instances, matched one to one per test slice (Hungarian on IoU >= 0.5,
+  `synthpack.metrics.match_instances`), the counts pooled over the slices;
+- **mask mAP50**: Ultralytics' own mask mAP at IoU 0.5 on the same slices (YOLO only).
 
 Predicted instances are drawn at the slices' full resolution (``retina_masks``),
 most confident last, into 16-bit label images under ``OUT/pred/``, and scored
@@ -92,21 +95,24 @@ def score(predictions: str | os.PathLike, truth: str | os.PathLike) -> dict:
     Returns
     -------
     dict
-        ``dice`` and ``instance_dice`` (pooled over the slices), ``dice_mean_of_slices``,
-        ``n_slices``, ``n_true``, ``n_pred``, ``n_matched``, and ``slices``: per slice (in
-        name order) its ``file``, ``dice`` and foreground pixels ``fg_intersection``,
-        ``fg_pred``, ``fg_true`` (what `training.stats.paired_bootstrap` resamples).
+        ``dice``, ``instance_dice`` and ``instance_f1`` (pooled over the slices),
+        ``dice_mean_of_slices``, ``n_slices``, ``n_true``, ``n_pred``, ``n_matched``, and
+        ``slices``: per slice (in name order) its ``file``, ``dice``, foreground pixels
+        ``fg_intersection``, ``fg_pred``, ``fg_true`` and instances ``n_matched``,
+        ``n_pred``, ``n_true`` (what `training.stats.paired_bootstrap` resamples).
     """
     report = evaluate_folders(predictions, truth)
     summary = report.summary
     return {
         "dice": summary["pooled"]["dice"],
         "instance_dice": summary["pooled"]["instance_dice_micro"],
+        "instance_f1": summary["pooled"]["f1"],
         "dice_mean_of_slices": summary["mean_of_rows"]["dice"],
         "n_slices": summary["n_rows"],
         "n_true": summary["n_true"], "n_pred": summary["n_pred"], "n_matched": summary["n_matched"],
         "slices": [{"file": row["file"], "dice": row["dice"], "fg_intersection": stats.fg_intersection,
-                    "fg_pred": stats.fg_pred, "fg_true": stats.fg_true}
+                    "fg_pred": stats.fg_pred, "fg_true": stats.fg_true, "n_matched": stats.n_matched,
+                    "n_pred": stats.n_pred, "n_true": stats.n_true}
                    for row, stats in zip(report.rows, report.stats)],
     }
 

@@ -1,4 +1,4 @@
-"""The paper's augmentation experiment (section 4, Tables 1 and 2) with YOLOv8-seg, fully offline.
+"""The paper's augmentation experiment (section 4, Tables 1 and 2) with YOLOv8-seg and a U-Net, fully offline.
 
 For every real scan of the config (by default the built-in ``large`` and
 ``small`` samples):
@@ -12,15 +12,19 @@ For every real scan of the config (by default the built-in ``large`` and
    intensity window: ``<scan>`` (real only), ``<scan>+syn`` (real + the packs'
    post-processed tomograms), ``<scan>+syn-nopp`` (real + the packs' clean
    tomograms, the paper's "without post-processing" arm) and ``<scan>+syn-rand``
-   (real + the randomised packs); arms that train on part of an export get a
-   training list of their own (`training.arms`: packs alone, label budgets).
+   (real + the randomised packs), with the truth label images of every split;
+   arms that train on part of an export get a training list of their own
+   (`training.arms`: packs alone, label budgets).
 
-Then every arm (`training.arms.ARM_KINDS`) is trained from scratch once per seed
-(`training.train.train`), for the epochs its plan gives (`training.compute`: by default the
-same images seen and steps for every arm) with its learning curve on the real val slices
-(`training.curves`), and scored on the test slices of EVERY real scan
-(`training.evaluate.evaluate`): foreground Dice, matched-instance Dice and
-Ultralytics' mask mAP50, with per-slice foreground counts. The run folder gets
+Then every arm (`training.arms.ARM_KINDS`) of every model family (``train.model_family``:
+YOLOv8-seg, `training.train.train`, and/or a 2D U-Net on the border-core target,
+`training.unet.train_unet`, whose arms the ``unet.arms`` section picks) is trained from
+scratch once per seed, for the images seen its plan gives (`training.compute`: by default
+the same images seen and steps for every arm of both families) with its learning curve on
+the real val slices (`training.curves`), and scored on the test slices of EVERY real scan
+(`training.evaluate.evaluate`, `training.unet.evaluate_unet`): foreground Dice,
+matched-instance Dice and F1 at IoU 0.5, and (YOLO) Ultralytics' mask mAP50, with
+per-slice foreground and instance counts. The run folder gets
 ``results.csv`` (one row per arm, seed and test set), ``results.json`` (with every
 comparison), ``report.md`` (`training.report`: Tables 1 and 2 laid out as in the
 paper with the paper's figures beside ours, the packs-alone and label-efficiency
@@ -74,16 +78,21 @@ from .evaluate import evaluate, score, write_scores
 from .offline import offline_ultralytics
 from .report import compare_arms, report_markdown, save_chart, save_label_efficiency, save_learning_curves
 from .train import TrainSettings, resolve_device, train
+from .unet import UNetSettings, evaluate_unet, train_unet
 
 logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 
-RESULT_COLUMNS = ("arm", "train_scan", "kind", "budget", "seed", "test_set", "dice", "dice_mean_of_slices",
-                  "instance_dice", "mask_map50", "n_slices", "n_true", "n_pred", "n_matched", "train_seconds",
-                  "epochs", "images_seen", "steps")
-#: Splits of the exports with truth images: val for the learning curves, test for the scores.
-TRUTH_SPLITS = ("val", "test")
+RESULT_COLUMNS = ("arm", "family", "train_scan", "kind", "budget", "seed", "test_set", "dice", "dice_mean_of_slices",
+                  "instance_dice", "instance_f1", "mask_map50", "n_slices", "n_true", "n_pred", "n_matched",
+                  "train_seconds", "epochs", "images_seen", "steps")
+#: Per-slice counts of a score (`training.evaluate.score`), in the order of the experiment's count arrays:
+#: foreground pixels (the Dice's), then instances (the F1's; `training.stats.pooled_dice` pools both).
+SLICE_COUNTS = ("fg_intersection", "fg_pred", "fg_true", "n_matched", "n_pred", "n_true")
+#: Splits of the exports with truth images: train for the U-Net's targets, val for the learning curves, test
+#: for the scores.
+TRUTH_SPLITS = ("train", "val", "test")
 #: Relative paths of ``real:`` entries are taken from the checkout root.
 CHECKOUT = Path(__file__).resolve().parents[1]
 
@@ -119,6 +128,11 @@ class ExperimentConfig:
     budgets : list of int
         The label budgets K of the ``budget`` arms (config ``budgets:``; ``all``, the
         whole training part, is the ``real`` and ``syn`` arms themselves).
+    unet : training.unet.UNetSettings
+        The U-Net family's network and optimizer (config ``unet:``).
+    unet_kinds : dict
+        The U-Net family's arms, as `kinds` (config ``unet.arms``; default `kinds`); run
+        when ``train.model_family`` names ``unet``.
     """
 
     name: str
@@ -131,6 +145,8 @@ class ExperimentConfig:
     conf: float
     kinds: dict = field(default_factory=dict)
     budgets: list = field(default_factory=list)
+    unet: UNetSettings = field(default_factory=UNetSettings)
+    unet_kinds: dict = field(default_factory=dict)
 
     @classmethod
     def load(cls, config: str | os.PathLike) -> ExperimentConfig:
@@ -150,6 +166,8 @@ class ExperimentConfig:
         if unknown:
             raise SynthpackInputError(f"synthetic.scans names unknown scans {unknown}: use names of 'real'")
         real = {name: spec for name, spec in listed.items() if _present(name, spec)}
+        unet = dict(data.get("unet") or {})
+        unet_arms = unet.pop("arms", data.get("arms"))
         return cls(
             name=data.get("name", path.stem), real=real, axis=int(data.get("axis", 0)),
             n_packs=int(synthetic.get("n_packs", 1)),
@@ -159,16 +177,19 @@ class ExperimentConfig:
             conf=float(data.get("evaluate", {}).get("conf", 0.25)),
             kinds=_kinds(data.get("arms"), list(listed), list(real)),
             budgets=_budgets(data.get("budgets", [])),
+            unet=UNetSettings.from_dict(unet),
+            unet_kinds=_kinds(unet_arms, list(listed), list(real)),
         )
 
     @property
     def arm_list(self) -> list[Arm]:
-        """Every training set, scan by scan (`training.arms.make_arms`)."""
-        return make_arms(self.kinds, self.budgets)
+        """Every arm: those of each model family of ``train.model_family``, scan by scan (`training.arms.make_arms`)."""
+        kinds = {"yolo": self.kinds, "unet": self.unet_kinds}
+        return [arm for family in self.train.families for arm in make_arms(kinds[family], self.budgets, family)]
 
     @property
     def arms(self) -> list[str]:
-        """Names of the training sets, e.g. ``large``, ``large+syn``, ``large:syn``, ``large@5+syn``, ..."""
+        """Names of the arms, e.g. ``large``, ``large+syn``, ``large:syn``, ``large@5+syn``, ``unet_large``, ..."""
         return [arm.name for arm in self.arm_list]
 
 
@@ -279,8 +300,8 @@ def prepare_data(config: ExperimentConfig, out: Path) -> dict[str, Path]:
             if arm.whole_export:
                 data[arm.name] = exports[arm.export] / "data.yaml"
             else:
-                subset_dataset(exports[arm.export], out / "data" / arm.name, arm)
-                data[arm.name] = out / "data" / arm.name / "data.yaml"
+                subset_dataset(exports[arm.export], out / "data" / arm.dataset, arm)
+                data[arm.name] = out / "data" / arm.dataset / "data.yaml"
     return data
 
 
@@ -288,24 +309,28 @@ def _done(path: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def _scores(folder: Path, weights: Path, test_data: Path, config: ExperimentConfig, config_dir: Path) -> dict:
-    """The scores of `weights` on a test set: evaluated once, then read back.
+def _scores(folder: Path, arm: Arm, weights: Path, test_data: Path, config: ExperimentConfig,
+            config_dir: Path) -> dict:
+    """The scores of `arm`'s `weights` on a test set: evaluated once, then read back.
 
-    Scores of an earlier run without per-slice counts get them from its predictions.
+    Scores of an earlier run without the instance F1 or per-slice counts get them from its predictions.
     """
     scores = _done(folder / "scores.json")
+    if scores is None and arm.family == "unet":
+        return evaluate_unet(weights, test_data.parent, folder, imgsz=config.train.imgsz, device=config.train.device)
     if scores is None:
         return evaluate(weights, test_data.parent, folder, imgsz=config.train.imgsz, conf=config.conf,
                         device=config.train.device, config_dir=config_dir)
-    if "slices" not in scores:
-        scores.update(slices=score(folder / "pred", test_data.parent / "truth" / "test")["slices"])
+    if "instance_f1" not in scores or any(key not in (scores.get("slices") or [{}])[0] for key in SLICE_COUNTS):
+        again = score(folder / "pred", test_data.parent / "truth" / "test")
+        scores.update(instance_f1=again["instance_f1"], slices=again["slices"])
         write_scores(folder, scores)
     return scores
 
 
 def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
     """Every arm's epochs, images seen and steps (`training.compute.plan_compute`) from its dataset in `out`."""
-    sizes = {arm.name: dataset_images(out / "data", arm.name)["train"] for arm in config.arm_list}
+    sizes = {arm.name: dataset_images(out / "data", arm.dataset)["train"] for arm in config.arm_list}
     return plan_compute(config.train, sizes)
 
 
@@ -335,8 +360,9 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
     rows : list of dict
         One per arm, seed and test set (`RESULT_COLUMNS`).
     slices : dict
-        ``(arm, seed, test set)`` -> per-slice ``[intersection, pred, true]`` foreground
-        pixels, int64 (N, 3), slices in name order (for `training.stats.paired_bootstrap`).
+        ``(arm, seed, test set)`` -> per-slice counts `SLICE_COUNTS` (foreground pixels in both,
+        predicted, true; instances matched, predicted, true), int64 (N, 6), slices in name
+        order (for `training.stats.paired_bootstrap`).
     curves : dict
         Arm -> seed -> its learning curve (`training.curves.CurveRecorder` points; None for
         a run trained without one).
@@ -354,23 +380,28 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                 logger.info("training %s, seed %d: %d epochs of %d images (%d images seen)", arm.name, seed,
                             plan.epochs, plan.images, plan.images_seen)
                 settings = TrainSettings(**{**vars(config.train), "seed": seed})
-                recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch, imgsz=config.train.imgsz,
-                                         conf=config.conf, device=device)
-                train(data[arm.name], run, settings, config_dir=config_dir, plan=plan, callbacks=recorder.callbacks)
+                if arm.family == "unet":
+                    train_unet(data[arm.name], run, settings, config.unet, plan)
+                else:
+                    recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch,
+                                             imgsz=config.train.imgsz, conf=config.conf, device=device)
+                    train(data[arm.name], run, settings, config_dir=config_dir, plan=plan,
+                          callbacks=recorder.callbacks)
                 record = _done(run / "train.json")
                 logger.info("trained %s in %.0f s", arm.name, time.perf_counter() - start)
             curves.setdefault(arm.name, {})[seed] = read_curve(run)
             for test_set in config.real:
-                scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, run / "weights" / "best.pt",
-                                 data[test_set], config, config_dir)
+                scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, arm,
+                                 run / "weights" / "best.pt", data[test_set], config, config_dir)
                 slices[(arm.name, seed, test_set)] = np.array(
-                    [[s["fg_intersection"], s["fg_pred"], s["fg_true"]] for s in scores["slices"]], dtype=np.int64)
-                rows.append({"arm": arm.name, "train_scan": arm.scan, "kind": arm.description,
+                    [[s[key] for key in SLICE_COUNTS] for s in scores["slices"]], dtype=np.int64)
+                rows.append({"arm": arm.name, "family": arm.family, "train_scan": arm.scan, "kind": arm.description,
                              "budget": arm.real_slices if arm.kind == "budget" else "", "seed": seed,
                              "test_set": test_set, "train_seconds": round(record["seconds"], 1),
                              "epochs": plan.epochs, "images_seen": plan.images_seen, "steps": round(plan.steps, 1),
                              **{key: scores[key] for key in RESULT_COLUMNS if key in scores}})
-                logger.info("%s seed %d on %s: Dice %.3f", arm.name, seed, test_set, scores["dice"])
+                logger.info("%s seed %d on %s: Dice %.3f, F1@0.5 %.3f", arm.name, seed, test_set, scores["dice"],
+                            scores["instance_f1"])
     return rows, slices, curves
 
 

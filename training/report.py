@@ -1,9 +1,10 @@
 """The experiment's report: tables of the paper's layout with intervals, the arm comparisons, the charts.
 
-Cells give the foreground Dice pooled over a test scan's slices, mean ± sample standard
-deviation over the training seeds. Each comparison (`COMPARISONS`) is a paired difference
-of two arms on one test scan, with its bootstrap 95% interval over test slices and seeds
-(`training.stats.paired_bootstrap`).
+Cells give the foreground Dice pooled over a test scan's slices and the matched-instance F1 at
+IoU 0.5 pooled the same way, mean ± sample standard deviation over the training seeds. Each
+comparison (`COMPARISONS` within each model family, `FAMILY_COMPARISONS` between them) is a
+paired difference of two arms on one test scan, in Dice and in F1, each with its bootstrap 95%
+interval over test slices and seeds (`training.stats.paired_bootstrap`).
 """
 
 from __future__ import annotations
@@ -17,12 +18,12 @@ import numpy as np
 
 from synthpack import __version__
 
-from .arms import Arm, dataset_images
+from .arms import MODEL_FAMILIES, Arm, dataset_images
 from .compute import COMPUTE_MODES, ArmPlan
 from .curves import RISE_LIMIT, TAIL, mean_curve, tail_rise
 from .stats import Difference, paired_bootstrap
 
-__all__ = ["COMPARISONS", "Comparison", "compare_arms", "compute_line", "convergence_lines", "report_markdown",
+__all__ = ["COMPARISONS", "FAMILY_COMPARISONS", "Comparison", "compare_arms", "compute_line", "convergence_lines", "report_markdown",
            "save_chart", "save_label_efficiency", "save_learning_curves"]
 
 #: The paper's Dice scores (%), by training set, then test set (Tables 1 and 2).
@@ -34,7 +35,8 @@ PAPER_DICE = {
     "small+syn": {"large": 94.8, "small": 90.9},
     "small+syn-nopp": {"large": 92.4, "small": 88.8},
 }
-#: Comparison groups: (group, arm a, arm b) name patterns, ``{s}`` the scan and ``{k}`` a label budget.
+#: Comparison groups: (group, arm a, arm b) name patterns, ``{s}`` the scan, ``{k}`` a label budget; made for
+#: the arms of each model family (its name prefix before each, `training.arms.MODEL_FAMILIES`).
 COMPARISONS = (
     ("table1", "{s}+syn", "{s}"),
     ("table2", "{s}+syn", "{s}+syn-nopp"),
@@ -43,61 +45,79 @@ COMPARISONS = (
     ("label budget", "{s}@{k}+syn", "{s}@{k}"),
     ("label budget", "{s}@{k}+syn", "{s}"),
 )
+#: The U-Net family against YOLO on the same training set: ``{u}`` the U-Net arms' prefix.
+FAMILY_COMPARISONS = (
+    ("model family", "{u}{s}", "{s}"),
+    ("model family", "{u}{s}+syn", "{s}+syn"),
+    ("model family", "{u}{s}:syn", "{s}:syn"),
+)
+#: Score names in the tables' headers.
+SCORE_NAMES = {"dice": "Dice", "instance_f1": "F1@0.5", "instance_dice": "instance Dice", "mask_map50": "mAP50"}
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """Arm `a` minus arm `b` on the test slices of `test_set` (`difference`: Dice as a fraction)."""
+    """Arm `a` minus arm `b` on the test slices of `test_set`: `difference` in Dice, `f1` in F1 (fractions)."""
 
     group: str
     a: str
     b: str
     test_set: str
     difference: Difference
+    f1: Difference
 
     def to_dict(self) -> dict:
-        """JSON-able dict."""
+        """JSON-able dict: the Dice difference's fields, and the F1 difference's under ``f1``."""
         return {"group": self.group, "a": self.a, "b": self.b, "test_set": self.test_set,
-                **self.difference.to_dict()}
+                **self.difference.to_dict(), "f1": self.f1.to_dict()}
+
+
+def _pairs(config, scan: str) -> list[tuple[str, str, str]]:
+    """(group, a, b) of every comparison of `scan`: `COMPARISONS` in each family, then `FAMILY_COMPARISONS`."""
+    pairs = [(group, prefix + a.format(s=scan, k=k), prefix + b.format(s=scan, k=k))
+             for group, a, b in COMPARISONS for prefix, _ in MODEL_FAMILIES.values()
+             for k in (config.budgets if "{k}" in a else [None])]
+    unet = MODEL_FAMILIES["unet"][0]
+    return pairs + [(group, a.format(s=scan, u=unet), b.format(s=scan, u=unet)) for group, a, b in FAMILY_COMPARISONS]
 
 
 def compare_arms(config, slices: dict) -> list[Comparison]:
-    """Every comparison of `COMPARISONS` whose two arms ran, on every test set, paired by seed and slice.
+    """Every comparison (`_pairs`) whose two arms ran, on every test set, paired by seed and slice.
 
-    `slices`: ``(arm, seed, test set)`` -> per-slice counts (`training.experiment.run_arms`).
+    `slices`: ``(arm, seed, test set)`` -> per-slice counts, foreground pixels then instances
+    (`training.experiment.SLICE_COUNTS`, `training.experiment.run_arms`).
     """
     arms, seeds = set(config.arms), config.seeds
     comparisons = []
     for scan in config.real:
-        for group, a_pattern, b_pattern in COMPARISONS:
-            for k in (config.budgets if "{k}" in a_pattern else [None]):
-                a, b = a_pattern.format(s=scan, k=k), b_pattern.format(s=scan, k=k)
-                if a not in arms or b not in arms:
-                    continue
-                for test_set in config.real:
-                    counts = [np.stack([slices[(arm, seed, test_set)] for seed in seeds]) for arm in (a, b)]
-                    comparisons.append(Comparison(group, a, b, test_set, paired_bootstrap(*counts)))
+        for group, a, b in _pairs(config, scan):
+            if a not in arms or b not in arms:
+                continue
+            for test_set in config.real:
+                counts = [np.stack([slices[(arm, seed, test_set)] for seed in seeds]) for arm in (a, b)]
+                comparisons.append(Comparison(group, a, b, test_set, paired_bootstrap(*(c[..., :3] for c in counts)),
+                                              paired_bootstrap(*(c[..., 3:] for c in counts))))
     return comparisons
 
 
 def summarise(rows: list[dict]) -> dict:
-    """(arm, test set) -> mean and sample standard deviation over seeds of each score."""
+    """(arm, test set) -> mean and sample standard deviation over seeds of each score (None where it has none)."""
     table: dict = {}
     for row in rows:
         table.setdefault((row["arm"], row["test_set"]), []).append(row)
     summary = {}
     for key, group in table.items():
         summary[key] = {"n_seeds": len(group)}
-        for name in ("dice", "instance_dice", "mask_map50"):
-            values = np.array([r[name] for r in group], dtype=float)
-            summary[key][name] = float(values.mean())
+        for name in SCORE_NAMES:
+            values = np.array([r[name] for r in group if r.get(name) is not None], dtype=float)
+            summary[key][name] = float(values.mean()) if len(values) else None
             summary[key][name + "_sd"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
     return summary
 
 
 def _cell(summary: dict, arm: str, test_set: str, score: str = "dice") -> str:
     entry = summary.get((arm, test_set))
-    if entry is None:
+    if entry is None or entry[score] is None:
         return "-"
     text = f"{100 * entry[score]:.1f}%"
     if entry["n_seeds"] > 1:
@@ -106,10 +126,14 @@ def _cell(summary: dict, arm: str, test_set: str, score: str = "dice") -> str:
     return text + (f" ({paper:.1f}%)" if paper is not None else "")
 
 
-def _table(summary: dict, arms: list[str], test_sets: list[str], score: str = "dice") -> list[str]:
-    lines = ["| training set | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
-             "|---|" + "---|" * len(test_sets)]
-    lines += [f"| {arm} | " + " | ".join(_cell(summary, arm, t, score) for t in test_sets) + " |"
+def _table(summary: dict, arms: list[str], test_sets: list[str], scores: tuple[str, ...] = ("dice",)) -> list[str]:
+    """A table of `arms`: one column per test set and score (the score named in the header when several)."""
+    columns = [(t, score) for t in test_sets for score in scores]
+    named = len(scores) > 1
+    lines = ["| training set | " + " | ".join(f"test: {t}" + (f", {SCORE_NAMES[score]}" if named else "")
+                                           for t, score in columns) + " |",
+             "|---|" + "---|" * len(columns)]
+    lines += [f"| {arm} | " + " | ".join(_cell(summary, arm, t, score) for t, score in columns) + " |"
               for arm in arms if any((arm, t) in summary for t in test_sets)]
     return lines
 
@@ -120,15 +144,19 @@ def _interval(d: Difference) -> str:
 
 
 def _differences(comparisons: list[Comparison], group: str, test_sets: list[str]) -> list[str]:
-    """Rows ``a − b`` of one group: the difference in Dice points with its 95% interval, per test set."""
+    """Rows ``a − b`` of one group: the differences in Dice and F1 points with their 95% intervals, per test set."""
     pairs = list(dict.fromkeys((c.a, c.b) for c in comparisons if c.group == group))
     if not pairs:
         return []
-    found = {(c.a, c.b, c.test_set): c.difference for c in comparisons}
-    lines = ["| difference (Dice points) | " + " | ".join(f"test: {t}" for t in test_sets) + " |",
-             "|---|" + "---|" * len(test_sets)]
-    lines += [f"| {a} − {b} | " + " | ".join(_interval(found[(a, b, t)]) if (a, b, t) in found else "-"
-                                            for t in test_sets) + " |" for a, b in pairs]
+    found = {(c.a, c.b, c.test_set): c for c in comparisons}
+
+    def cells(a: str, b: str, t: str) -> str:
+        c = found.get((a, b, t))
+        return " | ".join((_interval(c.difference), _interval(c.f1)) if c else ("-", "-"))
+
+    lines = ["| difference (points) | " + " | ".join(f"test: {t}, Dice | test: {t}, F1@0.5" for t in test_sets) + " |",
+             "|---|" + "---|" * (2 * len(test_sets))]
+    lines += [f"| {a} − {b} | " + " | ".join(cells(a, b, t) for t in test_sets) + " |" for a, b in pairs]
     return ["", *lines]
 
 
@@ -139,6 +167,7 @@ def _ratios(summary: dict, scans: list[str], test_sets: list[str]) -> list[str]:
             return "-"
         return f"{100 * summary[(a, t)]['dice'] / summary[(b, t)]['dice']:.0f}%"
 
+    scans = [prefix + s for prefix, _ in MODEL_FAMILIES.values() for s in scans]
     rows = [f"| {s}:syn / {s} | " + " | ".join(ratio(s + ":syn", s, t) for t in test_sets) + " |"
             for s in scans if any((s + ":syn", t) in summary for t in test_sets)]
     if not rows:
@@ -151,7 +180,7 @@ def _dataset_lines(arms: list[Arm], out: Path, plans: dict[str, ArmPlan]) -> lis
     lines = ["| training set | train images | val images | test images | epochs | images seen | steps |",
              "|---|---|---|---|---|---|---|"]
     for arm in arms:
-        images, plan = dataset_images(out / "data", arm.name), plans[arm.name]
+        images, plan = dataset_images(out / "data", arm.dataset), plans[arm.name]
         used = "" if plan.images == images["train"] else f" ({plan.images} used)"
         lines.append(f"| {arm.name} ({arm.description}) | {images['train']}{used} | {images['val']} | "
                      f"{images['test']} | {plan.epochs} | {plan.images_seen} | {plan.steps:.0f} |")
@@ -204,14 +233,32 @@ def _budget_lines(config, summary: dict) -> list[str]:
     columns = ["0", *map(str, config.budgets), "all"]
     lines = ["| training set (test: its own scan) | " + " | ".join(f"K = {c}" for c in columns) + " |",
              "|---|" + "---|" * len(columns)]
-    budgeted = {arm.scan for arm in config.arm_list if arm.kind == "budget"}
-    for scan in (s for s in config.real if s in budgeted):
-        for label, plus, zero in (("real", "", None), ("real + synthetic", "+syn", f"{scan}:syn")):
-            names = [zero, *(f"{scan}@{k}{plus}" for k in config.budgets), scan + plus]
+    for scan, prefix in _budgeted(config):
+        arm = prefix + scan
+        for label, plus, zero in (("real", "", None), ("real + synthetic", "+syn", f"{arm}:syn")):
+            names = [zero, *(f"{arm}@{k}{plus}" for k in config.budgets), arm + plus]
             cells = [_cell(summary, name, scan) if name else "-" for name in names]
             if any(cell != "-" for cell in cells):
-                lines.append(f"| {scan}, {label} | " + " | ".join(cells) + " |")
+                lines.append(f"| {arm}, {label} | " + " | ".join(cells) + " |")
     return lines
+
+
+def _budgeted(config) -> list[tuple[str, str]]:
+    """(scan, family prefix) of every scan and family with label-budget arms, in the config's order."""
+    return list(dict.fromkeys((arm.scan, MODEL_FAMILIES[arm.family][0]) for arm in config.arm_list
+                              if arm.kind == "budget"))
+
+
+def _unet_line(config) -> list[str]:
+    """The U-Net family's settings, when it has arms."""
+    if not any(arm.family == "unet" for arm in config.arm_list):
+        return []
+    u, t = config.unet, config.train
+    return [f"U-Net arms (`unet_*`): MONAI `UNet` (2D, channels {list(u.channels)}, strides {list(u.strides)}, "
+            f"{u.num_res_units} residual units) from scratch on the border-core target (background / interior / "
+            f"1-pixel boundary), `DiceCELoss`, AdamW (lr {u.lr}, polynomial decay), random {t.imgsz} px crops at "
+            f"the slices' own resolution, batch {t.batch}; whole slices predicted by sliding windows, instances "
+            "by watershed from the interior components (as `synthpack.export.nnunet.instances_from_target`).", ""]
 
 
 def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out: Path, seconds: float,
@@ -221,25 +268,31 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
     summary = summarise(rows)
     tests = list(config.real)
     names = set(config.arms)
-    pick = lambda *suffixes: [s + x for s in config.real for x in suffixes if s + x in names]  # noqa: E731
+    prefixes = [prefix for prefix, _ in MODEL_FAMILIES.values()]
+    pick = lambda *suffixes: [p + s + x for p in prefixes for s in config.real for x in suffixes  # noqa: E731
+                              if p + s + x in names]
+    both = ("dice", "instance_f1")
     t = config.train
     equal = any(plan.compute == "equal_steps" for plan in plans.values())
     lines = [
         f"# Augmentation experiment `{config.name}`",
         "",
-        f"synthpack {__version__}; {t.model} from scratch (no pretrained weights) at {t.imgsz} px, "
-        f"batch {t.batch}, optimizer {t.optimizer} (lr0 {t.lr0}), "
-        f"device `{device}` "
+        f"synthpack {__version__}; "
+        + (f"YOLO arms: {t.model} from scratch (no pretrained weights) at {t.imgsz} px, batch {t.batch}, "
+           f"optimizer {t.optimizer} (lr0 {t.lr0}), confidence threshold {config.conf}; "
+           if "yolo" in t.families else "")
+        + f"device `{device}` "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores); training seeds "
         f"{', '.join(map(str, config.seeds))}; {config.n_packs} synthetic pack(s) per real scan, built from "
-        f"its training slices only; slices along axis {config.axis}; confidence threshold {config.conf}; "
-        f"total {seconds / 60:.1f} min.",
+        f"its training slices only; slices along axis {config.axis}; total {seconds / 60:.1f} min.",
         "",
+        *_unet_line(config),
         "Cells: foreground Dice on the test set (central 20% of the slices of that real scan), pooled over its "
-        "slices" + (", mean ± sample standard deviation over the seeds" if len(config.seeds) > 1 else "")
-        + "; the paper's figure in brackets where the scan names match the paper's (large, small). "
-        "Differences: `a − b` in Dice points, paired by test slice and seed, with the bootstrap 95% interval "
-        "over test slices and seeds in brackets; `*` where the interval excludes 0.",
+        "slices, and the matched-instance F1 at IoU 0.5 (instances matched one to one per slice, counts pooled "
+        "over the slices)" + (", mean ± sample standard deviation over the seeds" if len(config.seeds) > 1 else "")
+        + "; the paper's Dice in brackets where the scan names match the paper's (large, small) for YOLO. "
+        "Differences: `a − b` in Dice and F1 points, paired by test slice and seed, with the bootstrap 95% "
+        "interval over test slices and seeds in brackets; `*` where the interval excludes 0.",
         "",
         compute_line(plans),
         "",
@@ -262,35 +315,43 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "",
         "## Table 1: real data alone and with synthetic packs",
         "",
-        *_table(summary, pick("", "+syn"), tests),
+        *_table(summary, pick("", "+syn"), tests, both),
         *_differences(comparisons, "table1", tests),
         "",
         "## Table 2: synthetic packs with and without post-processing",
         "",
-        *_table(summary, pick("+syn", "+syn-nopp"), tests),
+        *_table(summary, pick("+syn", "+syn-nopp"), tests, both),
         *_differences(comparisons, "table2", tests),
     ]
-    alone = [arm for s in config.real if {s + ":syn", s + ":syn-rand"} & names
-             for arm in (s, s + ":syn", s + ":syn-rand") if arm in names]
+    alone = [arm for p in prefixes for s in config.real if {p + s + ":syn", p + s + ":syn-rand"} & names
+             for arm in (p + s, p + s + ":syn", p + s + ":syn-rand") if arm in names]
     if alone:
         lines += ["", "## Synthetic packs alone (no real slice in training)", "",
                   "`scan:syn`: the calibrated packs; `scan:syn-rand`: packs with `postprocess: randomised`.", "",
-                  *_table(summary, alone, tests), *_differences(comparisons, "synthetic only", tests),
+                  *_table(summary, alone, tests, both), *_differences(comparisons, "synthetic only", tests),
                   *_ratios(summary, tests, tests)]
     if config.budgets:
         lines += ["", "## Label efficiency: K real training slices, without and with synthetic packs", "",
                   "K = 0 with packs is `scan:syn`; K = all is `scan` and `scan+syn`. Chart: "
                   "`label_efficiency.png`.", "", *_budget_lines(config, summary),
                   *_differences(comparisons, "label budget", tests)]
+    if any(c.group == "model family" for c in comparisons):
+        lines += ["", "## Model families: the U-Net against YOLO on the same training set", "",
+                  *_table(summary, pick("", "+syn", ":syn"), tests, both),
+                  *_differences(comparisons, "model family", tests)]
     lines += [
+        "",
+        "## Matched-instance F1 (IoU >= 0.5, matched one to one per slice), every arm",
+        "",
+        *_table(summary, config.arms, tests, ("instance_f1",)),
         "",
         "## Matched-instance Dice (IoU >= 0.5, unmatched instances count 0)",
         "",
-        *_table(summary, config.arms, tests, "instance_dice"),
+        *_table(summary, config.arms, tests, ("instance_dice",)),
         "",
-        "## Ultralytics mask mAP50",
+        "## Ultralytics mask mAP50 (YOLO arms)",
         "",
-        *_table(summary, config.arms, tests, "mask_map50"),
+        *_table(summary, [arm.name for arm in config.arm_list if arm.family == "yolo"], tests, ("mask_map50",)),
         "",
         "Every row (arm, seed, test set) is in `results.csv`, every comparison in `results.json`; the chart "
         "is `dice.png`.",
@@ -325,7 +386,7 @@ def save_chart(config, rows: list[dict], plans: dict[str, ArmPlan], path: Path) 
     ax.set_ylabel("foreground Dice (%)")
     ax.set_ylim(0, 100)
     compute = next(iter(plans.values())).compute.replace("_", " ") if plans else ""
-    ax.set_title(f"{config.name}: {config.train.model}, {compute}")
+    ax.set_title(f"{config.name}: {', '.join(config.train.families)}, {compute}")
     ax.legend(fontsize=6, loc="lower right", ncol=max(1, len(arms) // 8))
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
@@ -342,17 +403,16 @@ def save_label_efficiency(config, rows: list[dict], out: Path, path: Path) -> No
     plt = _pyplot()
     summary = summarise(rows)
     n_train = {scan: dataset_images(out / "data", scan)["train"] for scan in config.real}
-    budgeted = [arm.scan for arm in config.arm_list if arm.kind == "budget"]
     fig, ax = plt.subplots(figsize=(6, 4))
-    for index, scan in enumerate(dict.fromkeys(budgeted)):
-        colour = f"C{index}"
-        for plus, zero, style in (("", None, "--"), ("+syn", f"{scan}:syn", "-")):
-            points = [(0, zero)] + [(k, f"{scan}@{k}{plus}") for k in config.budgets] + [(n_train[scan], scan + plus)]
-            points = [(k, summary[(arm, scan)]) for k, arm in points if arm and (arm, scan) in summary]
+    for index, (scan, prefix) in enumerate(_budgeted(config)):
+        colour, arm = f"C{index}", prefix + scan
+        for plus, zero, style in (("", None, "--"), ("+syn", f"{arm}:syn", "-")):
+            points = [(0, zero)] + [(k, f"{arm}@{k}{plus}") for k in config.budgets] + [(n_train[scan], arm + plus)]
+            points = [(k, summary[(name, scan)]) for k, name in points if name and (name, scan) in summary]
             if points:
                 ax.errorbar([k for k, _ in points], [100 * e["dice"] for _, e in points],
                             yerr=[100 * e["dice_sd"] for _, e in points], fmt=style + "o", color=colour, capsize=3,
-                            label=f"{scan}, real" + (" + synthetic" if plus else " only"))
+                            label=f"{arm}, real" + (" + synthetic" if plus else " only"))
     ax.set_xlabel("real training slices K (rightmost: all)")
     ax.set_ylabel("foreground Dice on the scan's test slices (%)")
     ax.set_ylim(0, 100)

@@ -8,6 +8,10 @@ the slices, ``2 sum_i I / (sum_i P + sum_i T)`` (the Dice of the report's tables
 slices for both arms (the pairing), and takes the 2.5 and 97.5 percentiles of the
 resampled differences: an interval that holds both the slice-to-slice variation of
 the test scan and the seed-to-seed variation of training.
+
+The matched-instance F1 pools the same way from instance counts ``(matched, pred, true)``,
+``2 sum_i M / (sum_i P + sum_i T)``, so `pooled_dice` and `paired_bootstrap` give its
+intervals too, from those counts.
 """
 
 from __future__ import annotations

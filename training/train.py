@@ -24,6 +24,7 @@ from pathlib import Path
 from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 
+from .arms import MODEL_FAMILIES
 from .compute import COMPUTE_MODES, ArmPlan, scale_epoch_options
 from .offline import OFFLINE_TRAIN_ARGS, offline_ultralytics
 
@@ -62,6 +63,12 @@ class TrainSettings:
         DataLoader workers.
     options : dict
         Any other ``YOLO.train`` keyword, e.g. ``{"close_mosaic": 0, "fraction": 0.5}``.
+    model_family : str or list of str
+        The experiment's model families (`training.arms.MODEL_FAMILIES`): ``"yolo"``,
+        ``"unet"`` or both (``[yolo, unet]``, each with its own arms). The U-Net
+        (`training.unet`) shares `imgsz` (its training crops), `epochs`, `batch`, `compute`,
+        `images_seen`, `device`, `seed` and ``options["fraction"]`` / ``options["val"]``;
+        its network and optimizer are the config's ``unet:`` section.
     """
 
     model: str = "yolov8n-seg.yaml"
@@ -76,6 +83,12 @@ class TrainSettings:
     lr0: float = 0.01
     workers: int = 2
     options: dict = field(default_factory=dict)
+    model_family: str | list = "yolo"
+
+    @property
+    def families(self) -> tuple[str, ...]:
+        """`model_family` as a tuple of family names."""
+        return (self.model_family,) if isinstance(self.model_family, str) else tuple(self.model_family)
 
     @classmethod
     def from_dict(cls, values: dict) -> TrainSettings:
@@ -94,6 +107,10 @@ class TrainSettings:
         if self.images_seen is not None and (isinstance(self.images_seen, bool) or not isinstance(
                 self.images_seen, int) or self.images_seen <= 0):
             raise SynthpackInputError(f"train.images_seen must be a positive number of images, got {self.images_seen!r}")
+        families = self.families
+        if not families or len(set(families)) != len(families) or not set(families) <= set(MODEL_FAMILIES):
+            raise SynthpackInputError(f"train.model_family must be one of {', '.join(MODEL_FAMILIES)} or a list of "
+                                      f"them (each once), got {self.model_family!r}")
 
 
 def resolve_device(device: str) -> str:

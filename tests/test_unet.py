@@ -1,0 +1,73 @@
+"""The U-Net family's target and instance recovery on a clean pack, and its settings (the training runs in
+tests/test_training.py's smoke experiment)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from synthpack.errors import SynthpackInputError
+from synthpack.export import export_yolo
+from synthpack.export.nnunet import instances_from_target, semantic_target
+from synthpack.io import read_label_image
+from synthpack.metrics import match_instances
+from training.train import TrainSettings
+from training.unet import UNetSettings, slice_target, target_instances
+
+
+@pytest.fixture(scope="module")
+def pack_slices(export_pack_dir, tmp_path_factory):
+    """The truth images of every slice of a clean 20-grain pack, as the experiment's exports write them."""
+    out = tmp_path_factory.mktemp("unet") / "pack"
+    export_yolo(out, [export_pack_dir], postprocess=False, truth_splits=("train",), progress=False)
+    slices = [read_label_image(path) for path in sorted((out / "truth" / "train").glob("*.png"))]
+    return [labels for labels in slices if labels.any()]
+
+
+def _touching(labels: np.ndarray) -> set[int]:
+    """Ids of the instances with a 4-neighbour of another instance."""
+    found = set()
+    for axis in range(2):
+        a, b = np.moveaxis(labels, axis, 0)[:-1], np.moveaxis(labels, axis, 0)[1:]
+        contact = (a != b) & (a > 0) & (b > 0)
+        found |= set(a[contact].tolist()) | set(b[contact].tolist())
+    return found
+
+
+def test_the_unet_recovery_returns_a_clean_pack_slices_instances_from_its_own_target(pack_slices):
+    exact_expected = exact = pixels = right = 0
+    for labels in pack_slices:
+        target = slice_target(labels)
+        assert target.dtype == np.uint8 and set(np.unique(target).tolist()) <= {0, 1, 2}
+        assert np.array_equal(target > 0, labels > 0)
+        recovered = target_instances(target)
+        # the nnU-Net export's recovery, on the slice alone, is the reference
+        assert np.array_equal(recovered, instances_from_target(semantic_target(labels[None]))[0])
+        matches = match_instances(recovered, labels)
+        iou = dict(zip(matches.true_ids.tolist(), matches.iou.tolist()))
+        touching = _touching(labels)
+        for grain in np.unique(labels[labels > 0]).tolist():
+            pieces = ndimage.label((labels == grain) & (target == 1))[1]
+            if grain not in touching and pieces <= 1:  # alone, one interior: it must come back exactly
+                exact_expected += 1
+                exact += iou.get(grain) == 1.0
+        pixels += np.count_nonzero(labels)
+        right += int(matches.intersection.sum())
+    assert exact_expected > 100 and exact == exact_expected
+    # where sections touch, a boundary pixel as near one interior as the other may go to either
+    assert right >= 0.99 * pixels
+
+
+def test_model_family_and_unet_settings_are_checked():
+    assert TrainSettings().families == ("yolo",)
+    assert TrainSettings(model_family=["yolo", "unet"]).families == ("yolo", "unet")
+    for bad in ("unets", [], ["unet", "unet"]):
+        with pytest.raises(SynthpackInputError, match="model_family"):
+            TrainSettings(model_family=bad)
+    assert UNetSettings.from_dict({"channels": [8, 16], "strides": [2]}).channels == (8, 16)
+    with pytest.raises(SynthpackInputError, match="strides"):
+        UNetSettings.from_dict({"channels": [8, 16, 32], "strides": [2]})
+    with pytest.raises(SynthpackInputError, match="unknown unet setting"):
+        UNetSettings.from_dict({"depth": 3})
+    UNetSettings().check_crop(96)
+    with pytest.raises(SynthpackInputError, match="multiple of 8"):
+        UNetSettings().check_crop(100)
