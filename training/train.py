@@ -93,10 +93,9 @@ class TrainSettings:
     @classmethod
     def from_dict(cls, values: dict) -> TrainSettings:
         """Settings from a config section; unknown keys are refused with the list of known ones."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
+        unknown, known = unknown_fields(cls, values)
         if unknown:
-            raise ValueError(f"unknown train setting(s) {', '.join(unknown)}: use {', '.join(sorted(known))} "
+            raise ValueError(f"unknown train setting(s) {', '.join(unknown)}: use {', '.join(known)} "
                              "(other YOLO.train keywords go under 'options')")
         return cls(**values)
 
@@ -111,6 +110,12 @@ class TrainSettings:
         if not families or len(set(families)) != len(families) or not set(families) <= set(MODEL_FAMILIES):
             raise SynthpackInputError(f"train.model_family must be one of {', '.join(MODEL_FAMILIES)} or a list of "
                                       f"them (each once), got {self.model_family!r}")
+
+
+def unknown_fields(cls, values: dict) -> tuple[list[str], list[str]]:
+    """The keys of a config section `values` that are no field of the dataclass `cls`, and its fields (both sorted)."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    return sorted(set(values) - known), sorted(known)
 
 
 def resolve_device(device: str) -> str:

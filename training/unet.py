@@ -63,7 +63,7 @@ from synthpack.io import atomic_file, read_label_image, write_label_image
 
 from .compute import ArmPlan
 from .evaluate import score, write_scores
-from .train import TrainSettings, resolve_device
+from .train import TrainSettings, resolve_device, unknown_fields
 
 logger = logging.getLogger(__name__)
 
@@ -104,11 +104,9 @@ class UNetSettings:
     @classmethod
     def from_dict(cls, values: dict) -> UNetSettings:
         """Settings from a config section; unknown keys are refused with the list of known ones."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
+        unknown, known = unknown_fields(cls, values)
         if unknown:
-            raise SynthpackInputError(f"unknown unet setting(s) {', '.join(unknown)}: use arms, "
-                                      f"{', '.join(sorted(known))}")
+            raise SynthpackInputError(f"unknown unet setting(s) {', '.join(unknown)}: use arms, {', '.join(known)}")
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
         return cls(**values)
 
