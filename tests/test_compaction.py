@@ -259,7 +259,7 @@ def _star(depth: float) -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.array(sphere.faces)
 
 
-def test_past_full_compaction_the_shells_shrink_only_once_full_compaction_falls_short():
+def test_past_full_compaction_the_shells_shrink_only_once_the_layers_say_it_falls_short():
     shrunk = BatchCompaction.from_knob(1.5, friction=0.6, max_shrink=0.08)
     assert shrunk.compacts and shrunk.inflation == pytest.approx(-0.04) and shrunk.settle_friction == 0.02
     assert BatchCompaction.from_knob(1.5, friction=0.6).knob == 1.0  # an engine that cannot shrink: full compaction
@@ -268,11 +268,15 @@ def test_past_full_compaction_the_shells_shrink_only_once_full_compaction_falls_
     convexity = trimesh.Trimesh(*meshes[0]).volume / trimesh.Trimesh(*meshes[0]).convex_hull.volume
     assert controller.max_shrink == pytest.approx(1 - convexity ** (1 / 3)) and controller.max_shrink > 0.02
     controller.next_batch()
-    controller.layers.append((1.0, 2.0, 0.52, 0.9))  # short, but not at full compaction: no shrinking yet
+    controller.layers.append((1.0, 2.0, 0.585, 0.9))  # short, but on course for the target at full compaction
     assert controller.next_batch().knob == 1.0 and not controller.shrinking
-    controller.layers.append((2.0, 3.0, 0.53, 1.0))  # full compaction short of the target: shells shrink
+    controller.layers.append((2.0, 3.0, 0.50, 1.0))  # full compaction short of the target: shells shrink
     first = controller.next_batch()
     assert 1.0 < first.knob <= 1.5 and first.inflation < 0 and controller.shrinking
+    early = PackingController(0.60, 0.6, meshes, inner_radius=3.0, shrinks=True)
+    early.next_batch()
+    early.layers.append((1.0, 2.0, 0.50, 0.8))  # far short at 0.8: full compaction cannot make it up
+    assert 1.0 < early.next_batch().knob <= 1.5 and early.shrinking  # no batch spent at full compaction first
     controller.layers.append((3.0, 4.0, 0.56, first.knob))
     assert first.knob < controller.next_batch().knob <= first.knob + 0.5  # damped: at most 0.5 a batch
     assert controller.record()["max_shrink"] == round(controller.max_shrink, 4)

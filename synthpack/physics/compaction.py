@@ -28,9 +28,12 @@ locking, with one knob ``u`` per batch (:class:`BatchCompaction`):
   (``0.58 / c`` would be 0.72) is more than any random packing holds. The grains are
   rendered at their true size, so neighbours may overlap a little where their
   concavities do not meet (the checks report the penetration and the overlap). A
-  batch gets ``u > 1`` only once the bulk layers packed at ``u = 1`` fell short of the
-  target by more than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to the target never shrinks a shell; and
-  it rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
+  batch gets ``u > 1`` only once the compacted bulk layers (``u > 0``), scaled to full
+  compaction by their measured fraction over the prior's, say that full compaction falls short of
+  the target by more than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to
+  the target never shrinks a shell, and one it cannot bring there shrinks them from the first
+  measured layer rather than after layers of full compaction; the knob
+  rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
 * ``u < 0``, **looser than a free pour**: the grains collide as shells inflated by
   ``-u`` of their size about their centre of mass (a spacing, as in the coarse-grain
   and "collision distance" options of DEM codes), so they settle apart; they are
@@ -223,6 +226,12 @@ def prior_fraction(knob: float, max_shrink: float = 0.0) -> float:
     return (PRIOR_FREE + (PRIOR_DENSE - PRIOR_FREE) * min(knob, 1.0)) / (1.0 - _shrink(knob, max_shrink)) ** 3
 
 
+def _full_compaction_fraction(heights: np.ndarray, fractions: np.ndarray, priors: np.ndarray) -> float:
+    """What full compaction (``u = 1``) packs, predicted from compacted layers: the prior's, scaled by their
+    measured fraction over their prior (heights weighting both), so that a layer of any compacting knob counts."""
+    return float(heights @ fractions / (heights @ priors)) * prior_fraction(1.0)
+
+
 def _prior_knob(fraction: float, highest: float = 1.0, max_shrink: float = 0.0) -> float:
     """The knob at which :func:`prior_fraction` is `fraction` (clipped to ``[-MAX_INFLATION, highest]``)."""
     if fraction < PRIOR_FREE:
@@ -284,7 +293,7 @@ class PackingController:
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
-    #: Set once the layers of full compaction packed short of the target: knobs may then exceed 1 (shrunk shells).
+    #: Set once the compacted layers say full compaction packs short of the target: knobs may then exceed 1 (shrunk shells).
     shrinking: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
     _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
@@ -314,21 +323,22 @@ class PackingController:
         if measured:
             heights, fractions, knobs = (np.array(column) for column in zip(*measured))
             priors = np.array([prior_fraction(k, self.max_shrink) for k in knobs])
-            full = knobs == 1.0  # shells shrink once full compaction has fallen short of the target, and on
-            if self.max_shrink > 0 and full.any() and not self.shrinking and \
-                    heights[full] @ fractions[full] / heights[full].sum() < self.target - TARGET_TOLERANCE / 2:
+            reached = float(heights @ fractions / heights.sum())
+            ratio = float(heights @ fractions / (heights @ priors))
+            compacted = knobs > 0  # shells shrink once the compacted layers say full compaction falls short
+            if self.max_shrink > 0 and compacted.any() and not self.shrinking and \
+                    _full_compaction_fraction(heights[compacted], fractions[compacted], priors[compacted]) \
+                    < self.target - TARGET_TOLERANCE / 2:
                 self.shrinking = True
                 logger.debug("Full compaction packs below %.3f: shells shrink by up to %.3f", self.target,
                              self.max_shrink)
-            reached = float(heights @ fractions / heights.sum())
-            ratio = float(heights @ fractions / (heights @ priors))
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
             correction = _MAX_CORRECTION * min(1.0, self.target / PRIOR_FREE)
             wanted = float(np.clip(wanted, self.target - correction, self.target + correction))
         knob = _prior_knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
         if knob > 1.0:
-            knob = min(knob, max(self.knobs[-1], 1.0) + _MAX_SHRINK_STEP)
+            knob = min(knob, max(self.knobs[-1] if self.knobs else 1.0, 1.0) + _MAX_SHRINK_STEP)
         if self.target < PRIOR_FREE:
             knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
         self.knobs.append(knob)
