@@ -66,6 +66,7 @@ def _public(package: str):
             yield f"{obj.__module__}.{obj.__qualname__}"
 
 
+@pytest.mark.slow  # imports every package, torch included (~5 s)
 def test_the_api_page_documents_every_public_name():
     documented = set(re.findall(r"^::: (\S+)$", (ROOT / "docs" / "api.md").read_text(), flags=re.M))
     public = {path for package in API_PACKAGES for path in _public(package)}
