@@ -237,6 +237,17 @@ def test_targets_table_reads_the_measured_figures(balls):
     assert f"| W pores | <= {W_LIMIT} of the contrast | {w_pores:.3f}: pass |" in markdown
 
 
+def test_the_noise_rows_show_a_noise_level_in_any_intensity_unit():
+    # a float scan's noise (0.0116) was shown as "0.0 (source 0.0, -6.9%)"
+    noise = {target.figure: target for target in TARGETS}["noise std in grains"]
+    for source, pack, cell in ((0.0116, 0.0108, "0.0108 (source 0.0116, -6.9%)"),
+                               (1100.0, 1234.4, "1234 (source 1100, +12.2%)"),
+                               (0.5, 0.52, "0.520 (source 0.500, +4.0%)")):
+        reading = noise.read({"figures": {"noise_grain": source}}, {"figures": {"noise_grain": pack}})
+        assert reading.cell == cell
+        assert reading.deviation == pytest.approx(abs(pack / source - 1))
+
+
 def test_a_mode_worse_than_none_is_flagged_and_only_then(balls):
     plain, shaded = balls["plain"], balls["shaded"]
     worse = _report(balls, ["plain", "shaded"], ["none", "calibrated"])
