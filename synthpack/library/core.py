@@ -23,6 +23,7 @@ from .._shared.budget import LABEL_BYTES_PER_VOXEL, check_volume
 from ..errors import SynthpackInputError
 from .meshing import DECIMATION_FACTORS, mesh_from_mask
 from .particles import Particle, ParticleCrop, extract_particles
+from .sampling import cut_axes, window_weights
 from ..scan.core import Scan
 from ..source.statistics import SourceStatistics, measure_source
 
@@ -223,7 +224,7 @@ class ParticleLibrary(Sequence[Particle]):
             for crop, (v, f) in zip(crops, arrays)
         ]
         settings = dict(min_voxels=min_voxels, include_border=include_border,
-                        target_faces=target_faces)
+                        target_faces=target_faces, cut_axes=list(cut_axes(scan.labels)))
         if exclude_slices is not None:
             settings.update(exclude_slices=[int(v) for v in exclude_slices], exclude_axis=axis)
         return cls(
@@ -255,6 +256,23 @@ class ParticleLibrary(Sequence[Particle]):
     def equivalent_diameters(self) -> np.ndarray:
         """Equivalent-sphere diameters, shape (N,), in physical units."""
         return np.array([p.equivalent_diameter for p in self.particles], dtype=float)
+
+    @property
+    def draw_weights(self) -> np.ndarray:
+        """How often a pour draws each grain, shape (N,), float64, summing to 1.
+
+        The inverse of the chance that a grain of its size lay whole in the source's
+        field of view (`synthpack.library.sampling`), so that a pack's grains have the
+        sizes of all the scan's grains, not only of those the field of view left whole.
+        Even for a library that keeps the cut grains (``include_border``) and for one
+        saved before synthpack 0.9 (whose settings do not say which axes cut grains).
+        """
+        cut = self.settings.get("cut_axes")
+        if cut is None or self.settings.get("include_border"):
+            return np.full(len(self), 1.0 / len(self))
+        gap = self.settings.get("exclude_slices")
+        return window_weights([p.bbox for p in self.particles], self.source_shape, cut,
+                              None if gap is None else (int(gap[0]), int(gap[1])), int(self.settings.get("exclude_axis", 0)))
 
     def sieve(self, d_min: float = 0.0, d_max: float = np.inf) -> ParticleLibrary:
         """The particles with ``d_min <= equivalent diameter < d_max`` (physical units)."""

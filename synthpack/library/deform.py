@@ -369,8 +369,9 @@ class PackGrains:
 def pack_grains(library: ParticleLibrary, n_particles: int, deform: DeformConfig, seed: int) -> PackGrains | None:
     """The deformed grains of a pack, one per placement; None when ``deform.strength`` is 0.
 
-    The source grain of each placement is drawn uniformly from `library` with
-    replacement (as the pour draws them without deformation), then deformed with its
+    The source grain of each placement is drawn from `library` with replacement by
+    its `~synthpack.library.core.ParticleLibrary.draw_weights` (as the pour draws
+    them without deformation), then deformed with its
     own seed (:func:`draw_ffd`, :func:`deform_particle`). Every draw comes from
     the pack seed's ``"grains"`` stream (`synthpack._shared.seeds`), which no other stage
     uses, so the same seed gives the same grains.
@@ -393,7 +394,7 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: DeformConfig
     if deform.strength == 0:
         return None
     sequence = stream(seed, "grains")
-    sources = np.random.default_rng(sequence).integers(0, len(library), n_particles).astype(np.int64)
+    sources = np.random.default_rng(sequence).choice(len(library), n_particles, p=library.draw_weights).astype(np.int64)
     seeds = [int(s) for s in sequence.spawn(1)[0].generate_state(n_particles, np.uint32)]
     particles, factors = _deformed(library, sources, seeds, deform)
     damped = sum(f < 1 for f in factors)

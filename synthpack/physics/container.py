@@ -50,6 +50,7 @@ class LibraryLike(Protocol):
     voxel_size: tuple[float, float, float]
     source_shape: tuple[int, int, int]
     equivalent_diameters: np.ndarray
+    draw_weights: np.ndarray
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Any: ...

@@ -150,8 +150,10 @@ def make_plan(
 ) -> PourPlan:
     """Draw the grains, orientations, scales and spawn points of a pour.
 
-    Grains are drawn from `library` with replacement: uniformly, or per size class
-    (the paper's sifting) with each class's number fraction, then shuffled so
+    Grains are drawn from `library` with replacement, each as often as its
+    ``draw_weights`` say (the field of view's bias against large grains undone:
+    `synthpack.library.sampling`), over the whole library or per size class (the
+    paper's sifting) with each class's number fraction, then shuffled so
     classes mix across batches. Orientations are uniform on SO(3); scales uniform in
     the `scale` range. Batch ``b`` holds grains ``b*batch_size ..``. Spawn points of a
     batch are found by random sequential deposition of the grains' bounding spheres
@@ -162,7 +164,7 @@ def make_plan(
     Parameters
     ----------
     library : ParticleLibrary
-        Needs ``len``, ``[i].mesh`` and ``equivalent_diameters``.
+        Needs ``len``, ``[i].mesh``, ``equivalent_diameters`` and ``draw_weights``.
     n_particles : int
         Number of grains, >= 1.
     batch_size : int
@@ -243,9 +245,10 @@ def _draw_indices(
     classes: list[tuple[float, float, float]] | None,
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """Library indices of `n` grains, with replacement, optionally per size class."""
+    """Library indices of `n` grains, with replacement by the library's `draw_weights`, optionally per size class."""
+    weights = np.asarray(library.draw_weights, dtype=float)
     if classes is None:
-        return rng.integers(0, len(library), n).astype(np.int64)
+        return rng.choice(len(library), size=n, replace=True, p=weights).astype(np.int64)
     diameters = np.asarray(library.equivalent_diameters, dtype=float)
     counts = _largest_remainder([f for _, _, f in classes], n)
     chosen = []
@@ -257,7 +260,8 @@ def _draw_indices(
                 f"(the library spans {diameters.min():g} .. {diameters.max():g}); "
                 "adjust size_classes."
             )
-        chosen.append(rng.choice(members, size=count, replace=True) if count else members[:0])
+        chosen.append(rng.choice(members, size=count, replace=True, p=weights[members] / weights[members].sum())
+                      if count else members[:0])
     return rng.permutation(np.concatenate(chosen)).astype(np.int64)
 
 
