@@ -5,6 +5,7 @@ Modules, one job each:
 =============  ================================================================================
 ``particles``  `extract_particles`: one pass of find_objects -> clean crops, masks, sizes, border flags
 ``meshing``    `mesh_from_mask`: marching cubes + decimation -> watertight meshes
+``sampling``   `window_weights`: how often a pour draws each grain (the field of view's size bias undone)
 ``core``       `ParticleLibrary` (versioned on disk) and `LibraryConfig`
 ``deform``     `pack_grains`: one free-form-deformed grain per placement
 =============  ================================================================================
@@ -23,4 +24,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "extract_particles": ".particles",
     "mesh_from_mask": ".meshing",
     "pack_grains": ".deform",
+    "window_weights": ".sampling",
 })
