@@ -394,7 +394,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
 
 def _cmd_label(args: argparse.Namespace) -> None:
     from .io import read_tomogram, write_tiff
-    from .scan.labelling import STARTING_POINT, LabelConfig, label_scan
+    from .scan.labelling import LabelConfig, label_scan
 
     settings = build(LabelConfig, {name: getattr(args, name) for name, _ in _LABEL_OPTIONS}, name=option_name)
     if args.out.suffix.lower() not in (".tif", ".tiff"):
@@ -406,15 +406,15 @@ def _cmd_label(args: argparse.Namespace) -> None:
         check_output(preview, PREVIEW_OUTPUT, overwrite=args.overwrite)
     voxel_size = None if args.voxel_size is None else tuple(args.voxel_size)
     tomogram, voxel_size, unit = read_tomogram(args.tomogram, voxel_size=voxel_size, unit=args.unit)
-    result = label_scan(tomogram, settings)
+    result = label_scan(tomogram, settings)  # logs the starting-point warning, shown under --quiet too
     write_tiff(args.out, result.labels, voxel_size, unit, labels=True)
-    print(f"{result.n_grains} grains labelled in {args.out} (threshold {result.threshold:.6g}, {result.contrast} "
-          f"grains, markers at least {result.min_distance} voxels apart)")
+    summary = f"{result.n_grains} grains labelled in {args.out}"  # how: the INFO line of `label_scan`
     if preview is not None:
         from .preview import save_label_preview
 
-        print(f"preview: {save_label_preview(tomogram, result.labels, preview, overwrite=args.overwrite)}")
-    print(f"WARNING: {STARTING_POINT}")
+        summary += f", preview {save_label_preview(tomogram, result.labels, preview, overwrite=args.overwrite)}"
+    if not args.quiet:
+        print(summary)
 
 
 class _CommandParser(argparse.ArgumentParser):

@@ -1,3 +1,4 @@
+import re
 import subprocess
 import sys
 import tracemalloc
@@ -106,6 +107,32 @@ def test_pour_and_generate_with_the_same_settings_pour_the_same_pack_in_the_same
     bad.write_text("pour:\n  n_particle: 8\n")
     assert main(["-q", "generate", "--library", str(library_dir), "--out", str(tmp_path / "x"),
                  "--config", str(bad)]) == 2
+
+
+def test_a_pack_too_small_for_a_bulk_warns_once_per_step_with_the_grains_that_give_one(tmp_path, large_library,
+                                                                                      capsys):
+    """The pour's target and ``calibrated`` both need a bulk: both warnings name the same count, for the CLI and a config."""
+    from synthpack.artefacts import recipes
+    from synthpack.errors import SynthpackInputError
+    from synthpack.realism.region import Specimen
+    from synthpack.store.pack import open_pack
+
+    recipes._warn_once.cache_clear()  # each warning is logged once per process
+    library_dir = large_library.save(tmp_path / "lib")
+    assert main(["generate", "--library", str(library_dir), "--out", str(tmp_path / "packs"),
+                 "--n-particles", "8", "--batch-size", "8"]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    (target,) = [line for line in lines if "not judged" in line]
+    (fit,) = [line for line in lines if "calibrated cannot be fitted" in line]
+    counts = {int(re.search(r"pour about (\d+) grains: --n-particles \1, or pour\.n_particles: \1 in a config",
+                            line).group(1)) for line in (target, fit)}
+    (count,) = counts
+    assert count > 8
+    assert "(no bulk region: the pack is " in target and "(no bulk region: the pack is " in fit
+    pack = tmp_path / "packs" / "pack_0000"
+    assert "no bulk region" in open_pack(pack).manifest["postprocess_fallback"]
+    with pytest.raises(SynthpackInputError, match=rf"pack .*pack_0000: no bulk region: .*pour about {count} grains"):
+        Specimen.from_pack(pack)  # what `synthpack compare` measures: the error names the pack
 
 
 @pytest.mark.parametrize("values", [(4_000_000_000,), (3, 70_000, 4_000_000_000)])

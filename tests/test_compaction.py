@@ -152,7 +152,7 @@ def test_a_target_that_cannot_be_measured_is_a_warning_with_the_grains_a_bulk_ne
     (line,) = [r.getMessage() for r in caplog.records if "0.600" in r.getMessage()]
     assert "not judged (no bulk" in line
     needed = int(re.search(r"pour about (\d+) grains", line).group(1))
-    assert needed > 4
+    assert needed > 4 and f"--n-particles {needed}, or pour.n_particles: {needed} in a config" in line
 
 
 def _bulk_structure(library: ParticleLibrary, seed: int, **pour_settings) -> tuple[float, float, dict]:

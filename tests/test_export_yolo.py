@@ -1,10 +1,12 @@
 import json
+import logging
 import os
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 import pytest
+import tifffile
 import yaml
 from PIL import Image
 from skimage import measure
@@ -12,7 +14,7 @@ from skimage import measure
 from synthpack.cli import main
 from synthpack.errors import SynthpackInputError
 from synthpack.export import export_yolo
-from synthpack.export.slices import to_uint8
+from synthpack.export.slices import open_sources, to_uint8
 from synthpack.export.yolo import rasterize_yolo_labels, slice_polygons, yolo_label_text
 from synthpack.io import write_tiff
 from synthpack.store.pack import open_pack
@@ -225,6 +227,34 @@ def test_export_command_with_real_files_and_real_test_split(export_pack_dir, sha
     assert manifest["window"] == [0.0, 1.0] and manifest["settings"]["postprocess"] is False
     assert main(argv) == 0  # an earlier export is replaced
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".ds")]  # no temporary folders left
+
+
+def test_real_scan_files_keep_the_voxel_size_they_record_and_the_log_says_where_it_came_from(
+        shapes_scan, tmp_path, caplog):
+    """A 2D export reads real scans in pixels only where they record no voxel size, and says so.
+
+    It passed 1 px as if given, so `export-yolo` on the README's scan logged "voxel size (1.0, 1.0, 1.0)
+    px given explicitly overrides (10.0, 10.0, 10.0) um from the labels metadata": nobody gave one.
+    """
+    scan = shapes_scan
+    tifffile.imwrite(tmp_path / "scan.tif", scan.tomogram)  # as many exports are: no voxel size
+    write_tiff(tmp_path / "labels.tif", scan.labels, (10.0, 10.0, 10.0), "um", labels=True)
+    tifffile.imwrite(tmp_path / "bare_labels.tif", scan.labels)
+    with caplog.at_level(logging.INFO, logger="synthpack"):
+        (recorded,), _ = open_sources([], [(tmp_path / "scan.tif", tmp_path / "labels.tif")], postprocess=True)
+    assert (recorded.voxel_size, recorded.unit) == ((10.0, 10.0, 10.0), "um")
+    assert [r.getMessage().split(": ", 1)[1] for r in caplog.records] == [
+        "20x40x50 float32, voxel size 10 um (from the labels metadata)"]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="synthpack"):
+        (bare,), _ = open_sources([], [(tmp_path / "scan.tif", tmp_path / "bare_labels.tif")], postprocess=True)
+    assert (bare.voxel_size, bare.unit) == ((1.0, 1.0, 1.0), "px")
+    assert [(r.levelname, r.getMessage().split(": ", 1)[1]) for r in caplog.records] == [
+        ("INFO", "20x40x50 float32, voxel size 1 px (none recorded, none needed)")]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="synthpack"):  # a 3D export needs one: the warning
+        open_sources([], [(tmp_path / "scan.tif", tmp_path / "bare_labels.tif")], postprocess=True, voxel_size=True)
+    assert [r.levelname for r in caplog.records] == ["WARNING"] and "no voxel size" in caplog.records[0].getMessage()
 
 
 def test_export_input_errors(export_pack_dir, tmp_path):

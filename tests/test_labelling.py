@@ -63,14 +63,20 @@ def test_cli_writes_labels_and_preview_and_refuses_to_overwrite(tmp_path, large_
     np.testing.assert_array_equal(labels, large_labelling.labels)
     assert (voxel_size, unit) == (large_scan.voxel_size, large_scan.unit)
     assert (tmp_path / "labels.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    printed = capsys.readouterr().out
-    assert f"{large_labelling.n_grains} grains labelled" in printed and "not ground truth" in printed
+    quiet = capsys.readouterr()  # -q: the warning alone, no summary and no INFO line
+    assert quiet.out == "" and quiet.err == f"synthpack: {STARTING_POINT}\n"
 
     before = out.read_bytes()
     assert main(["-q", "label", "--tomogram", str(tmp_path / "scan.tif"), "--out", str(out)]) == 2
     error = capsys.readouterr().err  # synthpack's own labels too: they may have been corrected by hand
     assert "never replaced unasked" in error and "--overwrite" in error and "not a label volume" not in error
     assert out.read_bytes() == before
+
+    assert main(["label", "--tomogram", str(tmp_path / "scan.tif"), "--out", str(out), "--overwrite"]) == 0
+    shown = capsys.readouterr()  # without -q: the summary, and the warning once
+    assert shown.out == f"{large_labelling.n_grains} grains labelled in {out}\n"
+    assert f"synthpack: labelled {large_labelling.n_grains} grains" in shown.err
+    assert shown.err.count("not ground truth") == 1
 
 
 @pytest.mark.parametrize("option, message", [

@@ -204,14 +204,30 @@ def test_calibrated_falls_back_to_match_source_with_a_warning_when_it_cannot_be_
     assert [t.name for t in resolved.pipeline] == ["gaussian_noise"]
     assert resolved.pipeline.to_config() == _resolve("match_source", rendered, unmeasured).pipeline.to_config()
 
-    clean, labels, grid = rendered  # a pack without a bulk region to fit in
-    caplog.clear()
+
+
+def test_calibrated_on_a_pack_without_a_bulk_says_so_and_how_many_grains_would_give_one(
+        rendered, fresh_warnings, caplog):
+    # the pour's region of a pack of 20 grains 2.5 grain diameters (of 10) deep: its top at 25,
+    # its bulk from 10 (one diameter above the floor) to 5 (two below the top), empty
+    clean, labels, grid = rendered
+    region = {"radius": 30.0, "z_min": 10.0, "z_max": 5.0}
     with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.recipes"):
         shallow = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
-                                         packing_region={"radius": 1.0, "z_min": 0.0, "z_max": 1.0})
+                                         packing_region=region, n_grains=20)
+    (warning,) = [r.getMessage() for r in caplog.records]
     assert shallow.record["postprocess_mode"] == "match_source"
-    assert "no bulk" in shallow.record["postprocess_fallback"]
-    assert "no bulk" in caplog.records[0].getMessage()
+    assert shallow.record["postprocess_fallback"] in warning and "\n" not in warning
+    assert "calibrated cannot be fitted (no bulk region: the pack is 2.5 grain diameters deep" in warning
+    # a pack 4 diameters deep has a bulk 1 deep: 20 * 4 / 2.5 grains
+    assert "pour about 32 grains: --n-particles 32, or pour.n_particles: 32 in a config" in warning
+    unknown = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
+                                     packing_region=region)  # no count given: "more grains"
+    assert "pour more grains: --n-particles" in unknown.record["postprocess_fallback"]
+    narrow = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
+                                    packing_region={"radius": -1.0, "z_min": 10.0, "z_max": 50.0}, n_grains=20)
+    assert "too narrow" in narrow.record["postprocess_fallback"] and "--tube-radius" in narrow.record[
+        "postprocess_fallback"]
 
 
 def test_an_unknown_mode_is_refused(rendered):

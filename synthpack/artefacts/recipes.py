@@ -85,6 +85,7 @@ from ..errors import SynthpackInputError
 from ..render.grid import Grid
 from ..measure.noise_estimate import estimate_noise
 from ..measure.spectrum import NPS_PATCH, white_ring_powers
+from ..physics.checks import bulk_shortfall
 from ..source.statistics import SourceStatistics
 
 logger = logging.getLogger(__name__)
@@ -226,6 +227,7 @@ def resolve_postprocessing(
     packing_region: dict[str, float] | None,
     pore_texture: np.ndarray | None = None,
     seed: int = 0,
+    n_grains: int | None = None,
 ) -> Postprocessing:
     """The post-processing of one rendered pack (see the module docstring for the modes).
 
@@ -251,6 +253,9 @@ def resolve_postprocessing(
     seed : int
         What ``randomised`` draws the pack's image formation with (the pack's own seed,
         or one derived from it); unused by the other modes.
+    n_grains : int, optional
+        The grains poured: where ``calibrated`` falls back for want of a bulk region, its
+        warning says about how many grains would give one.
 
     Returns
     -------
@@ -270,7 +275,7 @@ def resolve_postprocessing(
         return Postprocessing(Compose([]), {"postprocess_mode": "none"})
     calibration, fallback = None, None
     if postprocess in ("calibrated", "randomised"):
-        calibration, fallback = _fit(statistics, clean, labels, grid, packing_region, pore_texture)
+        calibration, fallback = _fit(statistics, clean, labels, grid, packing_region, pore_texture, n_grains)
         if calibration is not None and postprocess == "calibrated":
             return Postprocessing(calibration.pipeline(),
                                   {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()})
@@ -288,16 +293,19 @@ def resolve_postprocessing(
 
 
 def _fit(statistics: SourceStatistics, clean: Any, labels: Any, grid: Grid, packing_region: dict[str, float] | None,
-         pore_texture: np.ndarray | None) -> tuple[Calibration | None, str | None]:
+         pore_texture: np.ndarray | None, n_grains: int | None) -> tuple[Calibration | None, str | None]:
     """``(calibration, None)``, or ``(None, why not)`` where the pack cannot be calibrated."""
     fallback = _uncalibratable(statistics)
     if fallback is not None:
         return None, fallback
     targets = _calibration_targets(statistics)
     try:
+        in_height, in_disc = bulk_parts(grid.shape, grid.origin, grid.voxel_size, packing_region, n_grains)
+    except SynthpackInputError as error:
+        return None, str(error)  # "no bulk region: the pack is ... deep ...; pour about N grains ..."
+    try:
         # only the slices the fit measures (and its halo) are made and read: the bulk of a big pack is
         # larger than memory; the fit is the same as on the whole bulk (`measured_slices`)
-        in_height, in_disc = bulk_parts(grid.shape, grid.origin, grid.voxel_size, packing_region)
         start, stop = measured_slices(in_height, in_disc)
         halo = calibration_halo(targets["target_sigma"])
         low, high = max(0, start - halo), min(grid.shape[0], stop + halo)
@@ -387,6 +395,7 @@ def bulk_region(
     origin: tuple[float, float, float],
     voxel_size: tuple[float, float, float],
     packing_region: dict[str, float] | None,
+    n_grains: int | None = None,
 ) -> np.ndarray:
     """Voxels of a pack grid inside the bulk sub-cylinder of its pour.
 
@@ -408,6 +417,9 @@ def bulk_region(
         ``radius``, ``z_min``, ``z_max`` of the sub-cylinder about the world z axis,
         physical units (``PourChecks.packing_region``); None for an interior crop:
         every voxel.
+    n_grains : int, optional
+        The grains poured: the error for a pack without a bulk says about how many
+        would give one (`~synthpack.physics.checks.bulk_shortfall`).
 
     Returns
     -------
@@ -418,9 +430,9 @@ def bulk_region(
     ------
     SynthpackInputError
         If fewer than `MIN_REGION_VOXELS` voxels lie in it (a pack too shallow or too
-        narrow to have a bulk).
+        narrow to have a bulk): one line that says why and what gives one.
     """
-    in_height, in_disc = bulk_parts(shape, origin, voxel_size, packing_region)
+    in_height, in_disc = bulk_parts(shape, origin, voxel_size, packing_region, n_grains)
     return in_height[:, None, None] & in_disc[None, :, :]
 
 
@@ -429,6 +441,7 @@ def bulk_parts(
     origin: tuple[float, float, float],
     voxel_size: tuple[float, float, float],
     packing_region: dict[str, float] | None,
+    n_grains: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`bulk_region` as its two factors, without the (Z, Y, X) mask: the slices (Z,) and the disc (Y, X), bool.
 
@@ -444,9 +457,7 @@ def bulk_parts(
         in_height = (z >= packing_region["z_min"]) & (z <= packing_region["z_max"])
     voxels = int(np.count_nonzero(in_height)) * int(np.count_nonzero(in_disc))
     if voxels < MIN_REGION_VOXELS:
-        raise SynthpackInputError(
-            f"the pack has no bulk to measure ({voxels} voxels lie one grain diameter "
-            "from the tube wall and floor and two below its top): pour more grains (pour.n_particles) "
-            "or use a wider tube (pour.tube_radius)"
-        )
+        why = (f"the pack has {voxels} voxels, fewer than {MIN_REGION_VOXELS}" if packing_region is None
+               else bulk_shortfall(packing_region, n_grains))
+        raise SynthpackInputError(f"no bulk region: {why}")
     return in_height, in_disc

@@ -114,8 +114,9 @@ def _pack_source(pack: Pack, postprocess: bool) -> Source:
 def _real_source(item: Scan | tuple, index: int, voxel_size: bool) -> Source:
     """A real scan, given as a `Scan` or read from a ``(tomogram, labels)`` pair of paths.
 
-    `voxel_size`: read the files' voxel size (with the missing-metadata warning), else
-    read them in pixels.
+    `voxel_size`: the export needs the files' voxel size (a missing one is warned of);
+    else their metadata's is kept where they record one, and they are read in pixels
+    without a warning where they do not.
     """
     if isinstance(item, Scan):
         return Source(f"real_scan{index}", "real", item.source, "tomogram", item.tomogram, item.labels,
@@ -123,8 +124,7 @@ def _real_source(item: Scan | tuple, index: int, voxel_size: bool) -> Source:
     if not (isinstance(item, (tuple, list)) and len(item) == 2):
         raise SynthpackInputError(f"a real scan is a Scan or a (tomogram, labels) pair of paths, got {item!r}")
     tomogram, labels = (Path(p) for p in item)
-    # in pixels, an explicit voxel size skips the missing-metadata warning
-    scan = read_scan(tomogram, labels) if voxel_size else read_scan(tomogram, labels, voxel_size=1.0, unit="px")
+    scan = read_scan(tomogram, labels, need_voxel_size=voxel_size)
     name = tomogram.name[: -len(".zarr")] if tomogram.name.endswith(".zarr") else tomogram.stem
     return Source(f"real_{_safe(name)}", "real", f"{tomogram} + {labels}", "tomogram", scan.tomogram, scan.labels,
                   scan.voxel_size, scan.unit)
@@ -153,8 +153,10 @@ def open_sources(
     packs, real, postprocess
         As in `synthpack.export.export_yolo`.
     voxel_size : bool
-        Read the real scan files' voxel size from their metadata (a 3D export
-        needs it); else they are read in pixels (1.0 px), without a warning.
+        Whether the export needs the real scan files' voxel size (a 3D export): one
+        they do not record is then warned of; else they are read in pixels (1.0 px)
+        without a warning where they record none (the voxel size read is logged, and
+        kept with the source, either way).
 
     Returns
     -------

@@ -23,6 +23,8 @@ def read_scan(
     labels: PathLike | np.ndarray,
     voxel_size: float | tuple[float, float, float] | None = None,
     unit: str | None = None,
+    *,
+    need_voxel_size: bool = True,
 ) -> Scan:
     """Read a tomogram and its instance labels into a validated `Scan`.
 
@@ -45,6 +47,9 @@ def read_scan(
     unit : str, optional
         Length unit of the voxel size, e.g. ``"um"`` or ``"mm"``. Given alone,
         the metadata voxel size is converted to it (for nm, um, mm, cm, m).
+    need_voxel_size : bool
+        False for a caller that works in voxels (a 2D slice export): files that record
+        no voxel size are read in pixels without the warning.
 
     Returns
     -------
@@ -55,7 +60,8 @@ def read_scan(
     -----
     The voxel size comes from, in order: the `voxel_size` argument, the
     tomogram's metadata, the labels' metadata. Without any of them the voxel
-    size is 1.0 in unit ``"px"`` (voxel units) and a warning is logged.
+    size is 1.0 in unit ``"px"`` (voxel units) and a warning is logged (unless
+    `need_voxel_size` is False).
     With `voxel_size` but no `unit`, the unit is that of the metadata, else
     ``"um"``.
 
@@ -86,7 +92,7 @@ def read_scan(
         raise SynthpackInputError(
             f"{exc} [tomogram: {tomo_source}; labels: {label_source}]"
         ) from exc
-    if origin == "default":
+    if origin == "default" and need_voxel_size:
         _warn_no_voxel_size(tomo_source)
     else:
         _log_read(f"{tomo_source} and {label_source}", scan.tomogram, size, size_unit, origin,
@@ -144,7 +150,7 @@ def _log_read(source: str, tomogram: np.ndarray, size: VoxelSize, unit: str, ori
 
     `assumed`: no unit was given or recorded, so a given voxel size is taken in `unit` (um).
     """
-    where = "given" if origin == "argument" else f"from the {origin}"
+    where = {"argument": "given", "default": "none recorded, none needed"}.get(origin, f"from the {origin}")
     if origin == "argument" and assumed:
         where += f"; no unit given or recorded: {unit} assumed, give --unit"
     logger.info("read %s: %s %s, voxel size %s (%s)", source, "x".join(map(str, tomogram.shape)), tomogram.dtype,

@@ -24,6 +24,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Sequence
 
@@ -36,7 +37,13 @@ from .container import Tube
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["PourChecks", "compute_checks", "solid_fraction_of", "winding_number"]
+__all__ = ["BULK_FLOOR_MARGIN", "BULK_TOP_MARGIN", "PourChecks", "bulk_shortfall", "compute_checks",
+           "solid_fraction_of", "winding_number"]
+
+#: The bulk region starts this many grain diameters above the floor ...
+BULK_FLOOR_MARGIN = 1.0
+#: ... and ends this many below the pack's top: a pack needs to be more than their sum (3) deep for one.
+BULK_TOP_MARGIN = 2.0
 
 # Collision margin (in grain diameters) of the penetration query; subtracted twice
 # from the reported depth. Bullet's EPA is wrong with a zero margin (measured: two
@@ -120,7 +127,8 @@ class PourChecks:
 
     def packing_text(self) -> str:
         """The packing fraction and its target's verdict, for people: ``"0.581 (target 0.580: reached)"``."""
-        text = ("n/a (pack shallower than ~3 grain diameters)" if np.isnan(self.packing_fraction)
+        text = (f"n/a (pack shallower than ~{BULK_FLOOR_MARGIN + BULK_TOP_MARGIN:g} grain diameters)"
+                if np.isnan(self.packing_fraction)
                 else f"{self.packing_fraction:.3f}")
         if self.target_packing_fraction is None:
             return text
@@ -233,6 +241,45 @@ def compute_checks(
     return checks
 
 
+def bulk_shortfall(region: dict[str, float], n_grains: int | None) -> str:
+    """Why a pour has no bulk region, and what gives one: a phrase for a warning or an error.
+
+    The bulk is the region of :attr:`PourChecks.packing_region`: `BULK_FLOOR_MARGIN` grain
+    diameters above the floor to `BULK_TOP_MARGIN` below the pack's top, so a pack needs
+    to be more than their sum deep. In a given tube a pack's depth grows about in
+    proportion to its grains: the estimate is the grains of a pack one diameter deeper
+    than that (a bulk one diameter deep), and always more than `n_grains`.
+
+    Parameters
+    ----------
+    region : dict
+        ``radius``, ``z_min``, ``z_max`` of the pour's bulk sub-cylinder
+        (:attr:`PourChecks.packing_region`), physical units.
+    n_grains : int or None
+        The grains poured; None (or 0): unknown, the phrase asks for "more grains".
+
+    Returns
+    -------
+    str
+        One line, e.g. ``"the pack is 2.3 grain diameters deep and a bulk needs more than 3;
+        pour about 35 grains: --n-particles 35, or pour.n_particles: 35 in a config"``.
+    """
+    ask = "--n-particles, or pour.n_particles in a config"
+    if region["radius"] <= 0:
+        return "the tube is too narrow for a bulk away from its wall; widen it: --tube-radius, or pour.tube_radius"
+    diameter = region["z_min"] / BULK_FLOOR_MARGIN
+    if diameter <= 0:
+        return f"pour more grains: {ask}"
+    least = BULK_FLOOR_MARGIN + BULK_TOP_MARGIN
+    depth = (region["z_max"] + BULK_TOP_MARGIN * diameter) / diameter  # the pack's top, in grain diameters
+    shallow = (f"the pack is {depth:.1f} grain diameters deep and a bulk needs more than {least:g}" if depth <= least
+               else f"the pack's bulk is too thin to measure ({depth - least:.2f} grain diameters deep)")
+    if not n_grains or depth <= 0:
+        return f"{shallow}; pour more grains: {ask}"
+    needed = max(math.ceil(n_grains * (least + 1) / depth), n_grains + 1)
+    return f"{shallow}; pour about {needed} grains: --n-particles {needed}, or pour.n_particles: {needed} in a config"
+
+
 def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Generalized winding number of a closed triangle mesh at `points`.
 
@@ -294,7 +341,8 @@ def _packing(
     wall_margin: float,
 ) -> tuple[float, float, dict[str, float]]:
     """(packing fraction of the bulk, overlap fraction, region) by Monte-Carlo sampling."""
-    radius, z_min, z_max = tube.inner_radius - wall_margin * margin, margin, fill - 2 * margin
+    radius = tube.inner_radius - wall_margin * margin
+    z_min, z_max = BULK_FLOOR_MARGIN * margin, fill - BULK_TOP_MARGIN * margin
     region = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
     if radius <= 0 or z_max <= z_min:
         logger.debug("The pack is too shallow or narrow for a bulk region: no packing fraction.")

@@ -75,7 +75,7 @@ from scipy.spatial.transform import Rotation
 
 from .._shared.seeds import generator
 from ..errors import SynthpackInputError
-from .checks import PourChecks, solid_fraction_of
+from .checks import PourChecks, bulk_shortfall, solid_fraction_of
 
 logger = logging.getLogger(__name__)
 
@@ -487,7 +487,8 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     reached = checks.packing_fraction
     if math.isnan(reached):
         n_grains = None if controller is None else len(controller.meshes)
-        logger.warning("target %.3f not judged (no bulk: %s", target, _why_no_bulk(checks, n_grains))
+        logger.warning("target %.3f not judged (no bulk region: %s)", target,
+                       bulk_shortfall(checks.packing_region, n_grains))
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)
     if not checks.target_reached:
@@ -506,17 +507,6 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     else:
         logger.info("Target packing fraction %.3f reached: the bulk packs at %.3f.", target, reached)
     return checks
-
-
-def _why_no_bulk(checks: PourChecks, n_grains: int | None) -> str:
-    """Why `checks` has no bulk region, and what gives one (for the warning of :func:`report_target`)."""
-    region = checks.packing_region
-    if region["radius"] <= 0:
-        return "tube under one grain wide): widen pour.tube_radius"
-    margin = float(region["z_min"])  # one grain diameter: the bulk starts 1 above the floor and ends 2 below the top
-    needed = "more grains" if not n_grains or checks.fill_height <= 0 else \
-        f"about {math.ceil(n_grains * 4 * margin / checks.fill_height)} grains"
-    return f"{checks.fill_height / margin:.1f} grains deep, needs > 3): pour {needed} (pour.n_particles)"
 
 
 def expected_fraction(target: Any, library: Any, default: float) -> float:

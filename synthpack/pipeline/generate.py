@@ -191,7 +191,7 @@ def build_pack(
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
             grid=render.grid, packing_region=None if render.crop is not None else placements.checks.packing_region,
-            pore_texture=render.background.texture_density(), seed=seed,
+            pore_texture=render.background.texture_density(), seed=seed, n_grains=len(placements),
         )
         # any render order post-processes on the device, if every transform has a torch version
         postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.run.device))

@@ -94,8 +94,11 @@ class Specimen:
                 f"pack {directory} has no pour region in its manifest: generate it again with this synthpack"
             )
         interior = (manifest.get("view") or {}).get("view") == "interior"
-        region = bulk_region(pack.shape, tuple(manifest["grid_origin"]), pack.voxel_size,
-                             None if interior else checks["packing_region"])
+        try:
+            region = bulk_region(pack.shape, tuple(manifest["grid_origin"]), pack.voxel_size,
+                                 None if interior else checks["packing_region"], manifest.get("n_particles"))
+        except SynthpackInputError as error:
+            raise SynthpackInputError(f"pack {directory}: {error}") from None
         volume = pack.clean if clean else pack.tomogram
         fraction = checks.get("packing_fraction")
         return cls(name or Path(directory).name, np.asarray(volume[:], dtype=np.float32),
