@@ -32,6 +32,20 @@ def large_library(large_scan: Scan) -> ParticleLibrary:
     return ParticleLibrary.from_scan(large_scan, workers=1, progress=False)
 
 
+@pytest.fixture(scope="session")
+def even_large_library(large_library: ParticleLibrary) -> ParticleLibrary:
+    """The large library as a scan whose faces cut no grain would give it (the concrete cylinder): drawn evenly.
+
+    The pours whose figures some tests hold (a free Blender pour's solid fraction, the spacing
+    shells' contacts per bare grain) were measured with even draws of these grains, before the
+    draw weights (`synthpack.library.sampling`) gave the large sample's bigger grains more weight.
+    """
+    library = large_library
+    return ParticleLibrary(list(library), voxel_size=library.voxel_size, unit=library.unit, density=library.density,
+                           statistics=library.statistics, source_shape=library.source_shape, source=library.source,
+                           settings={**library.settings, "cut_axes": [False, False, False]})
+
+
 @pytest.fixture
 def blob_scan() -> Scan:
     """A 30x40x50 scan with four box- and ball-shaped particles, one on the border."""

@@ -124,14 +124,14 @@ def test_a_pack_too_small_for_a_bulk_warns_once_per_step_with_the_grains_that_gi
     lines = capsys.readouterr().err.splitlines()
     (target,) = [line for line in lines if "not judged" in line]
     (fit,) = [line for line in lines if "calibrated cannot be fitted" in line]
-    counts = {int(re.search(r"pour about (\d+) grains: --n-particles \1, or pour\.n_particles: \1 in a config",
+    counts = {int(re.search(r"pour ~(\d+): --n-particles \1 \(pour\.n_particles\)",
                             line).group(1)) for line in (target, fit)}
     (count,) = counts
     assert count > 8
-    assert "(no bulk region: the pack is " in target and "(no bulk region: the pack is " in fit
+    assert "diameters deep, a bulk needs > 3" in target and "(no bulk region: " in fit
     pack = tmp_path / "packs" / "pack_0000"
     assert "no bulk region" in open_pack(pack).manifest["postprocess_fallback"]
-    with pytest.raises(SynthpackInputError, match=rf"pack .*pack_0000: no bulk region: .*pour about {count} grains"):
+    with pytest.raises(SynthpackInputError, match=rf"pack .*pack_0000: no bulk region: .*pour ~{count}:"):
         Specimen.from_pack(pack)  # what `synthpack compare` measures: the error names the pack
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from synthpack.artefacts import recipes as postprocess_module
-from synthpack.artefacts import ColouredNoise, GaussianBlur, GaussianNoise, calibrate, generic_postprocessing
+from synthpack.artefacts import (ColouredNoise, GaussianBlur, GaussianNoise, RoundLevels, calibrate,
+                                 generic_postprocessing)
 from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
 from synthpack.artefacts.guard import TOLERANCE, guard_steps
 from synthpack.errors import SynthpackInputError
@@ -18,7 +19,9 @@ from synthpack.render import Grid
 from synthpack.measure import estimate_noise, fit_edge_spread, phase_masks, phase_quantiles, phase_spectra
 from synthpack.scan.core import Scan
 from synthpack.source import SourceStatistics, measure_source
-from synthpack.measure.edges import edge_profile, signed_distance
+from synthpack.measure.edges import edge_profile, interior_depth, signed_distance
+from synthpack.measure.semivariogram import phase_semivariograms
+from synthpack.artefacts.coloured_noise import TEXTURE_SIGMAS
 from synthpack.measure.spectrum import white_ring_powers
 
 STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0,
@@ -218,9 +221,9 @@ def test_calibrated_on_a_pack_without_a_bulk_says_so_and_how_many_grains_would_g
     (warning,) = [r.getMessage() for r in caplog.records]
     assert shallow.record["postprocess_mode"] == "match_source"
     assert shallow.record["postprocess_fallback"] in warning and "\n" not in warning
-    assert "calibrated cannot be fitted (no bulk region: the pack is 2.5 grain diameters deep" in warning
+    assert "calibrated cannot be fitted (no bulk region: 2.5 diameters deep, a bulk needs > 3" in warning
     # a pack 4 diameters deep has a bulk 1 deep: 20 * 4 / 2.5 grains
-    assert "pour about 32 grains: --n-particles 32, or pour.n_particles: 32 in a config" in warning
+    assert "pour ~32: --n-particles 32 (pour.n_particles)" in warning
     unknown = resolve_postprocessing("calibrated", STATISTICS, clean=clean, labels=labels, grid=grid,
                                      packing_region=region)  # no count given: "more grains"
     assert "pour more grains: --n-particles" in unknown.record["postprocess_fallback"]
@@ -295,9 +298,10 @@ def test_the_guard_keeps_steps_that_make_the_pack_like_its_source(rendered, sour
 
 def test_the_guard_drops_a_noise_step_fitted_to_structure_and_records_it(rendered, source_statistics, caplog):
     # the source's pore noise 30 times too strong in the two lowest rings, as a patch estimate that
-    # counts the pores' structure as noise makes it
+    # counts the pores' structure as noise makes it (the noise fitted alone: no texture measured)
     wrong = dataclasses.replace(source_statistics, nps_pores=tuple(
-        p * (30 if k < 2 else 1) for k, p in enumerate(source_statistics.nps_pores)))
+        p * (30 if k < 2 else 1) for k, p in enumerate(source_statistics.nps_pores)),
+        semivariogram_grains=None, semivariogram_pores=None)
     with caplog.at_level(logging.WARNING, logger="synthpack.artefacts.guard"):
         resolved = _resolve("calibrated", rendered, wrong)
     fit = resolved.record["calibration"]
@@ -330,6 +334,28 @@ def test_the_guard_applies_the_admissible_steps_most_like_the_source(phantom):
     assert record["dropped"] == ["blur", "loud"]  # the wide blur and the loud noise make the pack less alike
     kept, record = guard_steps(build, ("blur",), clean, labels, region, **targets)
     assert kept == () and record["figures"]["applied"] == record["figures"]["none"]
+
+
+def test_the_guard_drops_a_texture_and_keeps_the_noise_it_refines(phantom):
+    """A step that needs another (a phase's texture needs its noise) is tried only with it, and dropped alone."""
+    clean, labels = phantom
+    source = GaussianNoise(std=0.02)(clean, 1)
+    region = np.ones(labels.shape, dtype=bool)
+    noise = estimate_noise(source, labels)
+    targets = {"histograms": phase_quantiles(source, phase_masks(signed_distance(labels), region)),
+               "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6}
+    # the "texture" replaces the noise by a far louder one: worse than the noise alone
+    steps = {"noise": [GaussianNoise(std=0.02)], "noise+texture": [GaussianNoise(std=0.1)]}
+    built = []
+
+    def build(kept):
+        built.append(kept)
+        return steps["noise+texture" if "texture" in kept else "noise"] if "noise" in kept else []
+
+    kept, record = guard_steps(build, ("noise", "texture"), clean, labels, region, **targets,
+                               requires={"texture": "noise"})
+    assert kept == ("noise",) and record["dropped"] == ["texture"]
+    assert ("texture",) not in built and ("noise", "texture") in built
 
 
 def _randomised(rendered, seed):
@@ -377,3 +403,68 @@ def test_contrast_gamma_keeps_the_levels_with_gamma_and_stretches_about_their_mi
     assert bent == pytest.approx(np.array([[0.2, 0.2 + 0.6 * 0.25, 0.8]]), abs=1e-6)
     stretched = ContrastGamma(contrast=1.5, pore_level=0.8, grain_level=0.2)(image, 0)  # darker grains
     assert stretched == pytest.approx(np.array([[0.05, 0.5, 0.95]]), abs=1e-6)
+
+
+def test_calibrated_fills_the_source_texture_that_the_noise_spectra_do_not_see(rendered):
+    """A source whose interiors hold a Gaussian-correlated texture (variance 4e-4, 1.2 voxels): the
+    noise estimates, on second differences, see little of it; calibration fits it from the
+    semivariogram and the pack gets the source's texture at every lag."""
+    clean, labels, _ = rendered
+    distance = signed_distance(labels)
+    texture = ColouredNoise([0.0] * 6, [0.0] * 6, 0.2, 0.8, pore_texture=[4e-4, 1.2], grain_texture=[4e-4, 1.2])
+    source = texture(GaussianNoise(std=0.01)(clean, 1), 2)
+    depth = interior_depth(STATISTICS.edge_sigma)
+    gamma = phase_semivariograms(source, distance, None, depth)
+    spectra = phase_spectra(source, distance, None, depth)
+    noise = estimate_noise(source, labels)
+    target = dataclasses.replace(STATISTICS, edge_sigma=fit_edge_spread(edge_profile(source, distance)).sigma,
+                                 nps_grains=tuple(spectra["grains"].power[1:]), nps_pores=tuple(spectra["pores"].power[1:]),
+                                 noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std,
+                                 semivariogram_grains=tuple(gamma["grains"]), semivariogram_pores=tuple(gamma["pores"]))
+    without = _resolve("calibrated", rendered, dataclasses.replace(target, semivariogram_grains=None,
+                                                                   semivariogram_pores=None))
+    resolved = _resolve("calibrated", rendered, target)
+    fit = resolved.record["calibration"]
+    assert without.record["calibration"]["textured"] == {"grains": None, "pores": None}
+    assert fit["guard"]["dropped"] == []
+    for phase in ("grains", "pores"):  # the noise's lowest knot may carry a share of the texture's power
+        variance, sigma = fit["textured"][phase]["texture"]
+        assert 0 < variance < 1.5 * 4e-4 and sigma in TEXTURE_SIGMAS
+    ratios = {}
+    for name, result in (("with", resolved), ("without", without)):
+        out = phase_semivariograms(result.pipeline(clean, 3), distance, None, depth)
+        ratios[name] = np.concatenate([out[phase] / gamma[phase] for phase in gamma])
+    assert np.all(np.abs(ratios["with"] - 1) < 0.1), ratios  # every lag of both phases within 10 %
+    assert np.max(np.abs(ratios["without"] - 1)) > 0.25, ratios  # the noise alone misses the texture
+    out = resolved.pipeline(clean, 3)
+    for phase, spectrum in phase_spectra(out, distance, None, depth).items():  # and the noise still matches
+        ratio = spectrum.power[1:5] / np.asarray(fit["target_power"][phase])[:4]
+        assert np.all((ratio > 0.7) & (ratio < 1.4)), (phase, ratio)
+    noise_out = estimate_noise(resolved.pipeline(clean, 3), labels)
+    assert noise_out.grain_std == pytest.approx(noise.grain_std, rel=0.1)
+
+
+def test_calibrated_puts_a_whole_number_source_pack_on_its_grey_level_grid(rendered):
+    clean, labels, grid = rendered
+    scaled = (clean * 200).astype(np.float32), labels, grid  # intensities of an 8-bit scan
+    statistics = dataclasses.replace(STATISTICS, pore_mean=40.0, grain_mean=160.0, noise_std=2.0,
+                                     nps_grains=(0.5,) * 6, nps_pores=(0.5,) * 6)
+    for whole in (True, False):
+        resolved = _resolve("calibrated", scaled, dataclasses.replace(statistics, whole_levels=whole))
+        out = resolved.pipeline(scaled[0], 1)
+        assert resolved.record["calibration"]["round_levels"] is whole
+        assert np.array_equal(out, np.round(out)) is whole
+        assert isinstance(resolved.pipeline.transforms[-1], RoundLevels) is whole
+
+
+def test_the_source_statistics_hold_the_interior_texture_and_whether_the_scan_holds_whole_numbers(phantom):
+    clean, labels = phantom
+    noisy = GaussianNoise(std=0.02)(clean, 0)
+    floats = measure_source(Scan(noisy, labels, voxel_size=(1.0, 1.0, 1.0), unit="px"))
+    whole = measure_source(Scan(np.round(noisy * 200).astype(np.uint8), labels, voxel_size=(1.0, 1.0, 1.0), unit="px"))
+    assert floats.whole_levels is False and whole.whole_levels is True
+    for statistics, scale in ((floats, 1.0), (whole, 200.0)):
+        gamma = np.asarray(statistics.semivariogram_grains)
+        assert gamma.shape == (4,) and np.all(np.diff(gamma) >= -0.05 * gamma.max())  # white noise: flat, 2 * std^2 / 2
+        assert gamma[0] == pytest.approx((0.02 * scale) ** 2, rel=0.3)
+    assert SourceStatistics.from_dict(whole.to_dict()) == whole

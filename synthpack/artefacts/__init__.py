@@ -23,6 +23,7 @@ Transforms, by config name:
 ``beam_hardening``        `BeamHardening` (strength): radial cupping (signed)
 ``contrast_gamma``        `ContrastGamma` (contrast, gamma, pore_level, grain_level): the
                           intensity response between the two phase levels
+``round_levels``          `RoundLevels` (step): the grey-level grid of a scan stored as integers
 ``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
                           filter_name): projection, photon noise, gain errors, FBP
 ``compose``               `Compose` (transforms)
@@ -43,7 +44,7 @@ from .blur import GaussianBlur, MotionBlur, line_kernel
 from .calibrate import Calibration, calibrate, calibration_halo, measured_slices, noise_to_add
 from .coloured_noise import ColouredNoise
 from .ct import CTSimulation
-from .intensity import ContrastGamma
+from .intensity import ContrastGamma, RoundLevels
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
 from .presets import generic_postprocessing
 from .radial import BeamHardening, RingArtefacts
@@ -55,6 +56,7 @@ __all__ = [
     "ColouredNoise",
     "Compose",
     "ContrastGamma",
+    "RoundLevels",
     "GaussianBlur",
     "GaussianNoise",
     "MotionBlur",

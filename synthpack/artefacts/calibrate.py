@@ -38,6 +38,16 @@ its cost is fixed and vanishes per voxel on big packs.
    measures (3D second differences; variances add), which pins the noise's 3D high
    frequencies that the in-slice spectrum says little of.
 
+   **Texture.** What the noise spectra cannot see, the fine texture of the source's grain
+   and pore interiors (`~synthpack.measure.semivariogram`: the in-slice semivariogram at
+   lags of 1 to 4 voxels, in the same eroded interiors), is fitted with the noise: one
+   spectrum, the noise's knots plus a Gaussian-correlated texture (a variance and a
+   correlation length), fitted to the ring powers, the noise level and the semivariogram
+   the pack lacks at once (`~synthpack.artefacts.coloured_noise.fit_noise_and_texture`),
+   so that neither takes the other's share. The phase's `~synthpack.artefacts.ColouredNoise`
+   carries both. Without the source's semivariogram (a library of an older synthpack) or
+   where a phase is too thin to measure it in the pack, the noise alone, as before.
+
 3. **Scanner artefacts**, where the source shows them
    (`~synthpack.measure.scanner.measure_scanner`), applied last with the source's
    measured values, fixed: `~synthpack.artefacts.BeamHardening` of the source's
@@ -62,6 +72,11 @@ its cost is fixed and vanishes per voxel on big packs.
    post-processing on a figure it misses. Each drop is a warning and is recorded
    (`Calibration.guard`).
 
+5. **The grey-level grid.** Where the source holds whole numbers only (an 8 or 16 bit
+   file, `~synthpack.source.SourceStatistics.whole_levels`), `~synthpack.artefacts.RoundLevels`
+   rounds the pack's intensities last, so that its neighbour differences come in the
+   source's steps (not a guarded step: it moves no figure by more than the rounding).
+
 The fit has no random part (the guard draws from its own fixed stream); with the pack's
 seed the noise realisation is reproducible too. It records the grid search and every
 value it matched or applied.
@@ -84,7 +99,9 @@ from ..measure.psf import EdgeSpread, fit_edge_spread
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose, Transform
 from .blur import GaussianBlur
-from .coloured_noise import ColouredNoise, ring_powers_of_spectrum
+from ..measure.semivariogram import phase_semivariograms
+from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
+from .intensity import RoundLevels
 from .guard import guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
@@ -104,7 +121,9 @@ CALIBRATION_VOXELS = 1 << 20
 #: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`).
 MIN_CALIBRATION_SLICES = 16
 #: The steps of a calibration, in the order they apply (`Calibration.transforms`).
-STEPS = ("blur", "grain_noise", "pore_noise", "cupping", "rings")
+STEPS = ("blur", "grain_noise", "grain_texture", "pore_noise", "pore_texture", "cupping", "rings")
+#: A step that is only applied with another: a phase's texture replaces its noise by the noise fitted with it.
+REQUIRES = {"grain_texture": "grain_noise", "pore_texture": "pore_noise"}
 
 
 def noise_to_add(source: float, clean: float) -> GaussianNoise:
@@ -173,6 +192,19 @@ class Calibration:
         steps of `STEPS` left out of the pipeline because they made the pack less like its
         source (their fitted values are kept above), and the ``figures`` it measured; None:
         not guarded.
+    target_semivariogram, clean_semivariogram : dict of str to list of float or None
+        Per phase, the source's texture (`~synthpack.measure.semivariogram`, lags 1, 2, ...
+        voxels, intensity units squared) and the blurred clean volume's; None where not measured.
+    textured : dict of str to dict or None
+        Per phase, the noise fitted together with the texture (the ``*_texture`` steps,
+        `~synthpack.artefacts.coloured_noise.fit_noise_and_texture`): its ring powers
+        ``power`` and level ``noise`` (as `added_power`, `added_phase_noise`) and the
+        ``texture`` ``[variance, sigma]`` (intensity units squared, voxels; None where the
+        noise's own knots carry it) that `~synthpack.artefacts.ColouredNoise` adds with it;
+        None: no semivariogram to fit (not measured in the source or the pack).
+    round_levels : bool
+        Whether the pipeline ends with `~synthpack.artefacts.RoundLevels` (the source holds
+        whole numbers only).
     """
 
     blur_sigma: float
@@ -199,13 +231,20 @@ class Calibration:
     ring_amplitudes: list[float] | None = None
     ring_width: float | None = None
     guard: dict | None = None
+    target_semivariogram: dict[str, list[float] | None] | None = None
+    clean_semivariogram: dict[str, list[float] | None] | None = None
+    textured: dict[str, dict | None] | None = None
+    round_levels: bool = False
 
     def fitted_steps(self) -> tuple[str, ...]:
         """The steps of `STEPS` that do something: a blur wider than 0, noise added to a phase, the source's artefacts."""
         adds = {phase: any(self.added_power[phase]) or bool(self.added_phase_noise[phase])
                 for phase in ("grains", "pores")}
-        does = {"blur": self.blur_sigma > 0, "grain_noise": adds["grains"], "pore_noise": adds["pores"],
-                "cupping": self.cupping_strength is not None, "rings": self.ring_radii is not None}
+        textured = {phase: (self.textured or {}).get(phase) is not None for phase in ("grains", "pores")}
+        does = {"blur": self.blur_sigma > 0, "grain_noise": adds["grains"] or textured["grains"],
+                "grain_texture": textured["grains"], "pore_noise": adds["pores"] or textured["pores"],
+                "pore_texture": textured["pores"], "cupping": self.cupping_strength is not None,
+                "rings": self.ring_radii is not None}
         return tuple(step for step in STEPS if does[step])
 
     def applied_steps(self) -> tuple[str, ...]:
@@ -217,7 +256,8 @@ class Calibration:
         """The transforms of `steps` (names of `STEPS`), in pipeline order.
 
         `GaussianBlur` (``blur``), one `ColouredNoise` holding the noise of the phases named
-        (``grain_noise``, ``pore_noise``; none in a phase not named), `BeamHardening`
+        (``grain_noise``, ``pore_noise``; none in a phase not named; with ``grain_texture`` or
+        ``pore_texture`` too, the noise fitted with the texture and the texture), `BeamHardening`
         (``cupping``) and `RingArtefacts` (``rings``).
         """
         transforms: list[Transform] = []
@@ -225,12 +265,17 @@ class Calibration:
             transforms.append(GaussianBlur(sigma=self.blur_sigma))
         noisy = {phase: f"{phase[:-1]}_noise" in steps for phase in ("grains", "pores")}
         if any(noisy.values()):
-            power = {phase: self.added_power[phase] if noisy[phase] else [0.0] * len(self.added_power[phase])
+            fit = {phase: ((self.textured or {}).get(phase) if f"{phase[:-1]}_texture" in steps else None) or
+                   {"power": self.added_power[phase], "noise": self.added_phase_noise[phase], "texture": None}
+                   for phase in noisy}
+            power = {phase: fit[phase]["power"] if noisy[phase] else [0.0] * len(self.added_power[phase])
                      for phase in noisy}
-            std = {phase: self.added_phase_noise[phase] if noisy[phase] else None for phase in noisy}
+            std = {phase: fit[phase]["noise"] if noisy[phase] else None for phase in noisy}
+            texture = {phase: fit[phase]["texture"] if noisy[phase] else None for phase in noisy}
             transforms.append(ColouredNoise(pore_power=power["pores"], grain_power=power["grains"],
                                             pore_level=self.pore_level, grain_level=self.grain_level,
-                                            pore_std=std["pores"], grain_std=std["grains"]))
+                                            pore_std=std["pores"], grain_std=std["grains"],
+                                            pore_texture=texture["pores"], grain_texture=texture["grains"]))
         if "cupping" in steps:
             transforms.append(BeamHardening(strength=self.cupping_strength, keep="mean"))
         if "rings" in steps:
@@ -240,8 +285,8 @@ class Calibration:
         return transforms
 
     def pipeline(self) -> Compose:
-        """The transforms of `applied_steps`: blur, coloured noise, then the scanner's artefacts."""
-        return Compose(self.transforms(self.applied_steps()))
+        """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid."""
+        return Compose(self.transforms(self.applied_steps()) + ([RoundLevels()] if self.round_levels else []))
 
     def to_dict(self) -> dict:
         """JSON-able dict of every field."""
@@ -386,6 +431,8 @@ def calibrate(
     cupping_strength: float | None = None,
     rings: tuple[Sequence[float], Sequence[float], float] | None = None,
     target_histograms: dict[str, Sequence[float] | None] | None = None,
+    target_semivariogram: dict[str, Sequence[float] | None] | None = None,
+    round_levels: bool = False,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
 ) -> Calibration:
@@ -430,6 +477,11 @@ def calibrate(
         (`~synthpack.source.SourceStatistics.histogram_grains`), or None, which the guard
         measures the pack against (with the noise levels); None: the guard judges the
         noise levels only.
+    target_semivariogram : dict, optional
+        ``"grains"`` and ``"pores"``: the source's texture (`~synthpack.source.SourceStatistics.semivariogram_grains`),
+        or None; None: no texture is fitted.
+    round_levels : bool
+        End the pipeline with `~synthpack.artefacts.RoundLevels` (the source holds whole numbers only).
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
     max_voxels : int
@@ -473,10 +525,24 @@ def calibrate(
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
     cleans = {phase: _clean_ring_powers(measured[phase], len(targets[phase]), clean_noise[phase], textures[phase])
               for phase in targets}
-    added = {phase: np.maximum(targets[phase] - cleans[phase], 0.0) for phase in targets}
-    added_noise = {phase: None if target is None or clean_noise[phase] is None
-                   else math.sqrt(max(target**2 - clean_noise[phase] ** 2, 0.0))
-                   for phase, target in target_phase_noise.items()}
+    gamma_targets = {phase: None if target_semivariogram is None or target_semivariogram.get(phase) is None
+                     else np.asarray(target_semivariogram[phase], dtype=np.float64) for phase in targets}
+    gamma_cleans = (phase_semivariograms(blurred, distance, box_region, interior_depth(target_sigma))
+                    if any(v is not None for v in gamma_targets.values()) else {phase: None for phase in targets})
+    added, added_noise, textured = {}, {}, {}
+    for phase in targets:
+        target_level, clean_level = target_phase_noise.get(phase), clean_noise[phase]
+        level = None if target_level is None or clean_level is None else target_level**2 - clean_level**2
+        powers, highpass, _ = fit_noise_and_texture(targets[phase] - cleans[phase], level, None)
+        added[phase] = np.asarray(powers)
+        added_noise[phase] = None if highpass is None else math.sqrt(highpass)
+        textured[phase] = None
+        if gamma_targets[phase] is not None and gamma_cleans[phase] is not None:
+            powers, highpass, texture = fit_noise_and_texture(targets[phase] - cleans[phase], level,
+                                                              gamma_targets[phase] - gamma_cleans[phase],
+                                                              gamma_targets[phase])
+            textured[phase] = {"power": list(powers), "noise": None if highpass is None else math.sqrt(highpass),
+                               "texture": texture}
     added_levels = [v for v in added_noise.values() if v is not None]
     calibration = Calibration(
         blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
@@ -492,10 +558,17 @@ def calibrate(
         ring_radii=None if rings is None else [float(r) for r in rings[0]],
         ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
         ring_width=None if rings is None else float(rings[2]),
+        target_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_targets.items()},
+        clean_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_cleans.items()},
+        textured=textured, round_levels=bool(round_levels),
     )
     calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
                                calibration_halo(target_sigma))
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in added_noise.items() if std is not None)
+    noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
+                                                       f" {sig(math.sqrt(t['texture'][0]))} over {sig(t['texture'][1], 2)} vx")
+                          for phase, t in textured.items()
+                          if t is not None and f"{phase[:-1]}_texture" in calibration.applied_steps())
     dropped = calibration.guard["dropped"]
     logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s%s",
                 sig(sigma, 2), sig(spread.sigma, 2), sig(target_sigma, 2), noise_text or "none",
@@ -518,5 +591,6 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
     _, record = guard_steps(
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[low:high], dtype=np.float32),
         np.asarray(labels[low:high]), region[low:high], histograms=histograms,
-        noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level)
+        noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
+        requires=REQUIRES)
     return record

@@ -21,6 +21,14 @@ noise has the asked ring powers in expectation. A voxel's noise is the cube's va
 at its global index modulo `TILE`, so it does not depend on how the volume is cut
 into blocks. The cube's white noise is drawn once per volume from the call's seed.
 
+**Texture.** A phase may also get a fine texture (``pore_texture``, ``grain_texture``:
+its variance and correlation length ``(v, sigma)``): white noise filtered by a Gaussian
+of ``sigma`` voxels, of variance ``v`` (`texture_spectrum`), the grain and pore
+texture a scan holds below the scale of its structure and that the noise spectra,
+measured on second differences, do not see (`synthpack.measure.semivariogram`). Its
+spectrum is added to the phase's noise spectrum before the filtering, so one field
+carries both.
+
 **Phases.** A voxel of intensity ``x`` (before the noise) is a fraction
 ``w = clip((x - pore_level) / (grain_level - pore_level), 0, 1)`` grain, and gets
 ``sqrt(1 - w) n_pore + sqrt(w) n_grain``: its variance is interpolated linearly
@@ -42,7 +50,9 @@ from scipy import optimize
 
 from .._shared.arrays import float32_value as _f32
 from .._shared.arrays import periodic_indices, periodic_window
+from ..measure.semivariogram import LAGS
 from ..measure.spectrum import NPS_PATCH, patch_lags, patch_ring_powers, slice_difference_gain
+from ..errors import SynthpackInputError
 from ._base import BlockContext, Transform
 from ._param import Param
 
@@ -51,10 +61,13 @@ if TYPE_CHECKING:
 
     from .torch_blocks import DeviceVolume
 
-__all__ = ["ColouredNoise", "TILE", "highpass_variance_of_spectrum", "ring_powers_of_spectrum", "spectrum_for_rings"]
+__all__ = ["ColouredNoise", "TEXTURE_SIGMAS", "TILE", "fit_noise_and_texture", "highpass_variance_of_spectrum",
+           "ring_powers_of_spectrum", "semivariogram_of_spectrum", "spectrum_for_rings", "texture_spectrum"]
 
 #: Period (voxels) of the noise cubes along each axis.
 TILE = 64
+#: The correlation lengths (voxels) a texture is fitted over (`fit_noise_and_texture`).
+TEXTURE_SIGMAS = tuple(round(0.3 + 0.1 * i, 1) for i in range(28))
 
 
 def _hats(n_knots: int, tile: int) -> np.ndarray:
@@ -106,6 +119,53 @@ def highpass_variance_of_spectrum(spectrum: np.ndarray) -> float:
     return float(np.mean(spectrum * gain[:, None, None] * gain[None, :, None] * gain[None, None, :]))
 
 
+def semivariogram_of_spectrum(spectrum: np.ndarray, lags: int = LAGS) -> np.ndarray:
+    """Expected in-slice semivariogram (`synthpack.measure.semivariogram`) of noise with 3D spectrum `spectrum`.
+
+    ``gamma(k) = mean(S(f) (1 - cos(2 pi f_x k)))``, averaged over the y and x axes.
+
+    Parameters
+    ----------
+    spectrum : ndarray of float64, shape (T, T, T)
+        As for `ring_powers_of_spectrum`.
+    lags : int
+        Lags ``1 .. lags`` voxels.
+
+    Returns
+    -------
+    ndarray of float64, shape (lags,)
+        Intensity units squared.
+    """
+    f = np.fft.fftfreq(spectrum.shape[0])
+    marginal_y, marginal_x = spectrum.mean(axis=(0, 2)), spectrum.mean(axis=(0, 1))
+    return np.array([np.mean([np.sum(m * (1.0 - np.cos(2.0 * np.pi * f * k))) / len(f)
+                              for m in (marginal_y, marginal_x)]) for k in range(1, lags + 1)])
+
+
+def texture_spectrum(variance: float, sigma: float, tile: int = TILE) -> np.ndarray:
+    """The 3D spectrum of white noise filtered by a Gaussian of `sigma` voxels, scaled to `variance`.
+
+    Parameters
+    ----------
+    variance : float
+        Intensity units squared (>= 0).
+    sigma : float
+        Correlation length, voxels (> 0).
+    tile : int
+
+    Returns
+    -------
+    ndarray of float64, shape (tile, tile, tile)
+        ``S(f)`` with ``mean(S) = variance``; read-only.
+    """
+    f = np.fft.fftfreq(tile)
+    gain = np.exp(-4.0 * np.pi**2 * sigma**2 * f**2)
+    spectrum = gain[:, None, None] * gain[None, :, None] * gain[None, None, :]
+    spectrum *= variance / spectrum.mean()
+    spectrum.flags.writeable = False
+    return spectrum
+
+
 @functools.lru_cache(maxsize=16)
 def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None, tile: int = TILE) -> np.ndarray:
     """The isotropic 3D spectrum whose expected ring powers are `powers` (see the module docstring).
@@ -142,15 +202,90 @@ def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None,
     return spectrum
 
 
+@functools.lru_cache(maxsize=128)
+def _responses(n_rings: int, highpass: bool, sigma: float | None, tile: int = TILE) -> np.ndarray:
+    """Ring powers, highpass variance (if `highpass`) and semivariogram of the knots' hats
+    (``sigma`` None; shape (rows, knots)) or of a unit-variance texture of `sigma` (shape (rows, 1))."""
+    spectra = (_hats(n_rings + highpass, tile) if sigma is None else texture_spectrum(1.0, sigma, tile)[None])
+    rows = [[*ring_powers_of_spectrum(s, n_rings), *([highpass_variance_of_spectrum(s)] if highpass else []),
+             *semivariogram_of_spectrum(s)] for s in spectra]
+    return np.asarray(rows).T
+
+
+def fit_noise_and_texture(
+    powers: Sequence[float], highpass: float | None, semivariogram: Sequence[float] | None,
+    scale: Sequence[float] | None = None, tile: int = TILE,
+) -> tuple[tuple[float, ...], float | None, list[float] | None]:
+    """Split what a pack lacks into noise (`spectrum_for_rings`) and a fine texture (`texture_spectrum`).
+
+    The ring powers and noise level that second differences measure see little of a
+    texture correlated over a voxel or two; the semivariogram sees both. One spectrum,
+    the knots of `spectrum_for_rings` plus a texture of one of `TEXTURE_SIGMAS`, is fitted
+    to all of them by non-negative least squares (the rings and the level weighed as in
+    `spectrum_for_rings`, each lag relative to `scale`), for each correlation length; the
+    best fit wins. Without a `semivariogram`, the noise of the clipped `powers` and
+    `highpass` and no texture.
+
+    Parameters
+    ----------
+    powers : sequence of float
+        Ring powers to add (``k = 1, 2, ...``; may be negative where the pack has more), intensity units squared.
+    highpass : float or None
+        Noise variance to add (`highpass_variance_of_spectrum`), or None (not matched).
+    semivariogram : sequence of float or None
+        Semivariogram to add at lags ``1, 2, ...`` voxels (`synthpack.measure.semivariogram`), or None.
+    scale : sequence of float, optional
+        The source's semivariogram, which each lag's error is taken relative to (default `semivariogram`).
+    tile : int
+
+    Returns
+    -------
+    powers : tuple of float
+        The noise's ring powers (>= 0): with `highpass`, what `ColouredNoise` synthesises the noise from.
+    highpass : float or None
+        The noise's variance as `highpass_variance_of_spectrum` sees it.
+    texture : list of 2 float or None
+        ``[variance, sigma]`` of the texture; None where none is fitted.
+    """
+    powers = np.asarray(powers, dtype=np.float64)
+    clipped = np.maximum(powers, 0.0)
+    high = None if highpass is None else max(float(highpass), 0.0)
+    if semivariogram is None:
+        return tuple(clipped.tolist()), high, None
+    noise_target = np.append(clipped, [] if high is None else [high])
+    target = np.concatenate([np.append(powers, [] if high is None else [highpass]), semivariogram])
+    scale = np.abs(np.asarray(semivariogram if scale is None else scale, dtype=np.float64))
+    weight = np.concatenate([1.0 / (noise_target + max(noise_target.max(), np.finfo(float).tiny)),
+                             1.0 / np.maximum(scale, np.finfo(float).tiny)])
+    hats = _responses(len(powers), high is not None, None, tile)
+    best: tuple[float, np.ndarray, float] | None = None
+    for sigma in TEXTURE_SIGMAS:
+        response = np.hstack([hats, _responses(len(powers), high is not None, sigma, tile)])
+        solution, residual = optimize.nnls(response * weight[:, None], target * weight)
+        if best is None or residual < best[0]:
+            best = (residual, solution, sigma)
+    _, solution, sigma = best
+    noise = hats @ solution[:-1]
+    variance = float(solution[-1])
+    return (tuple(noise[: len(powers)].tolist()), None if high is None else float(noise[len(powers)]),
+            [variance, sigma] if variance > 0 else None)
+
+
 @functools.lru_cache(maxsize=8)
-def _field(powers: tuple[float, ...], highpass: float | None, tile: int, key: tuple[int, ...]) -> np.ndarray:
-    """A periodic cube of noise of `spectrum_for_rings`, from the white noise of `key`; float32, read-only."""
-    if not any(powers) and not highpass:
+def _field(powers: tuple[float, ...], highpass: float | None, texture: tuple[float, ...] | None, tile: int,
+           key: tuple[int, ...]) -> np.ndarray:
+    """A periodic cube of noise of `spectrum_for_rings` plus `texture_spectrum` of ``texture = (variance, sigma)``,
+    from the white noise of `key`; float32, read-only."""
+    spectrum = np.zeros((tile,) * 3)
+    if any(powers) or highpass:
+        spectrum = spectrum + spectrum_for_rings(powers, highpass, tile)
+    if texture is not None and texture[0] > 0:
+        spectrum = spectrum + texture_spectrum(float(texture[0]), float(texture[1]), tile)
+    if not spectrum.any():
         field = np.zeros((tile,) * 3, dtype=np.float32)
     else:
         white = np.random.default_rng(list(key)).standard_normal((tile,) * 3)
-        filter_ = np.sqrt(spectrum_for_rings(powers, highpass, tile))
-        field = np.fft.ifftn(np.fft.fftn(white) * filter_).real.astype(np.float32)
+        field = np.fft.ifftn(np.fft.fftn(white) * np.sqrt(spectrum)).real.astype(np.float32)
     field.flags.writeable = False
     return field
 
@@ -173,6 +308,9 @@ class ColouredNoise(Transform):
         Also the noise level as `~synthpack.measure.estimate_noise` measures it (3D second
         differences), intensity units, in each phase: it pins the spectrum's 3D high
         frequencies (`spectrum_for_rings`). Default None.
+    pore_texture, grain_texture : list of 2 float or None
+        A fine texture in each phase, ``(variance, sigma)``: intensity units squared and
+        its correlation length, voxels (`texture_spectrum`). Default None (none).
     p : float
         Probability of applying the transform at a call. Default 1.
     """
@@ -185,19 +323,28 @@ class ColouredNoise(Transform):
         Param("grain_level", rangeable=False),
         Param("pore_std", minimum=0.0, optional=True, rangeable=False),
         Param("grain_std", minimum=0.0, optional=True, rangeable=False),
+        Param("pore_texture", kind="floats", minimum=0.0, optional=True, rangeable=False),
+        Param("grain_texture", kind="floats", minimum=0.0, optional=True, rangeable=False),
     )
 
     def __init__(
         self, pore_power: Sequence[float], grain_power: Sequence[float], pore_level: float, grain_level: float,
-        pore_std: float | None = None, grain_std: float | None = None, *, p: float = 1.0,
+        pore_std: float | None = None, grain_std: float | None = None,
+        pore_texture: Sequence[float] | None = None, grain_texture: Sequence[float] | None = None, *, p: float = 1.0,
     ) -> None:
+        for name, texture in (("pore_texture", pore_texture), ("grain_texture", grain_texture)):
+            if texture is not None and (len(texture) != 2 or not texture[1] > 0):
+                raise SynthpackInputError(f"{name} must be (variance, sigma) with sigma > 0 voxels, not {texture!r}")
         super().__init__(pore_power=pore_power, grain_power=grain_power, pore_level=pore_level,
-                         grain_level=grain_level, pore_std=pore_std, grain_std=grain_std, p=p)
+                         grain_level=grain_level, pore_std=pore_std, grain_std=grain_std,
+                         pore_texture=pore_texture, grain_texture=grain_texture, p=p)
 
     @staticmethod
     def _tiles(key: tuple[int, ...], **params: Any) -> tuple[np.ndarray, np.ndarray]:
         """The pore and the grain noise cubes of the white noise of `key`: float32, shape (TILE,) * 3, read-only."""
-        pore, grain = (_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]), TILE, key + (k,))
+        pore, grain = (_field(tuple(params[f"{phase}_power"]), _square(params[f"{phase}_std"]),
+                              None if params[f"{phase}_texture"] is None else tuple(params[f"{phase}_texture"]),
+                              TILE, key + (k,))
                        for k, phase in enumerate(("pore", "grain")))
         return pore, grain
 

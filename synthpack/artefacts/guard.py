@@ -27,8 +27,10 @@ step whose leaving out makes some figure better and none worse (beyond the
 tolerances) is left out too. A step left out is dropped: it made the pack less like
 its source.
 
-Every drop is logged as a warning. The guard is deterministic, and its cost fixed (at
-most ``2^5`` subsets of the calibration's at most
+A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
+noise and replaces it), and subsets without it are not tried. Every drop is logged as a
+warning. The guard is deterministic, and its cost fixed (at most 72 subsets: the blur,
+cupping and rings each on or off, each phase's noise off, on or with its texture; of the calibration's at most
 `~synthpack.artefacts.calibrate.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
 (``calibration_guard``, keyed by the step's kind), so that the figures with and without
 a step compare the same noise realisation.
@@ -140,6 +142,7 @@ def guard_steps(
     histograms: Mapping[str, Sequence[float] | None],
     noise: Mapping[str, float | None],
     contrast: float,
+    requires: Mapping[str, str] | None = None,
 ) -> tuple[tuple[str, ...], dict]:
     """The steps to keep: the admissible subset most like the source (see the module docstring).
 
@@ -157,6 +160,9 @@ def guard_steps(
         Where to measure.
     histograms, noise, contrast
         The source's figures, as `figures` takes them.
+    requires : dict of str to str, optional
+        A step that is only applied with another (a phase's texture with its noise): subsets
+        with the first and not the second are not tried.
 
     Returns
     -------
@@ -179,15 +185,20 @@ def guard_steps(
             out = transform(out, generator(0, "calibration_guard", kind))
         return figures(out[box], masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast)
 
-    steps = tuple(steps)
-    subsets = [tuple(s for i, s in enumerate(steps) if chosen >> i & 1) for chosen in range(2 ** len(steps))]
+    steps, requires = tuple(steps), dict(requires or {})
+
+    def valid(subset: tuple[str, ...]) -> bool:
+        return all(requires[s] in subset for s in subset if s in requires)
+
+    subsets = [subset for chosen in range(2 ** len(steps))
+               if valid(subset := tuple(s for i, s in enumerate(steps) if chosen >> i & 1))]
     measured = {subset: at(subset) for subset in subsets}
     none, fitted = measured[()], measured[steps]
     admissible = [s for s in subsets if _admissible(measured[s], none)]
     kept = min(admissible, key=lambda s: (-len(s), sum(measured[s].values()), subsets.index(s)))
     while True:
-        better = next((w for w in (tuple(k for k in kept if k != s) for s in kept) if _better(measured[w], measured[kept])),
-                      None)
+        better = next((w for w in (tuple(k for k in kept if k != s) for s in kept)
+                       if valid(w) and _better(measured[w], measured[kept])), None)
         if better is None:
             break
         kept = better

@@ -1,9 +1,11 @@
-"""The scanner's intensity response: contrast and gamma between the two phase levels.
+"""The scanner's intensity response: contrast and gamma between the two phase levels, and the grey-level grid.
 
 A scan's grey values are a monotone function of the attenuation that differs from
 one scanner, reconstruction and export to the next: the grain-pore contrast
 is stretched or squeezed, and the response is bent (a gamma). `ContrastGamma`
 applies such a response point by point, between a pore and a grain level.
+Most scans are then stored as whole numbers (8 or 16 bit): `RoundLevels` puts a
+volume on that grid, so that its neighbour differences come in the same steps.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ if TYPE_CHECKING:
 
     from .torch_blocks import DeviceVolume
 
-__all__ = ["ContrastGamma"]
+__all__ = ["ContrastGamma", "RoundLevels"]
 
 
 class ContrastGamma(Transform):
@@ -96,3 +98,33 @@ def _response(image: Any, sign: Callable[[Any], Any], *, contrast: float, gamma:
     middle = _f32(0.5 * (pore_level + grain_level))
     out = _f32(pore_level) + span * bent
     return middle + _f32(contrast) * (out - middle)
+
+
+class RoundLevels(Transform):
+    """Round the intensities to the nearest multiple of `step`: the grey-level grid of a scan stored as integers.
+
+    A voxel transform; float32 in and out.
+
+    Parameters
+    ----------
+    step : float
+        Grid spacing, intensity units (> 0). Default 1: whole numbers.
+    p : float
+        Probability of applying the transform at a call. Default 1.
+    """
+
+    name = "round_levels"
+    params = (Param("step", minimum=0.0, exclusive_minimum=True, rangeable=False),)
+
+    def __init__(self, step: float = 1.0, *, p: float = 1.0) -> None:
+        super().__init__(step=step, p=p)
+
+    def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: float) -> np.ndarray:
+        step = _f32(params["step"])
+        return (np.round(image / step) * step).astype(np.float32, copy=False)
+
+    def _transform_block_torch(
+        self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: float
+    ) -> torch.Tensor:
+        step = _f32(params["step"])
+        return (block / step).round_() * step

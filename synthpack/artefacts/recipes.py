@@ -9,9 +9,10 @@ manifest:
 ``calibrated``    the default (`~synthpack.pipeline.config.PackConfig`): the source's image formation,
                   fitted in the pack's bulk region (`bulk_region`; `~synthpack.artefacts.calibrate`):
                   a Gaussian PSF that gives the source's edge spread, then noise with the
-                  source's noise power spectrum in grains and pores, less what the clean pack
-                  already holds, then the source's cupping and rings where it shows them
-                  (measured, fixed, about the tube axis); all recorded under ``calibration``
+                  source's noise power spectrum and fine texture in grains and pores, less what
+                  the clean pack already holds, then the source's cupping and rings where it
+                  shows them (measured, fixed, about the tube axis), then the source's grey-level
+                  grid where it holds whole numbers; all recorded under ``calibration``
                   (the render's partial volume, also fitted to the source, under
                   ``partial_volume``; its tube wall under ``wall``). Where
                   it cannot be fitted (the source's edges or noise spectrum were not measured,
@@ -196,7 +197,9 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
             "grain_level": statistics.grain_mean, "cupping_strength": statistics.cupping_strength, "rings": rings,
             "target_histograms": {"grains": statistics.histogram_grains, "pores": statistics.histogram_pores,
-                                  "edges": statistics.histogram_edges}}
+                                  "edges": statistics.histogram_edges},
+            "target_semivariogram": {"grains": statistics.semivariogram_grains, "pores": statistics.semivariogram_pores},
+            "round_levels": bool(statistics.whole_levels)}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:

@@ -9,6 +9,7 @@ means the same on both. Modules, one job each:
 ``edges``             signed distance from grain boundaries, edge profile and 10-90 width
 ``psf``               `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
 ``spectrum``          noise power spectrum of the grain and pore interiors, on their noise only (differences across slices)
+``semivariogram``     the fine texture of grain and pore interiors: their in-slice semivariogram at lags 1-4 voxels
 ``phase_histograms``  full-band intensity histograms (quantiles) of grains, pores and edges, and their distance
 ``pore_spectrum``     the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
 ``pore_histogram``    the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
@@ -30,6 +31,7 @@ from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_o
 from .psf import EdgeSpread, fit_edge_spread
 from .roughness import section_roughness, volume_roughness
 from .scanner import ScannerArtefacts, measure_scanner
+from .semivariogram import phase_semivariograms, semivariogram
 from .spectral_spikes import SpectralSpikes, spectral_spikes
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
 
@@ -54,6 +56,7 @@ __all__ = [
     "NPS_PATCH",
     "phase_masks",
     "phase_quantiles",
+    "phase_semivariograms",
     "phase_spectra",
     "PhaseLevels",
     "PORE_SPECTRUM_SIZE",
@@ -61,6 +64,7 @@ __all__ = [
     "QUANTILE_SCORES",
     "ScannerArtefacts",
     "section_roughness",
+    "semivariogram",
     "signed_distance",
     "SpectralSpikes",
     "spectral_spikes",

@@ -261,23 +261,23 @@ def bulk_shortfall(region: dict[str, float], n_grains: int | None) -> str:
     Returns
     -------
     str
-        One line, e.g. ``"the pack is 2.3 grain diameters deep and a bulk needs more than 3;
-        pour about 35 grains: --n-particles 35, or pour.n_particles: 35 in a config"``.
+        One short phrase, e.g. ``"2.3 diameters deep, a bulk needs > 3; pour ~35: --n-particles 35
+        (pour.n_particles)"`` (grain diameters; the CLI flag, then the config key).
     """
-    ask = "--n-particles, or pour.n_particles in a config"
+    ask = "--n-particles (pour.n_particles)"
     if region["radius"] <= 0:
-        return "the tube is too narrow for a bulk away from its wall; widen it: --tube-radius, or pour.tube_radius"
+        return "the tube is too narrow for a bulk away from its wall: widen it, --tube-radius (pour.tube_radius)"
     diameter = region["z_min"] / BULK_FLOOR_MARGIN
     if diameter <= 0:
         return f"pour more grains: {ask}"
     least = BULK_FLOOR_MARGIN + BULK_TOP_MARGIN
     depth = (region["z_max"] + BULK_TOP_MARGIN * diameter) / diameter  # the pack's top, in grain diameters
-    shallow = (f"the pack is {depth:.1f} grain diameters deep and a bulk needs more than {least:g}" if depth <= least
-               else f"the pack's bulk is too thin to measure ({depth - least:.2f} grain diameters deep)")
+    shallow = (f"{depth:.1f} diameters deep, a bulk needs > {least:g}" if depth <= least
+               else f"bulk {depth - least:.2f} diameters deep, too thin")
     if not n_grains or depth <= 0:
         return f"{shallow}; pour more grains: {ask}"
     needed = max(math.ceil(n_grains * (least + 1) / depth), n_grains + 1)
-    return f"{shallow}; pour about {needed} grains: --n-particles {needed}, or pour.n_particles: {needed} in a config"
+    return f"{shallow}; pour ~{needed}: --n-particles {needed} (pour.n_particles)"
 
 
 def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

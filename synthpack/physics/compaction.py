@@ -487,7 +487,7 @@ def report_target(checks: PourChecks, target: float | None, controller: PackingC
     reached = checks.packing_fraction
     if math.isnan(reached):
         n_grains = None if controller is None else len(controller.meshes)
-        logger.warning("target %.3f not judged (no bulk region: %s)", target,
+        logger.warning("target %.3f not judged (%s)", target,
                        bulk_shortfall(checks.packing_region, n_grains))
         return checks
     checks.target_reached = bool(abs(reached - target) <= TARGET_TOLERANCE)

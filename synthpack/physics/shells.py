@@ -18,7 +18,11 @@ the shell's gap). ``pour.target_coordination`` asks for a mean coordination numb
   of the built-in samples (``large`` and ``small``, targets 0.25-0.30, 150-300 grains):
   3.0-3.4 in six packs of seven (median 3.2), below a free pour's coordination (5.0 for
   the concrete scan's aggregates) because a bare grain is smaller than its shelled
-  neighbours, so it touches fewer of them and a smaller share of those are bare;
+  neighbours, so it touches fewer of them and a smaller share of those are bare. Those
+  grains were drawn evenly, as a scan in a container gives them (the concrete scan's); the
+  `large` sample drawn by its window weights (`synthpack.library.sampling`: larger grains
+  more often) gives 4.0-4.7 (three seeds, target 1.0: 1.25-1.47 contacts per grain), so
+  there the prior overshoots;
 * the other grains of each batch get shells thick enough that the batch's mean
   collision volume stays that of the knob's equal shells (:func:`shell_inflations`),
   so the solid fraction the knob steers (and its prior model) holds.

@@ -21,6 +21,7 @@ from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
 from ..measure.phase_histograms import phase_masks, phase_quantiles
 from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
+from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import phase_interiors, phase_spectra
 
 logger = logging.getLogger(__name__)
@@ -129,6 +130,17 @@ class SourceStatistics:
         Fraction of the scan's four side faces that lie in its specimen
         (`~synthpack.measure.specimen.edge_coverage`), dimensionless; with no wall
         measured, it says whether the scan is an interior crop (`interior_crop`).
+    semivariogram_grains, semivariogram_pores : tuple of float or None
+        The fine texture of the grain and of the pore interior (eroded as for the noise
+        spectra): the in-slice semivariogram at lags 1 to
+        `~synthpack.measure.semivariogram.LAGS` voxels
+        (`~synthpack.measure.semivariogram.semivariogram`), intensity units squared; what
+        ``postprocess: calibrated`` fills a pack's texture to. None where a phase is too thin
+        to measure, or in a library of an older synthpack.
+    whole_levels : bool or None
+        Whether the scan holds whole numbers only (an integer file, 8 or 16 bit, as most
+        scans are stored): ``postprocess: calibrated`` then puts a pack's intensities on the
+        same grid (`~synthpack.artefacts.RoundLevels`). None in a library of an older synthpack.
     """
 
     pore_mean: float
@@ -159,6 +171,9 @@ class SourceStatistics:
     histogram_edges: tuple[float, ...] | None = None
     coordination: float | None = None
     edge_coverage: float | None = None
+    semivariogram_grains: tuple[float, ...] | None = None
+    semivariogram_pores: tuple[float, ...] | None = None
+    whole_levels: bool | None = None
 
     @property
     def contrast(self) -> float:
@@ -201,6 +216,13 @@ class SourceStatistics:
     def from_dict(cls, data: Mapping[str, float | list[float]]) -> SourceStatistics:
         """Read back what `to_dict` wrote (a missing optional field is None)."""
         return cls(**{name: tuple(value) if isinstance(value, list) else value for name, value in data.items()})
+
+
+def _whole_levels(tomogram: np.ndarray) -> bool:
+    """Whether `tomogram` holds whole numbers only: an integer dtype, or floats that are all whole."""
+    if np.issubdtype(tomogram.dtype, np.integer):
+        return True
+    return bool(all(np.array_equal(block, np.round(block)) for block in tomogram))
 
 
 def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int = 0) -> SourceStatistics:
@@ -262,6 +284,9 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                        "packs get a Gaussian pore texture")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
+    spectra.update({f"semivariogram_{phase}": tuple(float(g) for g in gamma)
+                    for phase, gamma in phase_semivariograms(scan.tomogram, distance, specimen, depth).items()
+                    if gamma is not None})
     pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
     if pore_quantiles is not None:
         spectra["pore_quantiles"] = tuple(float(q) for q in pore_quantiles)
@@ -272,7 +297,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
                                   coordination=mean_coordination(scan.labels, specimen, readable=readable),
-                                  edge_coverage=edge_coverage(whole),
+                                  edge_coverage=edge_coverage(whole), whole_levels=_whole_levels(scan.tomogram),
                                   **(scanner.statistics_fields() if scanner is not None else {}))
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
