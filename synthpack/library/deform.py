@@ -50,6 +50,7 @@ from .._shared.schema import in_range, setting
 from .._shared.seeds import stream
 from .core import ParticleLibrary
 from .particles import Particle
+from .sampling import draw
 
 logger = logging.getLogger(__name__)
 
@@ -394,7 +395,7 @@ def pack_grains(library: ParticleLibrary, n_particles: int, deform: DeformConfig
     if deform.strength == 0:
         return None
     sequence = stream(seed, "grains")
-    sources = np.random.default_rng(sequence).choice(len(library), n_particles, p=library.draw_weights).astype(np.int64)
+    sources = draw(np.random.default_rng(sequence), library.draw_weights, n_particles)
     seeds = [int(s) for s in sequence.spawn(1)[0].generate_state(n_particles, np.uint32)]
     particles, factors = _deformed(library, sources, seeds, deform)
     damped = sum(f < 1 for f in factors)

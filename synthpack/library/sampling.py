@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["cut_axes", "window_weights"]
+__all__ = ["cut_axes", "draw", "window_weights"]
 
 
 def cut_axes(labels: np.ndarray) -> tuple[bool, bool, bool]:
@@ -94,3 +94,30 @@ def window_weights(
         kept *= np.maximum(along, 1e-9)  # every library grain was kept, so none has a zero chance
     weights = 1.0 / kept
     return weights / weights.sum()
+
+
+def draw(rng: np.random.Generator, weights: np.ndarray, n: int, members: np.ndarray | None = None) -> np.ndarray:
+    """`n` indices drawn with replacement by `weights`, restricted to `members` if given.
+
+    Even weights draw as synthpack 0.8 drew every library (``rng.integers``), so a scan
+    whose faces cut no grain gets the packs it got before the weights.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    weights : ndarray of float, shape (N,)
+        Draw weights of all N grains (`window_weights`).
+    n : int
+    members : ndarray of int, optional
+        The indices that may be drawn (a size class); default all.
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+    """
+    weights = np.asarray(weights, dtype=np.float64)
+    chosen = weights if members is None else weights[members]
+    p = None if chosen.size and np.all(chosen == chosen[0]) else chosen / chosen.sum()
+    if members is None:
+        return (rng.integers(0, len(weights), n) if p is None else rng.choice(len(weights), n, p=p)).astype(np.int64)
+    return rng.choice(np.asarray(members), size=n, replace=True, p=p).astype(np.int64)

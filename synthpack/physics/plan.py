@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from .._shared.seeds import generator
 from ..errors import SynthpackInputError
+from ..library.sampling import draw
 from .container import LibraryLike, Tube
 
 logger = logging.getLogger(__name__)
@@ -248,7 +249,7 @@ def _draw_indices(
     """Library indices of `n` grains, with replacement by the library's `draw_weights`, optionally per size class."""
     weights = np.asarray(library.draw_weights, dtype=float)
     if classes is None:
-        return rng.choice(len(library), size=n, replace=True, p=weights).astype(np.int64)
+        return draw(rng, weights, n)
     diameters = np.asarray(library.equivalent_diameters, dtype=float)
     counts = _largest_remainder([f for _, _, f in classes], n)
     chosen = []
@@ -260,8 +261,7 @@ def _draw_indices(
                 f"(the library spans {diameters.min():g} .. {diameters.max():g}); "
                 "adjust size_classes."
             )
-        chosen.append(rng.choice(members, size=count, replace=True, p=weights[members] / weights[members].sum())
-                      if count else members[:0])
+        chosen.append(draw(rng, weights, count, members) if count else members[:0])
     return rng.permutation(np.concatenate(chosen)).astype(np.int64)
 
 
