@@ -121,7 +121,8 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
                                     "edge_sigma", "noise_grain_std", "noise_pore_std", "nps_grains", "nps_pores",
                                     "pore_spectrum", "pore_quantiles", "scan_axis", "cupping_error",
                                     "solid_fraction", "histogram_grains", "histogram_pores",
-                                    "histogram_edges", "coordination", "edge_coverage"]  # the sample shows no scanner artefact
+                                    "histogram_edges", "coordination", "edge_coverage", "semivariogram_grains",
+                                    "semivariogram_pores", "whole_levels"]  # the sample shows no scanner artefact
     assert large_library[:2].statistics is large_library.statistics
 
 
