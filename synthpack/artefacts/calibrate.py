@@ -96,10 +96,10 @@ from ..errors import SynthpackInputError
 from ..measure.edges import EdgeProfile, edge_profile, edge_width, interior_depth, signed_distance
 from ..measure.noise_estimate import estimate_noise
 from ..measure.psf import EdgeSpread, fit_edge_spread
+from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ._base import Compose, Transform
 from .blur import GaussianBlur
-from ..measure.semivariogram import phase_semivariograms
 from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
 from .intensity import RoundLevels
 from .guard import guard_steps
