@@ -230,6 +230,10 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
     assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
     assert "median section roughness" in (out / "realism.md").read_text()
+    for specimen in (report["source"], *report["packs"]):
+        assert specimen["figures"]["pore_width_median"] >= 1 and 0 <= specimen["figures"]["pore_narrow_share"] <= 1
+    assert all(0 <= pack["distances"]["ks_pore_width"] <= 1 for pack in report["packs"])
+    assert "median pore half-width" in (out / "realism.md").read_text()
     printed = capsys.readouterr().out
     assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed
     # without packs: the source and its floor only

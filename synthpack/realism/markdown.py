@@ -229,6 +229,9 @@ def report_markdown(report: dict) -> str:
         _row("median section roughness (outline / smoothed outline)", "roughness_median", source, packs,
              ks="ks_roughness"),
         _row("90th percentile of the section roughness", "roughness_p90", source, packs),
+        _row("median pore half-width (voxels; local thickness / 2)", "pore_width_median", source, packs,
+             ks="ks_pore_width"),
+        _row("share of the pore space in gaps at most 4 voxels wide", "pore_narrow_share", source, packs),
         ["fabric eigenvalues (1/3 each isotropic)",
          *[" / ".join(f"{v:.2f}" for v in (f["figures"]["fabric_eigenvalues"] or [])) or "n/a"
            for f in (source, *packs)]],

@@ -60,6 +60,7 @@ from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfi
                             specimen_patches)
 from .floor import DEFAULT_SLAB, check_slab, floor_test
 from .region import Specimen
+from ..measure.pore_width import pore_half_widths
 from ..measure.specimen import solid_fraction
 from .structure import GrainTable, fabric_eigenvalues, grain_table, ks_distance
 from .targets import pack_targets, pour_key, worse_than_none
@@ -67,6 +68,9 @@ from .targets import pack_targets, pour_key, worse_than_none
 logger = logging.getLogger(__name__)
 
 __all__ = ["Measurements", "RealismReport", "compare", "measure", "REPORT_OUTPUT"]
+
+#: Pore voxels at most this half-width (voxels) are in narrow channels: gaps up to 4 voxels wide.
+NARROW = 2
 
 #: A report folder: an earlier report (``realism.json``) is replaced, anything else is refused.
 REPORT_OUTPUT = Output("realism report", marker="realism.json")
@@ -87,6 +91,9 @@ class Measurements:
         Windowed patches for the classifier tests.
     patch_corners : ndarray of int64, shape (N, 3)
         Their ``(z, y0, x0)`` corners (the floor splits the source's by slice).
+    pore_widths : ndarray of int64, shape (M,)
+        The local half-width of every pore voxel of the region, voxels
+        (`~synthpack.measure.pore_width.pore_half_widths`).
     """
 
     specimen: Specimen
@@ -95,6 +102,7 @@ class Measurements:
     appearance: Appearance
     patches: np.ndarray
     patch_corners: np.ndarray
+    pore_widths: np.ndarray
 
     def figures(self) -> dict:
         """Scalar figures of this specimen (JSON-able; None where not measurable)."""
@@ -114,6 +122,8 @@ class Measurements:
             "fabric_eigenvalues": fabric_eigenvalues(g.long_axis).tolist() if len(g) else None,
             "roughness_median": _median(g.roughness),
             "roughness_p90": float(np.percentile(g.roughness, 90)) if len(g.roughness) else None,
+            "pore_width_median": _median(self.pore_widths),
+            "pore_narrow_share": float(np.mean(self.pore_widths <= NARROW)) if len(self.pore_widths) else None,
             "pore_level": a.profile.pore_level,
             "grain_level": a.profile.grain_level,
             "noise_grain": a.noise.grain_std,
@@ -147,7 +157,8 @@ def measure(
     logger.info("measuring %s", specimen.name)
     patches, corners = specimen_patches(specimen, window, size=patch, max_patches=max_patches)
     return Measurements(specimen, solid_fraction(specimen.labels, specimen.region), grain_table(specimen),
-                        measure_appearance(specimen), patches, corners)
+                        measure_appearance(specimen), patches, corners,
+                        pore_half_widths(specimen.labels, specimen.region))
 
 
 def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -172,6 +183,7 @@ def distances(source: Measurements, pack: Measurements) -> dict:
         f"ks_{name}": _ks(getattr(sg, name), getattr(pg, name))
         for name in ("diameter", "sphericity", "elongation", "flatness", "coordination", "axis_cosine", "roughness")
     }
+    result["ks_pore_width"] = _ks(source.pore_widths, pack.pore_widths)
     for phase, values in sa.samples.items():
         result[f"wasserstein_{phase}"] = float(stats.wasserstein_distance(values, pa.samples[phase]) / contrast)
     result["edge_half_height_shift"] = pa.half_height - sa.half_height
