@@ -316,13 +316,20 @@ def test_the_guard_drops_a_noise_step_fitted_to_structure_and_records_it(rendere
     assert all(figures["applied"][name] <= figures["none"][name] + TOLERANCE[name] for name in figures["none"])
 
 
-def test_the_guard_applies_the_admissible_steps_most_like_the_source(phantom):
+@pytest.fixture
+def guarded(phantom):
+    """The phantom (clean), its labels, a whole-volume region, and the figures of a source with white noise of 0.02."""
     clean, labels = phantom
     source = GaussianNoise(std=0.02)(clean, 1)
     region = np.ones(labels.shape, dtype=bool)
     noise = estimate_noise(source, labels)
     targets = {"histograms": phase_quantiles(source, phase_masks(signed_distance(labels), region)),
                "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6}
+    return clean, labels, region, targets
+
+
+def test_the_guard_applies_the_admissible_steps_most_like_the_source(guarded):
+    clean, labels, region, targets = guarded
     steps = {"blur": GaussianBlur(sigma=2.0), "noise": GaussianNoise(std=0.02), "loud": GaussianNoise(std=0.1),
              "idle": GaussianNoise(std=0.0)}
 
@@ -336,14 +343,9 @@ def test_the_guard_applies_the_admissible_steps_most_like_the_source(phantom):
     assert kept == () and record["figures"]["applied"] == record["figures"]["none"]
 
 
-def test_the_guard_drops_a_texture_and_keeps_the_noise_it_refines(phantom):
+def test_the_guard_drops_a_texture_and_keeps_the_noise_it_refines(guarded):
     """A step that needs another (a phase's texture needs its noise) is tried only with it, and dropped alone."""
-    clean, labels = phantom
-    source = GaussianNoise(std=0.02)(clean, 1)
-    region = np.ones(labels.shape, dtype=bool)
-    noise = estimate_noise(source, labels)
-    targets = {"histograms": phase_quantiles(source, phase_masks(signed_distance(labels), region)),
-               "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6}
+    clean, labels, region, targets = guarded
     # the "texture" replaces the noise by a far louder one: worse than the noise alone
     steps = {"noise": [GaussianNoise(std=0.02)], "noise+texture": [GaussianNoise(std=0.1)]}
     built = []
