@@ -510,3 +510,26 @@ def test_engines_refuse_bad_bodies_with_input_errors():
         engine.simulate(scene([body(0)], TubeSpec(2.0, 0.0, 0.2, 0.2)))
     with pytest.raises(SynthpackInputError, match="takes PybulletConfig options"):
         engine.simulate(scene([body(0)], options=ENGINES["blender"].options()))
+
+
+def test_a_decomposition_is_made_once_per_grain_and_scaled_for_every_shell(large_library):
+    """Spacing and shrinking shells change a grain's collider every batch: V-HACD runs once, its parts are scaled."""
+    from synthpack.physics._bullet import Client
+
+    particle = large_library[0]
+    body = Body(vertices=np.asarray(particle.mesh.vertices), faces=np.asarray(particle.mesh.faces), mass=1.0,
+                center_mass=np.asarray(particle.mesh.center_mass), orientation=np.array([1.0, 0, 0, 0]),
+                spawn_offset=np.zeros(3), batch=0)
+    material = PourConfig(collision_shape="decomposition").material()
+    client, shapes, parts = Client(), {}, {}
+    try:
+        true = pybullet_engine._shape_for(client, body, shapes, material, 64, 0.0, parts)
+        (decomposed,) = parts.values()
+        shell = pybullet_engine._shape_for(client, body, shapes, material, 64, 0.2, parts)
+    finally:
+        client.close()
+    assert len(parts) == 1 and parts[next(iter(parts))] is decomposed  # no second V-HACD run
+    assert len(shapes) == 2 and shell.shape_id != true.shape_id
+    span = np.ptp(true.hull_vertices, axis=0)
+    np.testing.assert_allclose(np.ptp(shell.hull_vertices, axis=0), 1.2 * span, rtol=1e-6)
+    assert shell.protrusion < true.protrusion  # the scaled parts hold more of the true grain

@@ -179,6 +179,7 @@ class _PybulletWorld(World):
         try:
             _configure(client, scene.settle)
             self._shapes: dict[bytes, _Shape] = {}
+            self._parts: dict[bytes, list[trimesh.Trimesh]] = {}  # each grain's V-HACD parts, for every shell
             self._body_shapes = [self._shape(body, 0.0) for body in scene.bodies]
             self._inset = max(shape.protrusion for shape in self._shapes.values())
             logger.debug("Tube colliders inset by %.4f (the grains' largest reach outside their shapes)", self._inset)
@@ -195,7 +196,7 @@ class _PybulletWorld(World):
 
     def _shape(self, body: Body, inflation: float) -> _Shape:
         return _shape_for(self.client, body, self._shapes, self.scene.material,
-                          self.scene.options.max_hull_vertices, inflation)
+                          self.scene.options.max_hull_vertices, inflation, self._parts)
 
     def add_batch(self, members: np.ndarray, positions: np.ndarray, friction: float, inflation: np.ndarray) -> None:
         client, scene, bodies = self.client, self.scene, self.scene.bodies
@@ -326,27 +327,33 @@ def _build_tube(
 
 def _shape_for(
     client: Client, body: Body, cache: dict[bytes, _Shape], material: Material,
-    max_vertices: int | None, inflation: float = 0.0,
+    max_vertices: int | None, inflation: float = 0.0, parts_cache: dict[bytes, list[trimesh.Trimesh]] | None = None,
 ) -> _Shape:
     """Collision shape and inertial frame of `body`, shared by identical geometries.
 
     With `inflation` > 0 the collider is the grain inflated by that fraction of its
     size about its centre of mass (a spacing shell, :mod:`.compaction`), with
     `inflation` < 0 shrunk by it (packing past full compaction); mass, inertia and the
-    pose of the local origin stay those of the true grain.
+    pose of the local origin stay those of the true grain. A decomposition is made once
+    per grain geometry (in `parts_cache`, where given) and its parts scaled for each shell.
     """
     vertices = np.ascontiguousarray(body.vertices, dtype=np.float64)
     faces = np.ascontiguousarray(body.faces, dtype=np.int64)
-    key = vertices.tobytes() + faces.tobytes() + np.float64(body.mass).tobytes() + np.float64(inflation).tobytes()
+    geometry = vertices.tobytes() + faces.tobytes()
+    key = geometry + np.float64(body.mass).tobytes() + np.float64(inflation).tobytes()
     if key in cache:
         return cache[key]
     true_vertices = vertices
+    centre = np.asarray(body.center_mass, dtype=np.float64)
     if inflation != 0:
-        centre = np.asarray(body.center_mass, dtype=np.float64)
         vertices = centre + (vertices - centre) * (1.0 + inflation)
     hull = convex_hull(vertices)
     if material.collision_shape == "decomposition":
-        parts = _decomposed_parts(client, vertices, faces)
+        parts_cache = {} if parts_cache is None else parts_cache
+        if geometry not in parts_cache:
+            parts_cache[geometry] = _decomposed_parts(client, true_vertices, faces)
+        parts = [convex_hull(centre + (part.vertices - centre) * (1.0 + inflation)) if inflation != 0 else part
+                 for part in parts_cache[geometry]]
     else:
         parts = [simplify_hull(hull, max_vertices)]
     shrunk = [shrink_hull(part, material.collision_margin) for part in parts]
