@@ -75,7 +75,7 @@ from scipy.spatial.transform import Rotation
 
 from .._shared.seeds import generator
 from ..errors import SynthpackInputError
-from .checks import PourChecks, bulk_shortfall, solid_fraction_of
+from .checks import BULK_FLOOR_MARGIN, BULK_TOP_MARGIN, PourChecks, bulk_shortfall, solid_fraction_of
 
 logger = logging.getLogger(__name__)
 
@@ -299,7 +299,7 @@ class PackingController:
     _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
 
     def __post_init__(self) -> None:
-        self._measured_to = float(self.margin)
+        self._measured_to = BULK_FLOOR_MARGIN * float(self.margin)  # the bulk region's floor
         self._rng = generator(self.seed, "compaction")
         #: The shells' shrink at knob MAX_KNOB: ``1 - c^(1/3)``, ``c`` the grains' mean mesh over hull volume.
         self.max_shrink = 1.0 - float(np.mean([_convexity(v, f) for v, f in self.meshes])) ** (1 / 3) \
@@ -368,7 +368,7 @@ class PackingController:
         if radius <= 0:
             return
         z0 = self._measured_to
-        z1 = min(top - 2 * self.margin, self._surface_height(radius) - self.margin)
+        z1 = min(top - BULK_TOP_MARGIN * self.margin, self._surface_height(radius) - self.margin)
         if z1 - z0 < _MIN_LAYER:
             return
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
