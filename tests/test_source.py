@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import ndimage, special
 
-from synthpack.artefacts import GaussianNoise
+from synthpack.artefacts import BeamHardening, GaussianNoise
 from synthpack.artefacts.coloured_noise import ring_powers_of_spectrum
 from synthpack.errors import SynthpackInputError
 from synthpack.scan.core import Scan
@@ -17,7 +17,8 @@ from synthpack.source import SourceStatistics, measure_source
 from synthpack.measure.edges import edge_profile, signed_distance
 from synthpack.measure.specimen import specimen_mask
 from synthpack.measure.lattice import patch_corners, take_patches
-from synthpack.measure.spectrum import ring_of, white_ring_powers
+from synthpack.measure.pore_spectrum import measure_pore_spectrum
+from synthpack.measure.spectrum import phase_interiors, ring_of, white_ring_powers
 
 
 def test_pore_statistics_leave_out_the_blurred_rim_along_grains():
@@ -215,3 +216,18 @@ def test_noise_power_spectrum_of_known_coloured_noise():
     measured = noise_power_spectrum(coloured.astype(np.float32), np.ones(coloured.shape, dtype=bool)).power[1:5]
     np.testing.assert_allclose(measured, expected, rtol=0.1)
     assert np.all(np.diff(measured) < 0)  # smooth noise: power falls with frequency
+
+
+def test_the_pore_texture_figures_are_read_with_the_cupping_divided_out(large_scan):
+    """The texture is rendered before the cupping is applied, so its figures must not hold the cupping's trend."""
+    tomogram = np.asarray(large_scan.tomogram, dtype=np.float32)
+    flat = measure_source(Scan(tomogram, large_scan.labels))
+    cupped_tomogram = BeamHardening(strength=0.15, keep="mean")(tomogram, 0)
+    cupped = measure_source(Scan(cupped_tomogram, large_scan.labels))
+    assert flat.cupping_strength is None and cupped.cupping_strength == pytest.approx(0.15, abs=0.02)
+    # read on the cupped intensities as they are, the radial trend nearly doubles the pore texture's power
+    interior = phase_interiors(signed_distance(large_scan.labels), specimen_mask(large_scan.labels))["pores"]
+    assert np.sum(measure_pore_spectrum(cupped_tomogram, interior)) > 1.5 * np.sum(flat.pore_spectrum)
+    assert np.sum(cupped.pore_spectrum) == pytest.approx(np.sum(flat.pore_spectrum), rel=0.05)
+    np.testing.assert_allclose(cupped.pore_quantiles, flat.pore_quantiles, atol=0.03)
+    np.testing.assert_allclose(cupped.semivariogram_pores, flat.semivariogram_pores, rtol=0.02)

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import SynthpackInputError
 
-__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "float32_value", "periodic_indices", "periodic_window",
+__all__ = ["SLAB_VOXELS", "as_image", "cupping_factor", "without_cupping", "float32_value", "periodic_indices", "periodic_window",
            "radius_grid", "slabs"]
 
 #: Noise is drawn (and measured) in slabs of at most this many voxels along axis 0, so
@@ -144,3 +144,26 @@ def cupping_factor(
     if keep == "mean":
         factor /= np.float32(1.0 - strength / 2.0)
     return factor.astype(np.float32)
+
+
+def without_cupping(
+    tomogram: np.ndarray, strength: float | None, centre: tuple[float, float] | None = None
+) -> np.ndarray:
+    """`tomogram` with a measured cupping divided out, its mean level over the field of view kept.
+
+    Parameters
+    ----------
+    tomogram : ndarray, shape (Z, Y, X)
+        Intensities; slices along axis 0 are perpendicular to the rotation axis.
+    strength : float or None
+        The cupping's strength (`cupping_factor`); None (none measured) returns `tomogram` itself.
+    centre : (float, float), optional
+        ``(y, x)`` of the rotation axis; default the slice centre.
+
+    Returns
+    -------
+    ndarray of float32, shape (Z, Y, X), or `tomogram` itself when `strength` is None
+    """
+    if strength is None:
+        return tomogram
+    return np.asarray(tomogram, dtype=np.float32) / cupping_factor(np.shape(tomogram), strength, "mean", centre)

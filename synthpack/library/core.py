@@ -15,7 +15,7 @@ import numpy as np
 import trimesh
 
 from .._shared.strict_json import dumps as strict_json
-from .._shared.arrays import cupping_factor
+from .._shared.arrays import without_cupping
 from ..io.atomic import Output, atomic_directory
 from .._shared.console import progress_bar
 from .._shared.schema import in_range, positive, setting
@@ -94,9 +94,9 @@ def _without_cupping(scan: Scan, statistics: SourceStatistics) -> Scan:
     """`scan` with its measured cupping divided out (mean level kept); `scan` itself where it shows none."""
     if statistics.cupping_strength is None:
         return scan
-    factor = cupping_factor(scan.shape, statistics.cupping_strength, "mean", statistics.scan_axis)
+    flat = without_cupping(scan.tomogram, statistics.cupping_strength, statistics.scan_axis)
     logger.info("crops cut with the scan's cupping (strength %.3f) divided out", statistics.cupping_strength)
-    return Scan(scan.tomogram / factor, scan.labels, voxel_size=scan.voxel_size, unit=scan.unit, source=scan.source)
+    return Scan(flat, scan.labels, voxel_size=scan.voxel_size, unit=scan.unit, source=scan.source)
 
 
 class ParticleLibrary(Sequence[Particle]):

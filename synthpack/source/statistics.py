@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .._shared.arrays import without_cupping
 from .._shared.text import fraction, sig
 from ..errors import SynthpackInputError
 from ..scan.core import Scan
@@ -277,28 +278,33 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     spectra.update({f"histogram_{phase}": tuple(float(q) for q in quantiles)
                     for phase, quantiles in phase_quantiles(scan.tomogram, phase_masks(distance, specimen)).items()
                     if quantiles is not None})
+    scanner = measure_scanner(scan.tomogram, scan.labels, whole, distance, pore_level=levels.pore_mean,
+                              grain_level=levels.grain_mean, region=specimen)
+    scanner_fields = scanner.statistics_fields() if scanner is not None else {}
+    # The texture is rendered into the clean volume and the cupping is applied after it,
+    # so the texture's figures are read with the cupping divided out (its radial trend is
+    # not texture: counted in both, it would broaden the pack's pore histogram twice).
+    flat = without_cupping(scan.tomogram, scanner_fields.get("cupping_strength"), scanner_fields.get("scan_axis"))
     pore_interior = phase_interiors(distance, specimen)["pores"]
-    pore_spectrum = measure_pore_spectrum(scan.tomogram, pore_interior)
+    pore_spectrum = measure_pore_spectrum(flat, pore_interior)
     if pore_spectrum is None:
         logger.warning("the source's pore spectrum cannot be measured (too little pore interior): "
                        "packs get a Gaussian pore texture")
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     spectra.update({f"semivariogram_{phase}": tuple(float(g) for g in gamma)
-                    for phase, gamma in phase_semivariograms(scan.tomogram, distance, specimen, depth).items()
+                    for phase, gamma in phase_semivariograms(flat, distance, specimen, depth).items()
                     if gamma is not None})
-    pore_quantiles = measure_pore_quantiles(scan.tomogram, pore_interior)
+    pore_quantiles = measure_pore_quantiles(flat, pore_interior)
     if pore_quantiles is not None:
         spectra["pore_quantiles"] = tuple(float(q) for q in pore_quantiles)
-    scanner = measure_scanner(scan.tomogram, scan.labels, whole, distance, pore_level=levels.pore_mean,
-                              grain_level=levels.grain_mean, region=specimen)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
                                   coordination=mean_coordination(scan.labels, specimen, readable=readable),
                                   edge_coverage=edge_coverage(whole), whole_levels=_whole_levels(scan.tomogram),
-                                  **(scanner.statistics_fields() if scanner is not None else {}))
+                                  **scanner_fields)
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
     return statistics
