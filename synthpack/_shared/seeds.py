@@ -36,6 +36,7 @@ PURPOSES: tuple[str, ...] = (
     "plots",              # subsamples drawn for figures
     "calibration_guard",  # the calibration guard's trial of the fitted steps (key: the step's kind)
     "shells",             # which grains of a spaced pour collide without a spacing shell
+    "calibration_fit",    # the noise the calibration's PSF fit measures the edges' steepness with
 )
 
 

@@ -20,6 +20,17 @@ its cost is fixed and vanishes per voxel on big packs.
    is already as blurred): the source's PSF less what the render's partial volume
    and interpolation already blur. The edge's position (the render's occupancy
    shift) is not changed by a symmetric blur.
+
+   That profile is read across the *labels*, and a real scan's labels (a watershed's)
+   scatter about its true boundaries, which broadens the source's profile as a wider
+   PSF would. So the width is then fitted to what the labels do not touch, the
+   steepness of the edges (`~synthpack.measure.steepness`: the upper tail of the
+   in-slice neighbour differences, `~synthpack.source.SourceStatistics.edge_steepness`):
+   the scatter only widens the profile, so its width is an upper bound, and of the
+   widths `STEEPNESS_FACTORS` (0.5 to 1) times it the one is kept whose blurred clean
+   volume, with the noise of step 2 fitted at the profile's width, has the tail nearest
+   the source's; the noise is then fitted again at that width. Without the source's
+   steepness (a library of an older synthpack) the profile's width stays.
 2. **Noise.** The noise power spectrum of the grain and pore interiors of the
    blurred volume, eroded by the PSF's reach (`~synthpack.measure.edges.interior_depth`
    of the source's edge width), is measured on the noise alone
@@ -91,6 +102,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .._shared.seeds import generator
 from .._shared.text import sig
 from ..errors import SynthpackInputError
 from ..measure.edges import EdgeProfile, edge_profile, edge_width, interior_depth, signed_distance
@@ -98,6 +110,7 @@ from ..measure.noise_estimate import estimate_noise
 from ..measure.psf import EdgeSpread, fit_edge_spread
 from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
+from ..measure.steepness import edge_steepness, steepness_distance
 from ._base import Compose, Transform
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
@@ -108,11 +121,14 @@ from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "STEPS", "calibrate", "calibration_halo", "central_slices",
+__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "STEEPNESS_FACTORS", "STEPS", "calibrate", "calibration_halo", "central_slices",
            "measured_slices", "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
+#: The PSF widths the steepness fit tries, as multiples of the edge profile's fixed point: at most 1, as the
+#: labels' scatter only ever widens the profile.
+STEEPNESS_FACTORS = tuple(round(0.5 + 0.05 * k, 2) for k in range(11))
 #: The fit measures at most about this many voxels of the region (its central slices, `central_slices`):
 #: more than a 150-grain pack's whole bulk. On a 600-grain pack of the "large" sample (bulk 3.2 M voxels)
 #: the PSF sigma fitted on it is within 0.003 voxel, the noise levels within 0.1 % and the ring powers
@@ -179,6 +195,11 @@ class Calibration:
         intensity units (the figures the realism report prints).
     sigmas, fitted_sigmas : list of float
         The search: edge width fitted on the clean volume blurred by each sigma tried, voxels.
+    steepness_sigmas, steepness_distances : list of float or None
+        The steepness fit: each PSF width tried (voxels) and how far the blurred, noisy clean
+        volume's edge steepness then was from the source's
+        (`~synthpack.measure.steepness.steepness_distance`, dimensionless); `blur_sigma`
+        is the nearest. None: not fitted (no source steepness, or no blur).
     cupping_strength : float or None
         The source's cupping, applied as `~synthpack.artefacts.BeamHardening`'s strength
         (dimensionless), keeping the mean level; None: none applied.
@@ -226,6 +247,8 @@ class Calibration:
     noise_std: float
     sigmas: list[float]
     fitted_sigmas: list[float]
+    steepness_sigmas: list[float] | None = None
+    steepness_distances: list[float] | None = None
     cupping_strength: float | None = None
     ring_radii: list[float] | None = None
     ring_amplitudes: list[float] | None = None
@@ -432,6 +455,7 @@ def calibrate(
     rings: tuple[Sequence[float], Sequence[float], float] | None = None,
     target_histograms: dict[str, Sequence[float] | None] | None = None,
     target_semivariogram: dict[str, Sequence[float] | None] | None = None,
+    target_steepness: Sequence[float] | None = None,
     round_levels: bool = False,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
@@ -480,6 +504,9 @@ def calibrate(
     target_semivariogram : dict, optional
         ``"grains"`` and ``"pores"``: the source's texture (`~synthpack.source.SourceStatistics.semivariogram_grains`),
         or None; None: no texture is fitted.
+    target_steepness : sequence of float, optional
+        The source's edge steepness (`~synthpack.source.SourceStatistics.edge_steepness`,
+        intensity units): the PSF width is fitted to it (step 1); None: to the edge profile alone.
     round_levels : bool
         End the pipeline with `~synthpack.artefacts.RoundLevels` (the source holds whole numbers only).
     steps : int
@@ -518,65 +545,105 @@ def calibrate(
     if sigma == 0.0:
         logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
                        "no blur", fitted[0], target_sigma)
-    measured = phase_spectra(blurred, distance, box_region, interior_depth(target_sigma))
-    noise = estimate_noise(blurred, np.where(box_region, box_labels.astype(np.int64), -1))
-    clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
-    textures = {"grains": None, "pores": None if pore_texture is None else _blurred(pore_texture, sigma)}
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
-    cleans = {phase: _clean_ring_powers(measured[phase], len(targets[phase]), clean_noise[phase], textures[phase])
-              for phase in targets}
     gamma_targets = {phase: None if target_semivariogram is None or target_semivariogram.get(phase) is None
                      else np.asarray(target_semivariogram[phase], dtype=np.float64) for phase in targets}
-    gamma_cleans = (phase_semivariograms(blurred, distance, box_region, interior_depth(target_sigma))
-                    if any(v is not None for v in gamma_targets.values()) else {phase: None for phase in targets})
-    added, added_noise, textured = {}, {}, {}
-    for phase in targets:
-        target_level, clean_level = target_phase_noise.get(phase), clean_noise[phase]
-        level = None if target_level is None or clean_level is None else target_level**2 - clean_level**2
-        powers, highpass, _ = fit_noise_and_texture(targets[phase] - cleans[phase], level, None)
-        added[phase] = np.asarray(powers)
-        added_noise[phase] = None if highpass is None else math.sqrt(highpass)
-        textured[phase] = None
-        if gamma_targets[phase] is not None and gamma_cleans[phase] is not None:
-            powers, highpass, texture = fit_noise_and_texture(targets[phase] - cleans[phase], level,
-                                                              gamma_targets[phase] - gamma_cleans[phase],
-                                                              gamma_targets[phase])
-            textured[phase] = {"power": list(powers), "noise": None if highpass is None else math.sqrt(highpass),
-                               "texture": texture}
-    added_levels = [v for v in added_noise.values() if v is not None]
-    calibration = Calibration(
-        blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
-        edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
-        grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
-        clean_power={k: v.tolist() for k, v in cleans.items()}, added_power={k: v.tolist() for k, v in added.items()},
-        target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
-        target_edge_width=float(target_edge_width), edge_width=edge_width(profile),
-        target_noise=float(target_noise),
-        noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
-        sigmas=sigmas, fitted_sigmas=fitted,
-        cupping_strength=None if cupping_strength is None else float(cupping_strength),
-        ring_radii=None if rings is None else [float(r) for r in rings[0]],
-        ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
-        ring_width=None if rings is None else float(rings[2]),
-        target_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_targets.items()},
-        clean_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_cleans.items()},
-        textured=textured, round_levels=bool(round_levels),
-    )
+
+    def fit_at(sigma: float, blurred: np.ndarray, profile: EdgeProfile, spread: EdgeSpread) -> Calibration:
+        """The calibration with a PSF of `sigma` (`blurred`, `profile`, `spread`: its edge) and the noise fitted to it."""
+        measured = phase_spectra(blurred, distance, box_region, interior_depth(target_sigma))
+        noise = estimate_noise(blurred, np.where(box_region, box_labels.astype(np.int64), -1))
+        clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
+        textures = {"grains": None, "pores": None if pore_texture is None else _blurred(pore_texture, sigma)}
+        cleans = {phase: _clean_ring_powers(measured[phase], len(targets[phase]), clean_noise[phase], textures[phase])
+                  for phase in targets}
+        gamma_cleans = (phase_semivariograms(blurred, distance, box_region, interior_depth(target_sigma))
+                        if any(v is not None for v in gamma_targets.values()) else {phase: None for phase in targets})
+        added, added_noise, textured = {}, {}, {}
+        for phase in targets:
+            target_level, clean_level = target_phase_noise.get(phase), clean_noise[phase]
+            level = None if target_level is None or clean_level is None else target_level**2 - clean_level**2
+            powers, highpass, _ = fit_noise_and_texture(targets[phase] - cleans[phase], level, None)
+            added[phase] = np.asarray(powers)
+            added_noise[phase] = None if highpass is None else math.sqrt(highpass)
+            textured[phase] = None
+            if gamma_targets[phase] is not None and gamma_cleans[phase] is not None:
+                powers, highpass, texture = fit_noise_and_texture(targets[phase] - cleans[phase], level,
+                                                                  gamma_targets[phase] - gamma_cleans[phase],
+                                                                  gamma_targets[phase])
+                textured[phase] = {"power": list(powers), "noise": None if highpass is None else math.sqrt(highpass),
+                                   "texture": texture}
+        added_levels = [v for v in added_noise.values() if v is not None]
+        return Calibration(
+            blur_sigma=sigma, target_sigma=float(target_sigma), target_shift=float(target_shift),
+            edge_sigma=spread.sigma, edge_shift=spread.shift, pore_level=float(pore_level),
+            grain_level=float(grain_level), target_power={k: v.tolist() for k, v in targets.items()},
+            clean_power={k: v.tolist() for k, v in cleans.items()},
+            added_power={k: v.tolist() for k, v in added.items()},
+            target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
+            target_edge_width=float(target_edge_width), edge_width=edge_width(profile),
+            target_noise=float(target_noise),
+            noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
+            sigmas=sigmas, fitted_sigmas=fitted,
+            cupping_strength=None if cupping_strength is None else float(cupping_strength),
+            ring_radii=None if rings is None else [float(r) for r in rings[0]],
+            ring_amplitudes=None if rings is None else [float(a) for a in rings[1]],
+            ring_width=None if rings is None else float(rings[2]),
+            target_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_targets.items()},
+            clean_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_cleans.items()},
+            textured=textured, round_levels=bool(round_levels),
+        )
+
+    calibration = fit_at(sigma, blurred, profile, spread)
+    if target_steepness is not None and sigma > 0.0:
+        # the noise the pack gets (fitted at the profile's width) on each width tried
+        noise = calibration.transforms(tuple(step for step in calibration.fitted_steps()
+                                             if step.endswith(("_noise", "_texture"))))
+        tried = [sigma * factor for factor in STEEPNESS_FACTORS]
+        distances = _steepness_distances(volume, box_region, tried, noise,
+                                         np.asarray(target_steepness, dtype=np.float64), grain_level - pore_level)
+        best = tried[int(np.argmin(distances))]
+        if best != sigma:
+            logger.info("PSF sigma %s vx from the edge profile, %s vx from the edges' steepness", sig(sigma, 3),
+                        sig(best, 3))
+            sigma = best
+            calibration = fit_at(sigma, *edge(sigma))
+        calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
     calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
                                calibration_halo(target_sigma))
-    noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in added_noise.items() if std is not None)
+    noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
+                           if std is not None)
     noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
                                                        f" {sig(math.sqrt(t['texture'][0]))} over {sig(t['texture'][1], 2)} vx")
-                          for phase, t in textured.items()
+                          for phase, t in calibration.textured.items()
                           if t is not None and f"{phase[:-1]}_texture" in calibration.applied_steps())
     dropped = calibration.guard["dropped"]
     logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s%s",
-                sig(sigma, 2), sig(spread.sigma, 2), sig(target_sigma, 2), noise_text or "none",
+                sig(sigma, 2), sig(calibration.edge_sigma, 2), sig(target_sigma, 2), noise_text or "none",
                 "" if cupping_strength is None else f", cupping {sig(cupping_strength, 2)}",
                 "" if rings is None else f", {len(rings[0])} ring(s)",
                 f"; dropped by the guard: {', '.join(dropped)}" if dropped else "")
     logger.debug("%r", calibration)
     return calibration
+
+
+def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequence[float],
+                         noise: Sequence[Transform], target: np.ndarray, contrast: float) -> list[float]:
+    """For each PSF width of `sigmas`, the distance of the blurred, noisy `volume`'s edge steepness from `target`.
+
+    The `noise` transforms (the calibration's noise steps) draw the same realisation at every
+    width (stream ``calibration_fit``), so that the widths compare like with like. The tail is
+    read in `region` (`~synthpack.measure.steepness.edge_steepness`); a width at which it cannot
+    be read is at distance infinity.
+    """
+    distances = []
+    for sigma in sigmas:
+        out = GaussianBlur(sigma=float(sigma))(volume, 0)
+        for index, transform in enumerate(noise):
+            out = transform(out, generator(0, "calibration_fit", index))
+        tail = edge_steepness(out, region)
+        distances.append(math.inf if tail is None else steepness_distance(tail, target, contrast))
+    return distances
 
 
 def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,

@@ -199,6 +199,7 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "target_histograms": {"grains": statistics.histogram_grains, "pores": statistics.histogram_pores,
                                   "edges": statistics.histogram_edges},
             "target_semivariogram": {"grains": statistics.semivariogram_grains, "pores": statistics.semivariogram_pores},
+            "target_steepness": statistics.edge_steepness,
             "round_levels": bool(statistics.whole_levels)}
 
 

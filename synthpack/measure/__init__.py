@@ -8,6 +8,7 @@ means the same on both. Modules, one job each:
 ``noise_estimate``    `estimate_noise`: the one noise estimator (source, artefacts, realism)
 ``edges``             signed distance from grain boundaries, edge profile and 10-90 width
 ``psf``               `fit_edge_spread`: the scanner's blur and edge shift, fitted to the edge profile
+``steepness``         `edge_steepness`: how steep the edges are, read without labels (the neighbour steps' upper tail)
 ``spectrum``          noise power spectrum of the grain and pore interiors, on their noise only (differences across slices)
 ``semivariogram``     the fine texture of grain and pore interiors: their in-slice semivariogram at lags 1-4 voxels
 ``phase_histograms``  full-band intensity histograms (quantiles) of grains, pores and edges, and their distance
@@ -36,11 +37,13 @@ from .scanner import ScannerArtefacts, measure_scanner
 from .semivariogram import phase_semivariograms, semivariogram
 from .spectral_spikes import SpectralSpikes, spectral_spikes
 from .spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum, phase_spectra
+from .steepness import edge_steepness, steepness_distance
 
 __all__ = [
     "centred_grains",
     "coordination_numbers",
     "edge_profile",
+    "edge_steepness",
     "edge_width",
     "EdgeProfile",
     "EdgeSpread",
@@ -66,6 +69,7 @@ __all__ = [
     "quantile_distance",
     "QUANTILE_SCORES",
     "ScannerArtefacts",
+    "steepness_distance",
     "section_roughness",
     "semivariogram",
     "signed_distance",

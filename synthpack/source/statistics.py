@@ -24,6 +24,7 @@ from ..measure.phase_histograms import phase_masks, phase_quantiles
 from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import phase_interiors, phase_spectra
+from ..measure.steepness import edge_steepness
 
 logger = logging.getLogger(__name__)
 
@@ -142,6 +143,13 @@ class SourceStatistics:
         Whether the scan holds whole numbers only (an integer file, 8 or 16 bit, as most
         scans are stored): ``postprocess: calibrated`` then puts a pack's intensities on the
         same grid (`~synthpack.artefacts.RoundLevels`). None in a library of an older synthpack.
+    edge_steepness : tuple of float or None
+        How steep the scan's edges are, read without its labels: the upper tail of the
+        absolute differences between in-slice neighbours in the specimen, at
+        `~synthpack.measure.steepness.STEEPNESS_PROBABILITIES`
+        (`~synthpack.measure.steepness.edge_steepness`), intensity units; ``postprocess:
+        calibrated`` fits the pack's PSF to it. None in a specimen too small, or in a library of
+        an older synthpack (the PSF is then fitted to the label-aligned edge alone).
     """
 
     pore_mean: float
@@ -175,6 +183,7 @@ class SourceStatistics:
     semivariogram_grains: tuple[float, ...] | None = None
     semivariogram_pores: tuple[float, ...] | None = None
     whole_levels: bool | None = None
+    edge_steepness: tuple[float, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -298,6 +307,9 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     pore_quantiles = measure_pore_quantiles(flat, pore_interior)
     if pore_quantiles is not None:
         spectra["pore_quantiles"] = tuple(float(q) for q in pore_quantiles)
+    steepness = edge_steepness(scan.tomogram, specimen)
+    if steepness is not None:
+        spectra["edge_steepness"] = tuple(float(q) for q in steepness)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
