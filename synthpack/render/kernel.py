@@ -104,51 +104,76 @@ def _compiled(function: Callable) -> Callable:
 
 
 @_compiled
-def _axis(c: float, n: int, order: int, constant: bool, index: np.ndarray, weight: np.ndarray) -> bool:
-    """One axis of SciPy's interpolation at coordinate `c` of an axis of `n` voxels; False where it reads ``cval``.
+def _linear(volume: np.ndarray, c0: float, c1: float, c2: float, constant: bool, cval: float) -> np.float32:
+    """SciPy's linear interpolation of `volume` at ``(c0, c1, c2)``, rounded to float32.
 
-    Fills ``index[:order + 1]`` (voxels read) and ``weight[:order + 1]`` (their spline weights;
-    1 for order 0). `constant`: SciPy's ``mode="constant"`` (``cval`` beyond ``[0, n - 1]``, an
-    index past the edge mirrored); else ``mode="nearest"`` (indices clamped to the axis).
+    `constant`: SciPy's ``mode="constant"`` (`cval` beyond the outermost voxel centres, an index
+    past the last voxel mirrored, with weight 0); else ``mode="nearest"`` (indices clamped to the
+    volume, weights those of the unclamped coordinate). The weights are ``1 - t`` and ``1 - (1 - t)``,
+    the 8 products ``((value w0) w1) w2`` summed with the last axis fastest, in float64.
     """
-    if constant and (c < 0.0 or c > n - 1):
-        return False
-    if order == 0:
-        index[0] = min(max(int(np.floor(c + 0.5)), 0), n - 1)
-        weight[0] = 1.0
-        return True
-    start = int(np.floor(c)) - order // 2
-    for k in range(order + 1):
-        i = start + k
-        if constant and i >= n:
-            i = 0 if n <= 1 else 2 * n - 2 - i
-        index[k] = min(max(i, 0), n - 1)
-    x = c - np.floor(c)
-    if order == 1:
-        weight[0] = 1.0 - x
-    else:  # order 3 (ni_splines.c)
-        z = 1.0 - x
-        weight[1] = (x * x * (x - 2.0) * 3.0 + 4.0) / 6.0
-        weight[2] = (z * z * (z - 2.0) * 3.0 + 4.0) / 6.0
-        weight[0] = z * z * z / 6.0
-    last = 1.0
-    for k in range(order):
-        last -= weight[k]
-    weight[order] = last
-    return True
+    n0, n1, n2 = volume.shape
+    if constant and (c0 < 0.0 or c0 > n0 - 1 or c1 < 0.0 or c1 > n1 - 1 or c2 < 0.0 or c2 > n2 - 1):
+        return np.float32(cval)
+    f0, f1, f2 = np.floor(c0), np.floor(c1), np.floor(c2)
+    a0, b0 = _pair(int(f0), n0, constant)
+    a1, b1 = _pair(int(f1), n1, constant)
+    a2, b2 = _pair(int(f2), n2, constant)
+    u0, u1, u2 = 1.0 - (c0 - f0), 1.0 - (c1 - f1), 1.0 - (c2 - f2)
+    v0, v1, v2 = 1.0 - u0, 1.0 - u1, 1.0 - u2
+    total = 0.0
+    total += (float(volume[a0, a1, a2]) * u0) * u1 * u2
+    total += (float(volume[a0, a1, b2]) * u0) * u1 * v2
+    total += (float(volume[a0, b1, a2]) * u0) * v1 * u2
+    total += (float(volume[a0, b1, b2]) * u0) * v1 * v2
+    total += (float(volume[b0, a1, a2]) * v0) * u1 * u2
+    total += (float(volume[b0, a1, b2]) * v0) * u1 * v2
+    total += (float(volume[b0, b1, a2]) * v0) * v1 * u2
+    total += (float(volume[b0, b1, b2]) * v0) * v1 * v2
+    return np.float32(total)
 
 
 @_compiled
-def _interpolate(volume: np.ndarray, c0: float, c1: float, c2: float, order: int, constant: bool, cval: float,
-                 index: np.ndarray, weight: np.ndarray) -> np.float32:
-    """SciPy's spline interpolation of `volume` at ``(c0, c1, c2)`` (see `_axis`), rounded to float32.
+def _pair(start: int, n: int, constant: bool) -> tuple[int, int]:
+    """The two voxels a linear interpolation reads from `start` on an axis of `n` (see `_linear`)."""
+    second = start + 1
+    if constant and second >= n:
+        second = 0 if n <= 1 else 2 * n - 2 - second
+    return min(max(start, 0), n - 1), min(max(second, 0), n - 1)
 
-    `index` (int64, (3, 4)) and `weight` (float64, (3, 4)) are scratch space.
+
+@_compiled
+def _axis(c: float, n: int, order: int, index: np.ndarray, weight: np.ndarray) -> None:
+    """One axis of SciPy's ``mode="nearest"`` interpolation of order 0 or 3 at coordinate `c` of an axis of `n` voxels.
+
+    Fills ``index[:order + 1]`` (the voxels read, clamped to the axis) and ``weight[:order + 1]``
+    (1 for order 0; else the cubic B-spline's weights of ``ni_splines.c``, the last one 1 less the others).
     """
-    if not (_axis(c0, volume.shape[0], order, constant, index[0], weight[0])
-            and _axis(c1, volume.shape[1], order, constant, index[1], weight[1])
-            and _axis(c2, volume.shape[2], order, constant, index[2], weight[2])):
-        return np.float32(cval)
+    if order == 0:
+        index[0] = min(max(int(np.floor(c + 0.5)), 0), n - 1)
+        weight[0] = 1.0
+        return
+    start = int(np.floor(c)) - 1
+    for k in range(4):
+        index[k] = min(max(start + k, 0), n - 1)
+    x = c - np.floor(c)
+    z = 1.0 - x
+    weight[1] = (x * x * (x - 2.0) * 3.0 + 4.0) / 6.0
+    weight[2] = (z * z * (z - 2.0) * 3.0 + 4.0) / 6.0
+    weight[0] = z * z * z / 6.0
+    weight[3] = ((1.0 - weight[0]) - weight[1]) - weight[2]
+
+
+@_compiled
+def _spline(volume: np.ndarray, c0: float, c1: float, c2: float, order: int, index: np.ndarray,
+            weight: np.ndarray) -> np.float32:
+    """SciPy's ``mode="nearest"`` interpolation of order 0 or 3 of `volume` (the coefficients) at ``(c0, c1, c2)``.
+
+    Summed as `_linear` sums; `index` (int64, (3, 4)) and `weight` (float64, (3, 4)) are scratch space.
+    """
+    _axis(c0, volume.shape[0], order, index[0], weight[0])
+    _axis(c1, volume.shape[1], order, index[1], weight[1])
+    _axis(c2, volume.shape[2], order, index[2], weight[2])
     total = 0.0
     for a in range(order + 1):
         for b in range(order + 1):
@@ -192,8 +217,7 @@ def _draw(label: int, corner: np.ndarray, shape: np.ndarray, matrix: np.ndarray,
                 p0 = (fz * m[0, 0] + fy * m[0, 1]) + fx * m[0, 2]
                 p1 = (fz * m[1, 0] + fy * m[1, 1]) + fx * m[1, 2]
                 p2 = (fz * m[2, 0] + fy * m[2, 1]) + fx * m[2, 2]
-                s = _interpolate(distance, p0 + shift[0], p1 + shift[1], p2 + shift[2], 1, True, far, index,
-                                 weight) * scale
+                s = _linear(distance, p0 + shift[0], p1 + shift[1], p2 + shift[2], True, far) * scale
                 o0, o1, o2 = corner[0] + z, corner[1] + y, corner[2] + x
                 held = claim[o0, o1, o2]  # 0 where unclaimed
                 wins, filled = False, zero
@@ -210,9 +234,13 @@ def _draw(label: int, corner: np.ndarray, shape: np.ndarray, matrix: np.ndarray,
                 else:
                     drawn = wins
                 if drawn:
-                    grain = _interpolate(coefficients, (p0 + intensity_shift[0]) + pad,
-                                         (p1 + intensity_shift[1]) + pad, (p2 + intensity_shift[2]) + pad, order,
-                                         False, 0.0, index, weight)
+                    c0 = (p0 + intensity_shift[0]) + pad
+                    c1 = (p1 + intensity_shift[1]) + pad
+                    c2 = (p2 + intensity_shift[2]) + pad
+                    if order == 1:
+                        grain = _linear(coefficients, c0, c1, c2, False, 0.0)
+                    else:
+                        grain = _spline(coefficients, c0, c1, c2, order, index, weight)
                     if composite:
                         occupancy[o0, o1, o2] += filled
                         value[o0, o1, o2] += filled * grain
