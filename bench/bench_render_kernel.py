@@ -54,7 +54,7 @@ def placements_of(library: ParticleLibrary, grains: int, workdir: Path) -> tuple
 
 
 def render(library: ParticleLibrary, placements: Placements, grid: Grid, kernel: str, workers: int):
-    """`pose_maps` + `reconstruct` as ``generate.build_pack`` calls them; (wall s, CPU s, (clean, labels, contested))."""
+    """`pose_maps` + `reconstruct` as ``generate.build_pack`` calls them: wall s, CPU s, (clean, labels, contested)."""
     config = ReconstructConfig(kernel=kernel)
     partial_volume = config.partial_volume_of(library.statistics)
     tube = placements.tube

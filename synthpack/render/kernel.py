@@ -1,4 +1,4 @@
-"""The compiled render of one grain: one pass over its box with numba (`draw_box`), and which render runs (`resolve_kernel`).
+"""The compiled render: each grain in one numba pass over its box (`draw_box`); which render runs (`resolve_kernel`).
 
 The SciPy render (`~synthpack.render.numpy_render.render_chunk` with ``kernel="scipy"``)
 reads each voxel a grain can change three times: a nearest-neighbour

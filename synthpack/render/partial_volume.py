@@ -132,7 +132,7 @@ class PartialVolume:
         return np.float32(self.shift - 0.5)
 
     def occupancy(self, distance: Any) -> Any:
-        """Occupancy ``clip(distance - level, 0, 1)`` of voxels at signed `distance` (voxels), `level` = ``shift - 1/2``.
+        """Occupancy ``clip(distance - level, 0, 1)`` of voxels at signed `distance` (voxels), `level` ``shift - 1/2``.
 
         `distance` is a float32 NumPy array or torch tensor (the NumPy and the torch render
         share this formula, the compiled one `synthpack.render.kernel` computes it so); the
