@@ -14,6 +14,7 @@ from synthpack.physics.container import interior_radius
 from synthpack.realism import Specimen
 from synthpack.store.pack import is_complete_pack, open_pack
 from synthpack.render.pore_texture import PoreTextureConfig
+from synthpack.render.kernel import resolve_kernel
 from synthpack.render.torch_render import resolve_device
 
 SMALL = PackConfig().replace(pour={"n_particles": 24, "batch_size": 12})
@@ -92,7 +93,8 @@ def test_generate_writes_complete_packs_and_skips_them_on_rerun(large_library, t
     assert {"pour", "reconstruct", "postprocess"} <= set(manifest["timings"])
     assert "numpy" in manifest["versions"] and "contested_voxels" in manifest
     on = resolve_device(config.run.device) or "cpu"  # "cpu": NumPy
-    assert manifest["devices"] == {"render": on, "postprocess": on}
+    kernel = resolve_kernel("auto") if on == "cpu" else None  # the compiled kernel, where numba is installed
+    assert manifest["devices"] == {"render": on, "render_kernel": kernel, "postprocess": on}
     pack = open_pack(path)
     assert isinstance(pack.labels, np.memmap)
     assert pack.voxel_size == large_library.voxel_size

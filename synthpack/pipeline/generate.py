@@ -34,7 +34,7 @@ from ..physics.container import CROP_WALL_MARGIN, crop_box, crop_extent
 from ..physics.plan import parse_scale
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
-from ..render import Background, Grid, pose_maps, reconstruct
+from ..render import Background, Grid, pose_maps, reconstruct, resolve_kernel
 from ..render.torch_render import TorchRenderer, resolve_device
 from .runner import run_packs
 
@@ -208,7 +208,8 @@ def build_pack(
         wall=None if render.wall is None else render.background.wall_record(render.wall),
         partial_volume=render.partial_volume.record() if render.partial_volume else None,
         postprocessing=applied, timings=timings, **postprocessing.record,
-        devices=dict(render=device or "cpu", postprocess=postprocess_device or "cpu"),  # "cpu": NumPy
+        devices=dict(render=device or "cpu", render_kernel=render.kernel,  # "cpu": NumPy
+                     postprocess=postprocess_device or "cpu"),
     )
     return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
 
@@ -225,7 +226,8 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 class _Render:
     """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
     the partial volume (None: whole voxels), the wall's inner and outer radius (physical units; None: no wall
-    in view), the interior crop's world corners ``(lo, hi)`` (physical units; None: the tube)."""
+    in view), the interior crop's world corners ``(lo, hi)`` (physical units; None: the tube), and the kernel
+    that drew the grains on the CPU (``"numba"`` or ``"scipy"``, `synthpack.render.kernel`; None on a torch device)."""
 
     grid: Grid
     clean: Any
@@ -235,6 +237,7 @@ class _Render:
     partial_volume: PartialVolume | None
     wall: tuple[float, float] | None
     crop: tuple[np.ndarray, np.ndarray] | None
+    kernel: str | None
 
 
 def _pour(
@@ -299,17 +302,18 @@ def _render(
                      placements.rotation_matrices(), placements.positions, placements.scales, grid,
                      reach=config.surface.reach(partial_volume))
     renderer = None if device is None else TorchRenderer(device)
+    kernel = None if renderer is not None else resolve_kernel(config.kernel)
     clean, labels, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
         tube=None if wall is None else (wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
         out=(allocate("clean", grid.shape, np.float32, chunks), allocate("labels", grid.shape, np.int32, chunks)),
-        partial_volume=partial_volume, renderer=renderer, surface=config.surface,
+        partial_volume=partial_volume, renderer=renderer, surface=config.surface, kernel=config.kernel,
     )
     if renderer is not None:
         logger.info("rendered on %s: %d voxels within float rounding of a grain's surface", device,
                     renderer.near_threshold)
-    return _Render(grid, clean, labels, background, contested, partial_volume, wall, crop)
+    return _Render(grid, clean, labels, background, contested, partial_volume, wall, crop, kernel)
 
 
 def _view_record(view: str, requested: str, placements: Placements, crop: tuple[np.ndarray, np.ndarray] | None) -> dict:

@@ -4,10 +4,11 @@ Modules, one job each, from the whole render down:
 
 ==================  ================================================================================
 ``chunked``         `reconstruct`: the whole grid, chunk by chunk, with a chunk renderer
-``numpy_render``    `render_chunk`: one chunk with NumPy and SciPy, at the voxels each grain can change
+``numpy_render``    `render_chunk`: one chunk on the CPU, at the voxels each grain can change
 ``torch_render``    `TorchRenderer`: one chunk on a torch device (a CUDA GPU); `resolve_device`
 ``canvas``          `Canvas`: a chunk as grains are drawn on it (claims, partial-volume composite),
                     one code for NumPy and torch
+``kernel``          `resolve_kernel`: each grain in one compiled pass over its box (numba), or with SciPy
 ``background``      `Background`: pore level, pore texture and tube wall; `background_values`
 ``crops``           `RenderCrop`, `prepare_crops`: the library crops as the render takes them
 ``poses``           `pose_maps`: each placement's affine map into its crop and the box it reaches
@@ -40,5 +41,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "prepare_crops": ".crops",
     "reconstruct": ".chunked",
     "render_chunk": ".numpy_render",
+    "resolve_kernel": ".kernel",
     "resolve_device": ".torch_render",
 })

@@ -4,7 +4,8 @@ Written once against the array module (``xp``: numpy or torch), so the NumPy ren
 (`~synthpack.render.numpy_render.render_chunk`) and the torch one
 (`~synthpack.render.torch_render.TorchRenderer`) draw with the same code; they differ
 only in which voxels of a grain's box they visit and in how they interpolate its crop
-(a `Sampler`).
+(a `Sampler`). On a NumPy canvas a grain can instead be drawn in one compiled pass over
+its box (`Canvas.draw_box`, `synthpack.render.kernel`), with the same arithmetic.
 
 Each grain is drawn from its smooth surface (`synthpack.render.surface`): the signed
 distance ``s`` of every voxel from it, resampled linearly from the crop's and scaled to
@@ -25,6 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .crops import RenderCrop
+from .kernel import draw_box
 from .partial_volume import FAR, PAD, PartialVolume
 
 __all__ = ["Canvas", "Sampler"]
@@ -115,21 +117,56 @@ class Canvas:
             The signed distance of the voxels from the grain's smooth surface, output voxels
             (its claims are where it is positive).
         """
-        scale = abs(np.linalg.det(matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
-        distance = self._sample(crop.distance, mapped, offset + PAD, 1, FAR) * float(np.float32(scale))
+        distance = self._sample(crop.distance, mapped, offset + PAD, 1, FAR) * float(_scale(matrix))
         wins = self._claim_voxels(label, index, distance)
         if self._partial_volume is None:
-            self.tomogram.reshape(-1)[index[wins]] = self._sample(crop.intensity, mapped[:, wins], offset,
-                                                                  self._order, None)
+            self.tomogram.reshape(-1)[index[wins]] = self._sample(crop.intensity, mapped[:, wins],
+                                                                  self._intensity_shift(offset), self._order, None)
         else:
-            self._add(index, mapped, offset + PAD, crop, distance)
+            self._add(index, mapped, self._intensity_shift(offset), crop, distance)
         return distance
+
+    def draw_box(
+        self, label: int, corner: np.ndarray, shape: np.ndarray, offset: np.ndarray, crop: RenderCrop,
+        matrix: np.ndarray, intensities: tuple[np.ndarray, int],
+    ) -> None:
+        """Draw one grain over a box of the chunk in one compiled pass, as `draw` draws it (NumPy canvases only).
+
+        Visits every voxel of the box once (`~synthpack.render.kernel.draw_box`): the voxels
+        outside the crop's support are left alone, the others drawn with `draw`'s arithmetic.
+
+        Parameters
+        ----------
+        label : int
+            The grain's label (its placement + 1); grains are drawn in placement order.
+        corner, shape : ndarray of int, shape (3,)
+            The box's first voxel in the chunk, and its shape (voxels).
+        offset : ndarray of float, shape (3,)
+            Crop index of the box's first voxel (`~synthpack.render.poses.grain_boxes`).
+        crop : RenderCrop
+            The grain's crop, with its support.
+        matrix : ndarray of float, shape (3, 3)
+            The grain's `~synthpack.render.poses.PoseMaps` matrix.
+        intensities : (ndarray, int)
+            `~synthpack.render.kernel.spline_coefficients` of ``crop.intensity`` for the canvas's order.
+        """
+        sums = () if self._partial_volume is None else (self._occupancy, self._value)
+        self.contested += draw_box(
+            label, corner, shape, matrix, offset + PAD, self._intensity_shift(offset), crop.support, crop.distance,
+            FAR, _scale(matrix), intensities, self._order,
+            None if self._partial_volume is None else self._partial_volume.level,
+            (self.labels, self._claim, self.tomogram, *sums),
+        )
 
     def finish(self) -> None:
         """Composite the grains onto the background (the partial volume's ``(1 - O) b + V``, ``V / O`` where ``O > 1``)."""
         if self._partial_volume is not None:
             self.tomogram *= 1.0 - self._occupancy.clip(max=1.0)
             self.tomogram += self._value * (1.0 / self._occupancy.clip(min=1.0))
+
+    def _intensity_shift(self, offset: np.ndarray) -> np.ndarray:
+        """Crop coordinates of a box's first voxel in the intensities: `offset`, plus the padding of prepared ones."""
+        return offset if self._partial_volume is None else offset + PAD
 
     def _claim_voxels(self, label: int, index: Any, distance: Any) -> Any:
         """Give `label` the voxels `index` where `distance` is positive and above every earlier claim; which (bool, (K,))."""
@@ -153,3 +190,8 @@ class Canvas:
         self._occupancy.reshape(-1)[index] += occupancy
         self._value.reshape(-1)[index] += occupancy * self._sample(crop.intensity, mapped[:, some], shift,
                                                                    self._order, None)
+
+
+def _scale(matrix: np.ndarray) -> np.float32:
+    """Output voxels per crop voxel of a grain drawn with the pose `matrix` (float32: the distances' factor)."""
+    return np.float32(abs(np.linalg.det(matrix)) ** (-1.0 / 3.0))

@@ -5,13 +5,15 @@ intersect it, so memory stays bounded by the output arrays plus one chunk's work
 two workers write the same voxel, and nothing copies the whole volume per particle.
 The background is a function of the global voxel position
 (`~synthpack.render.background`), so the result does not depend on the chunking. A
-chunk is rendered by `~synthpack.render.numpy_render.render_chunk` (NumPy) or by
-`~synthpack.render.torch_render.TorchRenderer` (a GPU); both draw with the same
+chunk is rendered by `~synthpack.render.numpy_render.render_chunk` (NumPy, each grain
+drawn by the compiled kernel or with SciPy: `~synthpack.render.kernel.resolve_kernel`) or by
+`~synthpack.render.torch_render.TorchRenderer` (a GPU); all draw with the same
 `~synthpack.render.canvas.Canvas`.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -21,6 +23,7 @@ from ..errors import SynthpackInputError
 from .background import Background
 from .crops import prepare_crops
 from .grid import Grid
+from .kernel import resolve_kernel
 from .numpy_render import render_chunk
 from .partial_volume import PartialVolume
 from .poses import PoseMaps
@@ -44,11 +47,12 @@ def reconstruct(
     partial_volume: PartialVolume | None = None,
     renderer: Callable[..., tuple[np.ndarray, np.ndarray, int]] | None = None,
     surface: Surface = Surface(),
+    kernel: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see `~synthpack.render.numpy_render.render_chunk`).
 
-    Chunks are rendered by a pool of threads (SciPy's interpolation releases the
-    GIL), at most ``2 * workers`` chunks in flight, so memory stays bounded by the
+    Chunks are rendered by a pool of threads (SciPy's interpolation and the compiled kernel
+    release the GIL), at most ``2 * workers`` chunks in flight, so memory stays bounded by the
     output plus a few chunks' work. Each chunk is written by one thread only.
 
     Parameters
@@ -69,6 +73,9 @@ def reconstruct(
         `render_chunk` (NumPy), e.g. `synthpack.render.torch_render.TorchRenderer` on a GPU.
     surface : Surface
         How the grains' smooth surfaces are made (`synthpack.render.surface`).
+    kernel : str
+        How the default renderer draws each grain: ``"numba"``, ``"scipy"`` or ``"auto"``
+        (`~synthpack.render.kernel.resolve_kernel`); the result does not depend on it.
 
     Returns
     -------
@@ -94,10 +101,12 @@ def reconstruct(
         thresholds = {int(k): float(lowest[maps.library_index == k].min()) for k in np.unique(maps.library_index)}
     prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers, thresholds, surface)
 
+    renderer = renderer or functools.partial(render_chunk, kernel=resolve_kernel(kernel))
+
     def render(box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         lo, hi = box
-        return (renderer or render_chunk)(prepared, maps, grid, lo, hi, background, tube=tube, order=order,
-                                          seed=seed, partial_volume=partial_volume)
+        return renderer(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed,
+                        partial_volume=partial_volume)
 
     for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
         render, chunk_boxes(grid.shape, chunks), workers

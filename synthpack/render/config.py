@@ -10,12 +10,15 @@ from .partial_volume import PartialVolume
 from .pore_texture import PoreTextureConfig
 from .surface import SIGMA, Surface
 
-__all__ = ["VIEWS", "ReconstructConfig"]
+__all__ = ["KERNELS", "VIEWS", "ReconstructConfig"]
 
 #: What a pack shows (``reconstruct.view``): ``tube``, the whole tube with its wall, in air;
 #: ``interior``, a crop of the pack's bulk with no wall and no air, every slice full of grains;
 #: ``auto``, an interior crop where the source scan is one, else the tube.
 VIEWS = ("auto", "tube", "interior")
+#: How the CPU render draws each grain (``reconstruct.kernel``, `synthpack.render.kernel`): ``numba``,
+#: one compiled pass over its box; ``scipy``, SciPy's interpolation; ``auto``, numba where it can be imported.
+KERNELS = ("auto", "numba", "scipy")
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,10 @@ class ReconstructConfig:
     surface_sigma: float = setting(SIGMA, non_negative, "smoothing of each grain's surface, voxels: labels and "
                                    "intensities are drawn from its Gaussian-smoothed signed distance, volume kept "
                                    "(0: the voxel staircase)")
+    kernel: str = setting("auto", one_of(KERNELS),
+                          "how the CPU render draws each grain: numba (one compiled pass over its box), scipy "
+                          "(SciPy's interpolation) or auto (numba where it can be imported); the same labels and "
+                          "intensities either way")
     pore_texture: PoreTextureConfig = field(default_factory=PoreTextureConfig)
 
     def view_of(self, statistics: SourceStatistics) -> str:

@@ -126,10 +126,16 @@ class PartialVolume:
         crop voxel has no occupancy: ``(shift - 1/2) / scale`` (`occupancy` of ``distance * scale``)."""
         return (self.shift - 0.5) / np.asarray(scale, dtype=np.float64)
 
+    @property
+    def level(self) -> np.float32:
+        """``shift - 1/2`` in float32: the signed distance (output voxels) at which the occupancy starts to rise."""
+        return np.float32(self.shift - 0.5)
+
     def occupancy(self, distance: Any) -> Any:
-        """Occupancy ``clip(distance - shift + 1/2, 0, 1)`` of voxels at signed `distance` (voxels).
+        """Occupancy ``clip(distance - level, 0, 1)`` of voxels at signed `distance` (voxels), `level` ``shift - 1/2``.
 
         `distance` is a float32 NumPy array or torch tensor (the NumPy and the torch render
-        share this formula); the occupancy is one of the same type and dtype, computed in float32.
+        share this formula, the compiled one `synthpack.render.kernel` computes it so); the
+        occupancy is one of the same type and dtype, computed in float32.
         """
-        return (distance - float(np.float32(self.shift - 0.5))).clip(0.0, 1.0)
+        return (distance - float(self.level)).clip(0.0, 1.0)
