@@ -19,8 +19,8 @@ from training.arms import budget_slices
 from training.compute import plan_compute
 from training.curves import RISE_LIMIT, tail_rise
 from training.evaluate import score
-from training.experiment import ExperimentConfig, _trained
-from training.report import convergence_lines
+from training.experiment import ExperimentConfig, _trained, plan_arms
+from training.report import compute_line, convergence_lines
 from training.stats import paired_bootstrap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -367,3 +367,25 @@ def test_a_run_trained_under_another_compute_plan_is_refused_on_resume(tmp_path)
     (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": equal.epochs, "plan": equal.to_dict()}))
     assert _trained(tmp_path, equal)["plan"] == equal.to_dict()
     assert _trained(tmp_path / "none", equal) is None
+
+
+def test_each_model_family_is_planned_on_its_own_with_the_unet_budget_where_given(tmp_path):
+    """The U-Net arms take equal steps among themselves at ``unet.images_seen``; the YOLO arms keep theirs."""
+    config = ExperimentConfig.load("cpu")
+    for arm in config.arm_list:  # the datasets' training images, as the experiment's exports record them
+        folder = tmp_path / "data" / arm.dataset
+        folder.mkdir(parents=True, exist_ok=True)
+        size = CPU_SIZES.get(arm.dataset, 100)
+        (folder / "export.json").write_text(json.dumps({"images": {"train": size, "val": 10, "test": 20}}))
+    plans = plan_arms(config, tmp_path)
+    assert list(plans) == config.arms
+    families = {family: {arm.name: plans[arm.name] for arm in config.arm_list if arm.family == family}
+                for family in ("yolo", "unet")}
+    budgets = {"yolo": 205 * config.train.epochs, "unet": config.unet.images_seen}
+    assert budgets["unet"] > budgets["yolo"]
+    for family, members in families.items():
+        assert len({plan.images for plan in members.values()}) > 1
+        for plan in members.values():
+            assert budgets[family] <= plan.images_seen < budgets[family] + plan.images
+    line = compute_line(plans, {arm.name: arm.family for arm in config.arm_list})
+    assert "YOLOv8-seg: 6150 to" in line and f"2D U-Net: {budgets['unet']} to" in line

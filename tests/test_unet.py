@@ -68,6 +68,10 @@ def test_model_family_and_unet_settings_are_checked():
         UNetSettings.from_dict({"channels": [8, 16, 32], "strides": [2]})
     with pytest.raises(SynthpackInputError, match="unknown unet setting"):
         UNetSettings.from_dict({"depth": 3})
+    assert UNetSettings.from_dict({"images_seen": 15400}).images_seen == 15400
+    for bad in (0, -5, 2.5, True, "many"):
+        with pytest.raises(SynthpackInputError, match="unet.images_seen must be a positive number"):
+            UNetSettings.from_dict({"images_seen": bad})
     UNetSettings().check_crop(96)
     with pytest.raises(SynthpackInputError, match="multiple of 8"):
         UNetSettings().check_crop(100)

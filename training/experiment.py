@@ -55,7 +55,7 @@ import logging
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -329,9 +329,20 @@ def _scores(folder: Path, arm: Arm, weights: Path, test_data: Path, config: Expe
 
 
 def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
-    """Every arm's epochs, images seen and steps (`training.compute.plan_compute`) from its dataset in `out`."""
-    sizes = {arm.name: dataset_images(out / "data", arm.dataset)["train"] for arm in config.arm_list}
-    return plan_compute(config.train, sizes)
+    """Every arm's epochs, images seen and steps (`training.compute.plan_compute`) from its dataset in `out`.
+
+    Each model family is planned on its own: its arms take equal steps among themselves, the
+    U-Net's budget ``unet.images_seen`` where given (`training.unet.UNetSettings`).
+    """
+    plans: dict[str, ArmPlan] = {}
+    for family in config.train.families:
+        sizes = {arm.name: dataset_images(out / "data", arm.dataset)["train"]
+                 for arm in config.arm_list if arm.family == family}
+        settings = config.train
+        if family == "unet" and config.unet.images_seen is not None:
+            settings = replace(settings, images_seen=config.unet.images_seen)
+        plans.update(plan_compute(settings, sizes))
+    return {arm.name: plans[arm.name] for arm in config.arm_list}
 
 
 def _trained(run: Path, plan: ArmPlan) -> dict | None:

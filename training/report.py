@@ -187,17 +187,25 @@ def _dataset_lines(arms: list[Arm], out: Path, plans: dict[str, ArmPlan]) -> lis
     return lines
 
 
-def compute_line(plans: dict[str, ArmPlan]) -> str:
-    """The report's sentence on training compute: the mode, clearly labelled, and its range of steps."""
+def compute_line(plans: dict[str, ArmPlan], families: dict[str, str] | None = None) -> str:
+    """The report's sentence on training compute: the mode, clearly labelled, and its range of steps per model family.
+
+    `families`: arm -> its model family (`training.arms.MODEL_FAMILIES`); each family is
+    planned on its own (`training.experiment.plan_arms`). Default: one family.
+    """
     if not plans:
         return "No arm trained."
     plan = next(iter(plans.values()))
-    seen = [p.images_seen for p in plans.values()]
-    steps = [p.steps for p in plans.values()]
-    span = (f"{min(seen)} to {max(seen)} training images seen, {min(steps):.0f} to {max(steps):.0f} steps"
-            if min(seen) != max(seen) else f"{seen[0]} training images seen, {steps[0]:.0f} steps")
-    return (f"**Training compute: {COMPUTE_MODES[plan.compute]}** ({span}; steps = images seen / batch "
-            f"{plan.batch}; each arm's in the Datasets table).")
+    families = families or {arm: "" for arm in plans}
+    spans = []
+    for family in dict.fromkeys(families[arm] for arm in plans):
+        members = [p for arm, p in plans.items() if families[arm] == family]
+        seen, steps = [p.images_seen for p in members], [p.steps for p in members]
+        span = (f"{min(seen)} to {max(seen)} training images seen, {min(steps):.0f} to {max(steps):.0f} steps"
+                if min(seen) != max(seen) else f"{seen[0]} training images seen, {steps[0]:.0f} steps")
+        spans.append(f"{MODEL_FAMILIES[family][1].split(' (')[0]}: {span}" if family else span)
+    return (f"**Training compute: {COMPUTE_MODES[plan.compute]}** ({'; '.join(spans)}; steps = images seen / "
+            f"batch {plan.batch}; each arm's in the Datasets table).")
 
 
 def convergence_lines(config, curves: dict) -> list[str]:
@@ -294,7 +302,7 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "Differences: `a − b` in Dice and F1 points, paired by test slice and seed, with the bootstrap 95% "
         "interval over test slices and seeds in brackets; `*` where the interval excludes 0.",
         "",
-        compute_line(plans),
+        compute_line(plans, {arm.name: arm.family for arm in config.arm_list}),
         "",
         "## Datasets",
         "",

@@ -78,7 +78,7 @@ WINDOW_OVERLAP = 0.25
 
 @dataclass(frozen=True)
 class UNetSettings:
-    """The U-Net family's network and optimizer (the keys of a config's ``unet:`` section but ``arms``).
+    """The U-Net family's network, optimizer and compute (the keys of a config's ``unet:`` section but ``arms``).
 
     Attributes
     ----------
@@ -93,6 +93,12 @@ class UNetSettings:
         AdamW's initial learning rate.
     weight_decay : float
         AdamW's weight decay.
+    images_seen : int or None
+        The family's training budget: every U-Net arm sees this many training images
+        (``train.compute: equal_steps``), planned apart from the YOLO arms; None:
+        ``train.images_seen`` (or its default, the largest U-Net arm's images times
+        ``train.epochs``). A U-Net from scratch needs more steps than a YOLO model of the
+        same run to stop improving.
     """
 
     channels: tuple = (16, 32, 64, 128)
@@ -100,6 +106,7 @@ class UNetSettings:
     num_res_units: int = 2
     lr: float = 0.002
     weight_decay: float = 1e-4
+    images_seen: int | None = None
 
     @classmethod
     def from_dict(cls, values: dict) -> UNetSettings:
@@ -116,6 +123,9 @@ class UNetSettings:
                 or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in levels)):
             raise SynthpackInputError(f"unet.channels needs at least 2 positive ints and unet.strides one fewer, "
                                       f"got channels {self.channels!r}, strides {self.strides!r}")
+        if self.images_seen is not None and (isinstance(self.images_seen, bool) or not isinstance(
+                self.images_seen, int) or self.images_seen <= 0):
+            raise SynthpackInputError(f"unet.images_seen must be a positive number of images, got {self.images_seen!r}")
 
     def check_crop(self, imgsz: int) -> None:
         """Refuse a training crop that the strides do not divide."""
