@@ -499,3 +499,15 @@ def test_calibrated_fits_the_psf_to_the_edges_steepness_where_the_labels_scatter
         assert fit.steepness_sigmas[int(np.argmin(fit.steepness_distances))] == fit.blur_sigma
         assert profile_only.steepness_sigmas is None
     assert profile_only.blur_sigma > 1.05  # the scattered labels' profile alone: a PSF 0.3 voxel too wide
+
+
+def test_a_calibration_region_too_small_for_the_steepness_keeps_the_profile_width(phantom, caplog):
+    clean, labels = phantom
+    source = GaussianNoise(std=0.02)(GaussianBlur(sigma=0.8)(clean, 0), 1)
+    statistics = dataclasses.replace(measure_source(Scan(source, labels)), cupping_strength=None)
+    region = np.zeros(labels.shape, bool)
+    region[11:21, 5:35, 5:35] = True  # 17,400 in-slice neighbour pairs: fewer than a steepness needs
+    with caplog.at_level(logging.WARNING):
+        fit = calibrate(clean, labels, region, **_calibration_targets(statistics))
+    assert fit.steepness_sigmas is None and fit.blur_sigma == fit.sigmas[-1]
+    assert "too few voxel pairs to read its edges' steepness" in caplog.text

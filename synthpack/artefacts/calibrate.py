@@ -602,13 +602,14 @@ def calibrate(
         tried = [sigma * factor for factor in STEEPNESS_FACTORS]
         distances = _steepness_distances(volume, box_region, tried, noise,
                                          np.asarray(target_steepness, dtype=np.float64), grain_level - pore_level)
-        best = tried[int(np.argmin(distances))]
-        if best != sigma:
-            logger.info("PSF sigma %s vx from the edge profile, %s vx from the edges' steepness", sig(sigma, 3),
-                        sig(best, 3))
-            sigma = best
-            calibration = fit_at(sigma, *edge(sigma))
-        calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
+        if distances is not None:
+            best = tried[int(np.argmin(distances))]
+            if best != sigma:
+                logger.info("PSF sigma %s vx from the edge profile, %s vx from the edges' steepness", sig(sigma, 3),
+                            sig(best, 3))
+                sigma = best
+                calibration = fit_at(sigma, *edge(sigma))
+            calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
     calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
                                calibration_halo(target_sigma))
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
@@ -628,13 +629,13 @@ def calibrate(
 
 
 def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequence[float],
-                         noise: Sequence[Transform], target: np.ndarray, contrast: float) -> list[float]:
+                         noise: Sequence[Transform], target: np.ndarray, contrast: float) -> list[float] | None:
     """For each PSF width of `sigmas`, the distance of the blurred, noisy `volume`'s edge steepness from `target`.
 
     The `noise` transforms (the calibration's noise steps) draw the same realisation at every
     width (stream ``calibration_fit``), so that the widths compare like with like. The tail is
-    read in `region` (`~synthpack.measure.steepness.edge_steepness`); a width at which it cannot
-    be read is at distance infinity.
+    read in `region` (`~synthpack.measure.steepness.edge_steepness`); None where the region holds
+    too few voxel pairs for it (a warning: the profile's width is kept).
     """
     distances = []
     for sigma in sigmas:
@@ -642,7 +643,11 @@ def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequenc
         for index, transform in enumerate(noise):
             out = transform(out, generator(0, "calibration_fit", index))
         tail = edge_steepness(out, region)
-        distances.append(math.inf if tail is None else steepness_distance(tail, target, contrast))
+        if tail is None:
+            logger.warning("the pack's calibration region holds too few voxel pairs to read its edges' steepness: "
+                           "the PSF is fitted to the edge profile alone")
+            return None
+        distances.append(steepness_distance(tail, target, contrast))
     return distances
 
 
