@@ -197,6 +197,12 @@ def test_background_texture_and_tube_wall():
     assert out[pores].std() == pytest.approx(0.03, rel=0.05)
     assert out[wall].mean() == pytest.approx(0.6, abs=0.005)
     assert not labels.any()
+    # a source that shows the air around its container: flat air outside the wall and below the floor
+    aired, _, _ = reconstruct(crops, maps, grid, Background(0.2, 0.03, 0.6, air=-0.4), tube=(40.0, 45.0, -5.0))
+    outside = (radius > 45.5) | (z < -5.5)
+    assert outside.any() and np.all(aired[outside] == np.float32(-0.4))
+    inside = ~outside & (radius < 44.5) & (z > -4.5)
+    np.testing.assert_array_equal(aired[inside], out[inside])
 
 
 def test_bad_settings_are_rejected(particle):
@@ -238,6 +244,10 @@ def test_background_from_source_statistics():
     walled = dataclasses.replace(statistics, wall_intensity=1.1, wall_thickness=2.5)
     assert Background.from_source(walled, ReconstructConfig()).wall == 1.1  # the source's measured wall
     assert Background.from_source(walled, ReconstructConfig(wall_intensity=0.9)).wall == 0.9  # the config wins
+    assert Background.from_source(walled, ReconstructConfig()).air is None  # no air measured: pores go on outside
+    aired = dataclasses.replace(walled, air_intensity=-0.3)
+    assert Background.from_source(aired, ReconstructConfig()).air == -0.3
+    assert Background.from_source(aired, ReconstructConfig(wall=False)).air is None  # no wall, no outside
     assert Background.from_source(walled, ReconstructConfig()).wall_radii(40.0, 43.0, 2.0) == (40.0, 45.0)
     assert background.wall_radii(40.0, 43.0, 2.0) == (40.0, 43.0)  # none measured: the tube's
     assert background.texture_record(seed=5) == {"model": "gaussian", "cutoff": 0.1, "rolloff": 0.1, "sigma": 1.2,

@@ -93,6 +93,8 @@ def test_a_wall_around_the_specimen_is_measured(specimen):
     assert found.wall.intensity == pytest.approx(1.0, abs=0.1)
     assert found.wall.thickness == pytest.approx(3.0, abs=0.75)
     assert found.wall.inner_radius == pytest.approx(47.0, abs=0.75)
+    assert found.wall.air == pytest.approx(0.0, abs=0.05)  # the air outside the wall
+    assert found.statistics_fields()["air_intensity"] == found.wall.air
     assert found.rings.radii == () and not found.cupping.significant  # the wall is not in the specimen
 
 
@@ -122,3 +124,4 @@ def test_the_concrete_neutron_scan_shows_its_wall():
     # the bright cylindrical wall (README): brighter than the paste, outside the labelled aggregates
     assert statistics.wall_intensity > statistics.pore_mean + 0.25 * abs(statistics.contrast)
     assert 1.0 < statistics.wall_thickness < 8.0 and statistics.wall_gap > 0
+    assert statistics.air_intensity < statistics.grain_mean < statistics.pore_mean  # air, aggregates, paste

@@ -186,12 +186,16 @@ class Wall:
     gap : float
         ``inner_radius`` less the specimen's radius (the radius of a disc of the
         specimen mask's mean area per slice), voxels.
+    air : float
+        The darkest level of the profile beyond the wall: the air around the container,
+        intensity units.
     """
 
     intensity: float
     thickness: float
     inner_radius: float
     gap: float
+    air: float
 
 
 @dataclass(frozen=True)
@@ -257,6 +261,7 @@ class ScannerArtefacts:
             "wall_intensity": wall.intensity if wall is not None else None,
             "wall_thickness": wall.thickness if wall is not None else None,
             "wall_gap": wall.gap if wall is not None else None,
+            "air_intensity": wall.air if wall is not None else None,
         }
 
 
@@ -585,7 +590,7 @@ def _wall(tomogram: np.ndarray, specimen: np.ndarray, slices: np.ndarray, axis: 
     excess = (profile[inside] - pore_level).sum() * RING_BIN + (profile[beyond_wall] - air).sum() * RING_BIN
     intensity = float((pore_level + air) / 2.0 + excess / max(outer - inner, RING_BIN))
     return Wall(intensity=intensity, thickness=float(outer - inner), inner_radius=float(inner),
-                gap=float(inner - specimen_radius))
+                gap=float(inner - specimen_radius), air=float(air))
 
 
 def _crossing(profile: np.ndarray, r: np.ndarray, peak: int, step: int, level: float) -> float:

@@ -1,4 +1,4 @@
-"""What the render draws where no grain is: the pore level, the pore texture and the tube wall.
+"""What the render draws where no grain is: the pore level, the pore texture, the tube wall and the air beyond it.
 
 The background is a function of the global voxel position, so a render does not depend on
 its chunking. It is derived from the source scan's statistics in one place,
@@ -36,6 +36,9 @@ class Background:
         Intensity of the tube wall; None draws no wall.
     wall_thickness : float or None
         Thickness of the drawn wall, voxels (the source's measured wall); None: the tube's own.
+    air : float or None
+        Intensity outside the wall, flat (the air the source shows around its container);
+        None: the pores' level and texture go on outside it.
     extent : tuple of 3 int or None
         The shape of the volume drawn: the pore texture's period covers it (`PoreTextureConfig.period`);
         None: the texture's `~PoreTextureConfig.tile`.
@@ -57,6 +60,7 @@ class Background:
     pore_quantiles: tuple[float, ...] | None = None
     wall_thickness: float | None = None
     extent: tuple[int, int, int] | None = None
+    air: float | None = None
 
     @classmethod
     def from_source(cls, statistics: SourceStatistics, config: ReconstructConfig) -> Background:
@@ -66,7 +70,8 @@ class Background:
         intensity ``config.wall_intensity`` if set, else the source's measured wall's
         (`~synthpack.source.SourceStatistics.wall_intensity`), else `WALL_FRACTION` of
         the way from pore to grain level; the source's measured wall's thickness, else
-        the tube's; ``config.wall = False`` draws none.
+        the tube's; ``config.wall = False`` draws none. Outside a drawn wall, the air the source
+        shows around its container (`~synthpack.source.SourceStatistics.air_intensity`), where measured.
         """
         if config.wall_intensity is not None:
             wall = config.wall_intensity
@@ -76,7 +81,8 @@ class Background:
             wall = statistics.pore_mean + WALL_FRACTION * statistics.contrast
         return cls(statistics.pore_mean, statistics.pore_std, wall if config.wall else None, config.pore_texture,
                    statistics.pore_spectrum, statistics.pore_quantiles,
-                   statistics.wall_thickness if config.wall else None)
+                   statistics.wall_thickness if config.wall else None,
+                   air=statistics.air_intensity if config.wall else None)
 
     def wall_radii(self, inner: float, outer: float, voxel: float) -> tuple[float, float]:
         """The drawn wall's inner and outer radius for a tube of `inner` and `outer` radius (physical units).
@@ -115,7 +121,12 @@ def background_values(
     grid: Grid, lo: np.ndarray, hi: np.ndarray, background: Background, tube: tuple[float, float, float] | None,
     seed: int,
 ) -> np.ndarray:
-    """The background over the box ``[lo, hi)``: pore level + pore texture, then the wall (float32, shape hi - lo)."""
+    """The background over the box ``[lo, hi)``: pore level + pore texture, then the wall and the air beyond it.
+
+    Returns
+    -------
+    ndarray of float32, shape hi - lo
+    """
     values = np.full(tuple(hi - lo), background.pore_mean, dtype=np.float32)
     if background.pore_std > 0:
         values += background.texture_values(lo, hi, seed)
@@ -126,4 +137,6 @@ def background_values(
         radius = np.sqrt(x**2 + y**2)
         in_wall = (radius <= outer) & (z >= base) & ((radius >= inner) | (z < 0))
         values[np.broadcast_to(in_wall, values.shape)] += np.float32(background.wall - background.pore_mean)
+        if background.air is not None:
+            values[np.broadcast_to((radius > outer) | (z < base), values.shape)] = np.float32(background.air)
     return values

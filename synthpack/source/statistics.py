@@ -143,6 +143,10 @@ class SourceStatistics:
         Whether the scan holds whole numbers only (an integer file, 8 or 16 bit, as most
         scans are stored): ``postprocess: calibrated`` then puts a pack's intensities on the
         same grid (`~synthpack.artefacts.RoundLevels`). None in a library of an older synthpack.
+    air_intensity : float or None
+        The air around the container (`~synthpack.measure.scanner.Wall.air`), intensity
+        units: what a pack's tube has outside its wall. None where no wall was measured, or
+        in a library of an older synthpack.
     edge_steepness : tuple of float or None
         How steep the scan's edges are, read without its labels: the upper tail of the
         absolute differences between in-slice neighbours in the specimen, at
@@ -184,6 +188,7 @@ class SourceStatistics:
     semivariogram_pores: tuple[float, ...] | None = None
     whole_levels: bool | None = None
     edge_steepness: tuple[float, ...] | None = None
+    air_intensity: float | None = None
 
     @property
     def contrast(self) -> float:
