@@ -29,6 +29,12 @@ from synthpack.artefacts import (
     noise_to_add,
 )
 from synthpack.artefacts.blockwise import apply_blockwise
+from synthpack.artefacts.coloured_noise import (
+    fit_noise_and_texture,
+    highpass_variance_of_spectrum,
+    ring_powers_of_spectrum,
+    spectrum_for_rings,
+)
 from synthpack.errors import SynthpackInputError
 from synthpack.measure import noise_power_spectrum
 from synthpack.measure import estimate_noise
@@ -362,6 +368,24 @@ def test_constructor_and_image_errors() -> None:
         GaussianNoise()(np.zeros((4, 4), dtype=complex), 0)
     out = GaussianNoise()(np.zeros((4, 4), dtype=np.uint16), 0)
     assert out.dtype == np.float32
+
+
+#: Ring powers falling over three decades, and a noise level: those the concrete neutron CT's pore
+#: noise asked of its pack (intensity units squared), rounded.
+STEEP_RINGS = (742_000.0, 427_000.0, 215_000.0, 114_000.0, 6_300.0, 830.0)
+STEEP_HIGHPASS = 101_600.0
+
+
+def test_the_noise_fit_matches_every_ring_of_a_steep_spectrum_as_a_factor() -> None:
+    """The weak outer rings count as much, as a fraction of their power, as the strong inner ones:
+    weighed relative to each target plus the largest, the fit gave the fifth and sixth rings half
+    of their power (x0.53, x0.48), the pack then x0.33."""
+    spectrum = spectrum_for_rings(STEEP_RINGS, STEEP_HIGHPASS)
+    ratios = ring_powers_of_spectrum(spectrum, len(STEEP_RINGS)) / np.asarray(STEEP_RINGS)
+    assert np.all((ratios > 0.75) & (ratios < 4 / 3)), ratios
+    assert 0.75 < highpass_variance_of_spectrum(spectrum) / STEEP_HIGHPASS < 4 / 3
+    powers, highpass, _ = fit_noise_and_texture(STEEP_RINGS, STEEP_HIGHPASS, None)
+    assert powers == STEEP_RINGS and highpass == STEEP_HIGHPASS  # without a semivariogram: the noise as asked
 
 
 def test_coloured_noise_has_the_asked_spectrum_per_phase_whatever_the_blocks() -> None:

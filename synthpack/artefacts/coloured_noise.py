@@ -68,6 +68,11 @@ __all__ = ["ColouredNoise", "TEXTURE_SIGMAS", "TILE", "fit_noise_and_texture", "
 TILE = 64
 #: The correlation lengths (voxels) a texture is fitted over (`fit_noise_and_texture`).
 TEXTURE_SIGMAS = tuple(round(0.3 + 0.1 * i, 1) for i in range(28))
+#: Each ring power's (and the noise level's) fit error is weighed relative to its own
+#: target, but to no less than this fraction of the largest (`_ring_weights`): a scan's ring
+#: powers span decades (the concrete neutron CT's pores: 770,000 down to 860 from the first
+#: ring to the sixth), and the realism target is a factor in every ring.
+RING_WEIGHT_FLOOR = 1e-3
 
 
 def _hats(n_knots: int, tile: int) -> np.ndarray:
@@ -178,8 +183,8 @@ def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None,
         Also the variance `highpass_variance_of_spectrum` (intensity units squared), which
         pins the 3D high frequencies the in-slice rings say little of; the spectrum then
         gets one more knot, a ring beyond the last. Each equation's error is weighed
-        relative to its target plus the largest target (so small targets are not
-        forced at the others' cost).
+        relative to its target (`_ring_weights`), so that the weak outer rings are matched
+        as closely, as a factor, as the strong inner ones.
     tile : int
         Side of the cube, voxels.
 
@@ -195,11 +200,33 @@ def spectrum_for_rings(powers: tuple[float, ...], highpass: float | None = None,
     if highpass is not None:
         response = np.vstack([response, [highpass_variance_of_spectrum(h) for h in hats]])
         target = np.append(target, highpass)
-    weight = 1.0 / (target + max(target.max(), np.finfo(float).tiny))
+    weight = _ring_weights(target)
     knots, _ = optimize.nnls(response * weight[:, None], target * weight)
     spectrum = np.tensordot(knots, hats, axes=1)
     spectrum.flags.writeable = False
     return spectrum
+
+
+def _ring_weights(target: np.ndarray) -> np.ndarray:
+    """Least-squares weights of ring-power (and noise-level) targets: ``1 / (2 max(target, RING_WEIGHT_FLOOR * max))``.
+
+    Parameters
+    ----------
+    target : ndarray of float64, shape (R,)
+        Non-negative targets, intensity units squared: the ring powers (and the noise level's
+        variance).
+
+    Returns
+    -------
+    ndarray of float64, shape (R,)
+        Each error then counts as a fraction of its target (a factor, as the realism target
+        reads the rings); a target near 0 (the pack already has that ring's power) as a
+        fraction of `RING_WEIGHT_FLOOR` times the largest. The factor 1/2 keeps the rings'
+        weight against the semivariogram's in `fit_noise_and_texture` (each lag relative to its
+        own value) where the spectrum is flat, as it was when every error was taken relative to
+        its target plus the largest.
+    """
+    return 0.5 / np.maximum(target, max(RING_WEIGHT_FLOOR * float(target.max()), np.finfo(float).tiny))
 
 
 @functools.lru_cache(maxsize=128)
@@ -255,8 +282,7 @@ def fit_noise_and_texture(
     noise_target = np.append(clipped, [] if high is None else [high])
     target = np.concatenate([np.append(powers, [] if high is None else [highpass]), semivariogram])
     scale = np.abs(np.asarray(semivariogram if scale is None else scale, dtype=np.float64))
-    weight = np.concatenate([1.0 / (noise_target + max(noise_target.max(), np.finfo(float).tiny)),
-                             1.0 / np.maximum(scale, np.finfo(float).tiny)])
+    weight = np.concatenate([_ring_weights(noise_target), 1.0 / np.maximum(scale, np.finfo(float).tiny)])
     hats = _responses(len(powers), high is not None, None, tile)
     best: tuple[float, np.ndarray, float] | None = None
     for sigma in TEXTURE_SIGMAS:
