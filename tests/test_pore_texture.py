@@ -223,3 +223,24 @@ def test_the_period_covers_the_volume_up_to_the_tile():
     field = texture.sample(np.zeros(3, int), np.array(extent), 3, 1.0, spectrum, extent=extent)
     assert field.shape == extent and not np.allclose(field[:, :22], field[:, 128:150])  # 128, the old tile
     assert texture.record(1.0, spectrum, 3, extent=extent)["period"] == texture.period(extent)
+
+
+def test_drawing_the_mapped_texture_holds_a_few_cubes_of_memory():
+    """The periodic cube is the render's largest fixed cost (256^3 by default): its temporaries stay a few cubes.
+
+    Measured with tracemalloc, which sees NumPy's allocations: drawing a 96^3 mapped texture peaks at
+    4.2 float64 cubes (the cached density, the field, its half spectrum); with whole-cube temporaries
+    (the white noise kept, the histogram map over the whole cube at once) it peaked at 7.6.
+    """
+    import tracemalloc
+
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    texture = PoreTextureConfig(tile=96)
+    box = (np.zeros(3, int), np.full(3, 96))
+    tracemalloc.start()
+    try:
+        texture.sample(*box, 11, 1.0, spectrum, _lognormal_quantiles())
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 6 * 96**3 * 8

@@ -83,10 +83,12 @@ def shell_frequencies(n_shells: int, size: int = PORE_SPECTRUM_SIZE) -> np.ndarr
     return np.arange(n_shells) / size
 
 
-def frequency_radius(shape: tuple[int, ...]) -> np.ndarray:
-    """``|f|`` (cycles/voxel) at every frequency of the full FFT grid of `shape`, float64, shape `shape`."""
+def frequency_radius(shape: tuple[int, ...], rows: slice = slice(None)) -> np.ndarray:
+    """``|f|`` (cycles/voxel) at every frequency of the full FFT grid of `shape`, float64, shape `shape`;
+    only its `rows` along the first axis where given (the same values, a slab's memory)."""
     squares = [np.square(np.fft.fftfreq(n)).reshape([-1 if i == j else 1 for j in range(len(shape))])
                for i, n in enumerate(shape)]
+    squares[0] = squares[0][rows]
     return np.sqrt(sum(squares))
 
 
@@ -172,8 +174,10 @@ def measure_pore_spectrum(
     return np.maximum(radial, 0.0)
 
 
-def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_SIZE) -> np.ndarray:
-    """A shell spectrum (`measure_pore_spectrum`) on the full FFT grid of a periodic cube of `tile` voxels.
+def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_SIZE,
+                     rows: slice = slice(None)) -> np.ndarray:
+    """A shell spectrum (`measure_pore_spectrum`) on the full FFT grid of a periodic cube of `tile` voxels
+    (only its `rows` along the first axis where given).
 
     Interpolated linearly in ``|f|`` on the logarithm of the density (geometrically:
     a spectrum that falls by decades between two shells is not lifted by the one
@@ -181,11 +185,11 @@ def spectrum_on_grid(density: np.ndarray, tile: int, size: int = PORE_SPECTRUM_S
 
     Returns
     -------
-    ndarray of float64, shape (tile, tile, tile)
+    ndarray of float64, shape (tile, tile, tile), or (rows, tile, tile)
         Density at every frequency of the grid; its mean is the variance of noise with it.
     """
     density = np.asarray(density, dtype=np.float64)
-    radius = frequency_radius((tile,) * 3)
+    radius = frequency_radius((tile,) * 3, rows)
     logarithm = np.log(np.maximum(density, np.finfo(float).tiny))
     grid = np.exp(np.interp(radius, shell_frequencies(len(density), size), logarithm))
     grid[radius > shell_frequencies(len(density), size)[-1]] = 0.0

@@ -102,6 +102,8 @@ _LEVELS = 1024
 _SAMPLE = 1 << 21
 #: ... and applied through a table of this many values, evenly spaced from the least to the greatest.
 _TABLE = 1 << 14
+#: Element-wise steps on the cube run over this many of its slices at a time (their temporaries' size).
+_SLAB = 16
 
 
 @dataclass(frozen=True)
@@ -229,20 +231,29 @@ class PoreTextureConfig:
                 "period": self.period(extent), "seed": seed}
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=2)
 def _density(texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None,
              period: int) -> np.ndarray:
-    """`PoreTextureConfig.density` on a cube of `period`, computed once per argument and read-only."""
-    radius = frequency_radius((period,) * 3)
-    if texture.model_for(pore_spectrum) == "measured":
-        start, end = texture.band()
-        ramp = np.clip((radius - start) / (end - start), 0.0, 1.0)
-        density = spectrum_on_grid(smooth_spectrum(np.asarray(pore_spectrum)), period)
-        density *= 0.5 * (1.0 + np.cos(np.pi * ramp))
-        density[0, 0, 0] = 0.0
-    else:
-        density = np.exp(-4.0 * np.pi**2 * texture.sigma**2 * radius**2)
-        density[0, 0, 0] = 0.0
+    """`PoreTextureConfig.density` on a cube of `period`, computed once per argument and read-only.
+
+    Computed `_SLAB` slices at a time (every step is a function of the frequency alone).
+    """
+    shape = (period,) * 3
+    density = np.empty(shape)
+    measured = texture.model_for(pore_spectrum) == "measured"
+    smooth = smooth_spectrum(np.asarray(pore_spectrum)) if measured else None
+    start, end = texture.band()
+    for first in range(0, period, _SLAB):
+        rows = slice(first, first + _SLAB)
+        radius = frequency_radius(shape, rows)
+        if measured:
+            slab = spectrum_on_grid(smooth, period, rows=rows)
+            slab *= 0.5 * (1.0 + np.cos(np.pi * np.clip((radius - start) / (end - start), 0.0, 1.0)))
+        else:
+            slab = np.exp(-4.0 * np.pi**2 * texture.sigma**2 * radius**2)
+        density[rows] = slab
+    density[0, 0, 0] = 0.0
+    if not measured:
         density *= pore_std**2 / max(density.mean(), np.finfo(float).tiny)
     density.flags.writeable = False
     return density
@@ -254,7 +265,7 @@ def _onto_histogram(values: np.ndarray, sigma: float, quantiles: np.ndarray) -> 
     The ranks are read off `_LEVELS` quantiles of at most `_SAMPLE` of the values (every
     k-th) and the least and greatest value, with linear interpolation between them; a
     rank's quantile is `~synthpack.measure.pore_histogram.map_to_quantiles` of its
-    normal score (standard deviation `sigma`).
+    normal score (standard deviation `sigma`). Applied slab by slab (`_by_slabs`).
     """
     flat = values.ravel()
     sample = np.sort(flat[:: max(1, flat.size // _SAMPLE)])
@@ -267,10 +278,26 @@ def _onto_histogram(values: np.ndarray, sigma: float, quantiles: np.ndarray) -> 
         return np.zeros_like(values)
     table = np.interp(np.linspace(low, high, _TABLE), observed, map_to_quantiles(scores, sigma, quantiles))
     table, slope = table.astype(values.dtype), np.diff(table).astype(values.dtype)
-    position = (values - values.dtype.type(low)) * values.dtype.type((_TABLE - 1) / (high - low))
-    index = np.minimum(position.astype(np.int32), _TABLE - 2)  # a table lookup: np.interp's search is slow
-    position -= index
-    return table[index] + position * slope[index]
+    origin, scale = values.dtype.type(low), values.dtype.type((_TABLE - 1) / (high - low))
+
+    def look_up(slab: np.ndarray) -> np.ndarray:
+        position = (slab - origin) * scale
+        index = np.minimum(position.astype(np.int32), _TABLE - 2)  # a table lookup: np.interp's search is slow
+        position -= index
+        return table[index] + position * slope[index]
+
+    return _by_slabs(look_up, values, values.dtype)
+
+
+def _by_slabs(function, values: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """``function(values)`` for an element-wise `function`, computed `_SLAB` slices of `values` at a time.
+
+    The same values as one call, with the temporaries of a slab rather than of the whole cube.
+    """
+    out = np.empty(values.shape, dtype=dtype)
+    for start in range(0, values.shape[0], _SLAB):
+        out[start:start + _SLAB] = function(values[start:start + _SLAB])
+    return out
 
 
 def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, rolled: np.ndarray) -> np.ndarray:
@@ -278,20 +305,22 @@ def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, roll
     and its own roll-off: the map onto the histogram, then `BAND_ITERATIONS` times the field's own Fourier
     amplitudes (0 beyond the band) where `rolled` (bool, on the rfftn grid: the roll-off and beyond) with the
     values' phases, and, but for the last time, the histogram again (by the values' ranks)."""
-    spectrum = fft.rfftn(field)
-    amplitudes = np.abs(spectrum[rolled]).astype(np.float32)
-    values = map_to_quantiles(field, sigma, quantiles)
+    amplitudes = np.abs(fft.rfftn(field)[rolled]).astype(np.float32)
+    values = _by_slabs(lambda slab: map_to_quantiles(slab, sigma, quantiles), field, np.float32)
     for step in range(BAND_ITERATIONS):
-        spectrum = fft.rfftn(values.astype(np.float32))
+        spectrum = fft.rfftn(values)
+        del values
         outer = spectrum[rolled]
         spectrum[rolled] = outer * (amplitudes / np.maximum(np.abs(outer), np.finfo(np.float32).tiny))
+        del outer
         values = fft.irfftn(spectrum, s=field.shape)
+        del spectrum
         if step < BAND_ITERATIONS - 1:
             values = _onto_histogram(values, sigma, quantiles)
     return values.astype(np.float64)
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=2)
 def _periodic_field(
     texture: PoreTextureConfig, pore_std: float, pore_spectrum: tuple[float, ...] | None,
     pore_quantiles: tuple[float, ...] | None, seed: int, period: int,
@@ -305,15 +334,18 @@ def _periodic_field(
         logger.warning("the source has no measured pore spectrum: Gaussian pore texture of sigma %s voxels",
                        sig(texture.sigma))
     shape = (period,) * 3
-    density = _density(texture, pore_std, pore_spectrum, period)[..., : period // 2 + 1]
-    white = generator(seed, "pore_texture").standard_normal(shape)
-    field = fft.irfftn(fft.rfftn(white) * np.sqrt(density), s=shape)
-    expected = np.sqrt(_density(texture, pore_std, pore_spectrum, period).mean())
+    density = _density(texture, pore_std, pore_spectrum, period)
+    spectrum = fft.rfftn(generator(seed, "pore_texture").standard_normal(shape))
+    spectrum *= np.sqrt(density[..., : period // 2 + 1])
+    field = fft.irfftn(spectrum, s=shape)
+    del spectrum
+    expected = np.sqrt(density.mean())
     realised = field.std()
     if realised > 0:
         field *= expected / realised
         if texture.maps_histogram(pore_spectrum, pore_quantiles):
-            rolled = frequency_radius(shape)[..., : period // 2 + 1] > texture.band()[0]
+            rolled = np.concatenate([frequency_radius(shape, slice(first, first + _SLAB))[..., : period // 2 + 1]
+                                     > texture.band()[0] for first in range(0, period, _SLAB)])
             field = _mapped_in_band(field, expected, np.asarray(pore_quantiles), rolled)
             field *= expected / field.std()
     field = field.astype(np.float32)
