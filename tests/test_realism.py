@@ -85,6 +85,26 @@ def test_noise_level_and_spectrum_of_added_gaussian_noise():
     assert spectrum.centroid > 0.35  # white noise: power at high frequencies
 
 
+def test_pore_bands_read_a_pore_phase_brighter_and_calmer_near_its_grains():
+    """A paste that is 30 brighter and half as variable within 2 voxels of its grains: the bands say so."""
+    from synthpack.measure.edges import signed_distance
+    from synthpack.measure.pore_bands import BANDS, pore_bands
+
+    labels = np.zeros((40, 40, 40), np.int32)
+    labels[8:14, 8:14, 8:14], labels[24:32, 20:30, 10:18] = 1, 2
+    distance = signed_distance(labels)
+    rng = np.random.default_rng(0)
+    near = (distance < 0) & (distance >= -2)
+    tomogram = np.where(labels > 0, 200.0, 100.0 + rng.normal(0, np.where(near, 10.0, 20.0), labels.shape))
+    tomogram += np.where(near, 30.0, 0.0)
+    bands = pore_bands(tomogram, distance, np.ones(labels.shape, bool))
+    assert len(bands.median) == BANDS and bands.voxels.sum() == np.count_nonzero(labels == 0)
+    np.testing.assert_allclose(bands.median, [130, 130, 100, 100, 100], atol=2)
+    # the IQR of a normal distribution is 1.349 of its standard deviation
+    np.testing.assert_allclose(bands.iqr, 1.349 * np.array([10, 10, 20, 20, 20]), rtol=0.1)
+    assert bands.to_dict()["voxels"] == bands.voxels.tolist()
+
+
 def test_patches_lie_inside_the_mask():
     mask = np.zeros((3, 30, 30), dtype=bool)
     mask[:, 5:25, 5:25] = True
@@ -234,6 +254,9 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
         assert specimen["figures"]["pore_width_median"] >= 1 and 0 <= specimen["figures"]["pore_narrow_share"] <= 1
     assert all(0 <= pack["distances"]["ks_pore_width"] <= 1 for pack in report["packs"])
     assert "median pore half-width" in (out / "realism.md").read_text()
+    source_bands = report["source"]["figures"]["pore_bands"]
+    assert len(source_bands["median"]) == 5 and sum(source_bands["voxels"]) > 0
+    assert "## Pore phase against distance from the grains" in (out / "realism.md").read_text()
     printed = capsys.readouterr().out
     assert "floor (source against itself, slabs of 10): logistic AUC" in printed and "cnn AUC" not in printed
     # without packs: the source and its floor only

@@ -14,6 +14,7 @@ means the same on both. Modules, one job each:
 ``phase_histograms``  full-band intensity histograms (quantiles) of grains, pores and edges, and their distance
 ``pore_spectrum``     the pore interior's 3D power spectrum on every scale up to 32 voxels (the pore texture's)
 ``pore_width``        the local half-width of the pore space at each pore voxel (thin gaps against open pores)
+``pore_bands``        the pore phase's level and spread in bands of distance from the nearest grain
 ``pore_histogram``    the pore interior's histogram shape (quantiles) and the map onto it (the pore texture's)
 ``spectral_spikes``   `spectral_spikes`: periodic patterns in a phase, as narrow peaks of its in-slice spectrum
 ``specimen``          `specimen_mask`: the specimen's voxels, without the container and the air
@@ -30,6 +31,7 @@ from .phase_histograms import phase_masks, phase_quantiles, quantile_distance
 from .phases import PhaseLevels, estimate_phases
 from .pore_histogram import QUANTILE_SCORES, map_to_quantiles, measure_pore_quantiles
 from .pore_spectrum import PORE_SPECTRUM_SIZE, measure_pore_spectrum, spectrum_on_grid
+from .pore_bands import PoreBands, pore_bands
 from .pore_width import pore_half_widths
 from .psf import EdgeSpread, fit_edge_spread
 from .roughness import section_roughness, volume_roughness
@@ -52,6 +54,8 @@ __all__ = [
     "fit_edge_spread",
     "map_to_quantiles",
     "measure_pore_quantiles",
+    "pore_bands",
+    "PoreBands",
     "measure_pore_spectrum",
     "mean_coordination",
     "measure_scanner",

@@ -32,7 +32,10 @@ Figures:
   full-band histograms (W);
 * the edge profile, its 10-90 width and its half-height position (where it
   crosses half-way from the pore to the grain level, voxels of signed distance
-  from the label boundary; `synthpack.measure.edges`).
+  from the label boundary; `synthpack.measure.edges`);
+* the pore phase's median and interquartile range in bands of one voxel of distance
+  from the nearest grain (`synthpack.measure.pore_bands`): a pore phase that is
+  brighter or less variable next to the grains than far from them shows there.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from ..errors import SynthpackInputError
 from ..measure.edges import EdgeProfile, edge_profile, edge_width, half_height, signed_distance
 from ..measure.noise_estimate import NoiseEstimate, estimate_noise
 from ..measure.phase_histograms import phase_masks
+from ..measure.pore_bands import PoreBands, pore_bands
 from ..measure.spectrum import NPS_PATCH, NoiseSpectrum, noise_power_spectrum
 from .region import Specimen
 
@@ -126,6 +130,8 @@ class Appearance:
         10-90 width of `profile`, voxels.
     half_height : float
         Half-height position of `profile`, voxels of signed distance from the label boundary.
+    pore_bands : PoreBands
+        The pore phase's level and spread against the distance to the nearest grain.
     """
 
     samples: dict[str, np.ndarray]
@@ -134,6 +140,7 @@ class Appearance:
     profile: EdgeProfile
     edge_width: float
     half_height: float
+    pore_bands: PoreBands
 
     @property
     def contrast(self) -> float:
@@ -163,7 +170,7 @@ def measure_appearance(specimen: Specimen, *, max_samples: int = 200_000) -> App
     profile = edge_profile(specimen.tomogram, distance, specimen.region)
     spectra = {phase: noise_power_spectrum(specimen.tomogram, masks[phase]) for phase in ("grains", "pores")}
     appearance = Appearance(samples, noise_levels(specimen), spectra, profile, edge_width(profile),
-                            half_height(profile))
+                            half_height(profile), pore_bands(specimen.tomogram, distance, specimen.region))
     logger.info("%s: edge width %.3f voxels, half height at %+.3f voxels, noise %.4g (grain %s, pore %s)",
                 specimen.name, appearance.edge_width, appearance.half_height, appearance.noise.std,
                 appearance.noise.grain_std, appearance.noise.pore_std)

@@ -174,6 +174,41 @@ def _nps_section(packs: list[dict]) -> list[str]:
             _table(["ring (cycles/voxel)", *[f"{name}, {phase}" for name, phase, _ in columns]], rows), note]
 
 
+#: A pack's pore band is marked where its median is this far from the source's (a fraction of the contrast) ...
+BAND_LEVEL = 0.05
+#: ... or its interquartile range more than this factor from the source's.
+BAND_SPREAD = 1.5
+
+
+def _band_cell(bands: dict, k: int, source: dict | None, contrast: float) -> str:
+    """``median / IQR`` of band `k`, marked * where it differs from `source`'s bands (BAND_LEVEL, BAND_SPREAD)."""
+    median, iqr = bands["median"][k], bands["iqr"][k]
+    if median is None:
+        return "n/a"
+    cell = f"{_fmt(median)} / {_fmt(iqr)}"
+    if source is None or source["median"][k] is None:
+        return cell
+    level = abs(median - source["median"][k]) > BAND_LEVEL * abs(contrast)
+    spread = not 1 / BAND_SPREAD <= (iqr or 0.0) / max(source["iqr"][k], 1e-12) <= BAND_SPREAD
+    return cell + (" *" if level or spread else "")
+
+
+def _pore_bands_section(source: dict, packs: list[dict]) -> list[str]:
+    """The pore phase's median / IQR in bands of distance from the nearest grain, source and packs."""
+    reference = source["figures"]["pore_bands"]
+    contrast = source["figures"]["grain_level"] - source["figures"]["pore_level"]
+    n = len(reference["median"])
+    rows = [[f"{k + 1}" if k < n - 1 else f"more than {n - 1}", _band_cell(reference, k, None, contrast),
+             *[_band_cell(p["figures"]["pore_bands"], k, reference, contrast) for p in packs]] for k in range(n)]
+    note = (f"Median / interquartile range of the pore voxels in each band of distance from the nearest grain "
+            f"(band k: more than k - 1 and at most k voxels of signed distance from the boundary). * marks a "
+            f"band whose median is more than {BAND_LEVEL:g} of the contrast from the source's, or whose spread "
+            f"is more than {BAND_SPREAD:g}x off: a pore phase drawn the same everywhere where the source's "
+            "changes near its grains.\n")
+    return ["\n## Pore phase against distance from the grains\n",
+            _table(["band (voxels)", "source", *[p["name"] for p in packs]], rows), note]
+
+
 def report_markdown(report: dict) -> str:
     """Markdown of a realism report.
 
@@ -251,6 +286,7 @@ def report_markdown(report: dict) -> str:
         _half_height_row(source, packs),
     ]))
     out += _nps_section(packs)
+    out += _pore_bands_section(source, packs)
     out += _classifier_section(report)
     if packs:
         out.append("\n## Post-processing of each pack\n")

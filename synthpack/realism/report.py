@@ -27,6 +27,9 @@ The report's sections (``realism.md``; the same figures in ``realism.json``):
   naming the target figures on which it is worse than ``none``;
 * **Noise power spectrum**: the ratio pack / source in every ring (from the lowest,
   1/8 cycles per voxel, to the corner), per phase where measurable, and the worst ring;
+* **Pore phase against distance from the grains**: the pore voxels' median and
+  interquartile range in bands of one voxel from the nearest grain
+  (`synthpack.measure.pore_bands`), a pack's band marked where it is off the source's;
 * **Classifiers**: the floor and each pack's AUCs, margins and timings;
 * the post-processing of each pack, and the pictures.
 
@@ -132,6 +135,7 @@ class Measurements:
             "nps_centroid_pore": spectra["pores"],
             "edge_width": a.edge_width,
             "edge_half_height": a.half_height,
+            "pore_bands": a.pore_bands.to_dict(),
         }
 
 
