@@ -244,3 +244,19 @@ def test_drawing_the_mapped_texture_holds_a_few_cubes_of_memory():
     finally:
         tracemalloc.stop()
     assert peak < 6 * 96**3 * 8
+
+
+def test_chunk_threads_asking_for_the_texture_at_once_draw_its_cube_once():
+    """The render's chunk threads share the cached cube: the second waits for the first rather than drawing its own."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from synthpack.render import pore_texture
+
+    spectrum = tuple(_gaussian_density(shell_frequencies(29)))
+    texture = PoreTextureConfig(tile=96)
+    before = pore_texture._periodic_field.cache_info().misses
+    boxes = [(np.array([0, 0, 0]), np.array([8, 8, 8])), (np.array([40, 0, 0]), np.array([48, 8, 8]))]
+    with ThreadPoolExecutor(2) as pool:
+        values = list(pool.map(lambda box: texture.sample(*box, 12345, 1.0, spectrum, _lognormal_quantiles()), boxes))
+    assert pore_texture._periodic_field.cache_info().misses == before + 1
+    assert not np.array_equal(values[0], values[1])

@@ -15,7 +15,11 @@ side is the smallest fast FFT length of at least the volume's largest side (and
 at least the 64 voxels of the measured spectrum's largest scale), up to
 `PoreTextureConfig.tile` (256). A pack no larger than that never shows the same
 texture twice; a larger one repeats it every `tile` voxels (a cube of ``tile^3``
-float64 values, and several FFTs of it, is the cost of a longer period).
+float64 values, and several FFTs of it, is the cost of a longer period). The cube is
+drawn once per texture and seed and cached: the render's chunk threads that ask for it
+at once wait for the first to draw it, which runs its FFTs on every core (the same
+values on any number of threads) and its element-wise steps slab by slab, so that it
+holds a few cubes of memory at a time (the default 256^3 cube: 10 s on one core).
 
 Two models (`PoreTextureConfig.model`):
 
@@ -73,6 +77,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
@@ -80,6 +85,7 @@ import numpy as np
 from scipy import fft, special
 
 from .._shared.arrays import periodic_window
+from .._shared.chunks import thread_count
 from .._shared.schema import in_range, non_negative, one_of, positive, setting
 from .._shared.seeds import generator
 from .._shared.text import sig
@@ -104,6 +110,9 @@ _SAMPLE = 1 << 21
 _TABLE = 1 << 14
 #: Element-wise steps on the cube run over this many of its slices at a time (their temporaries' size).
 _SLAB = 16
+#: Held while a periodic cube is drawn: the render's chunk threads that ask for the same cube at once wait for
+#: the first to draw it (it is cached) rather than each drawing its own; the one drawing uses every core.
+_FIELD_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -216,7 +225,8 @@ class PoreTextureConfig:
         ndarray of float32, shape hi - lo
             Zero mean (Gaussian values) or median about 0 (mapped onto the histogram) over a period; a new array.
         """
-        field = _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed, self.period(extent))
+        with _FIELD_LOCK:
+            field = _periodic_field(self, float(pore_std), pore_spectrum, pore_quantiles, seed, self.period(extent))
         return periodic_window(field, lo, np.asarray(hi) - np.asarray(lo))
 
     def record(
@@ -305,15 +315,15 @@ def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, roll
     and its own roll-off: the map onto the histogram, then `BAND_ITERATIONS` times the field's own Fourier
     amplitudes (0 beyond the band) where `rolled` (bool, on the rfftn grid: the roll-off and beyond) with the
     values' phases, and, but for the last time, the histogram again (by the values' ranks)."""
-    amplitudes = np.abs(fft.rfftn(field)[rolled]).astype(np.float32)
+    amplitudes = np.abs(fft.rfftn(field, workers=thread_count(None))[rolled]).astype(np.float32)
     values = _by_slabs(lambda slab: map_to_quantiles(slab, sigma, quantiles), field, np.float32)
     for step in range(BAND_ITERATIONS):
-        spectrum = fft.rfftn(values)
+        spectrum = fft.rfftn(values, workers=thread_count(None))
         del values
         outer = spectrum[rolled]
         spectrum[rolled] = outer * (amplitudes / np.maximum(np.abs(outer), np.finfo(np.float32).tiny))
         del outer
-        values = fft.irfftn(spectrum, s=field.shape)
+        values = fft.irfftn(spectrum, s=field.shape, workers=thread_count(None))
         del spectrum
         if step < BAND_ITERATIONS - 1:
             values = _onto_histogram(values, sigma, quantiles)
@@ -335,9 +345,9 @@ def _periodic_field(
                        sig(texture.sigma))
     shape = (period,) * 3
     density = _density(texture, pore_std, pore_spectrum, period)
-    spectrum = fft.rfftn(generator(seed, "pore_texture").standard_normal(shape))
+    spectrum = fft.rfftn(generator(seed, "pore_texture").standard_normal(shape), workers=thread_count(None))
     spectrum *= np.sqrt(density[..., : period // 2 + 1])
-    field = fft.irfftn(spectrum, s=shape)
+    field = fft.irfftn(spectrum, s=shape, workers=thread_count(None))
     del spectrum
     expected = np.sqrt(density.mean())
     realised = field.std()
