@@ -511,3 +511,34 @@ def test_a_calibration_region_too_small_for_the_steepness_keeps_the_profile_widt
         fit = calibrate(clean, labels, region, **_calibration_targets(statistics))
     assert fit.steepness_sigmas is None and fit.blur_sigma == fit.sigmas[-1]
     assert "too few voxel pairs to read its edges' steepness" in caplog.text
+
+
+def test_the_guard_measures_a_narrow_region_of_wide_slices_in_a_window_with_the_same_figures(phantom):
+    """A wide tube's calibration region is its slices' central square: the guard reads a centred window cut by
+    multiples of the noise tile around it, and measures there what it measures on whole slices."""
+    from synthpack.artefacts import ColouredNoise, RingArtefacts
+    from synthpack.artefacts.calibrate import _lateral_window
+    from synthpack.artefacts.coloured_noise import TILE
+
+    clean, labels = (np.tile(a, (1, 4, 4)) for a in phantom)  # 32 x 256 x 256
+    region = np.zeros(labels.shape, dtype=bool)
+    region[8:24, 96:160, 96:160] = True
+    steps = {"blur": GaussianBlur(sigma=0.8),
+             "noise": ColouredNoise(pore_power=[2e-4, 1e-4, 4e-5], grain_power=[3e-4, 2e-4, 1e-4], pore_level=0.2,
+                                    grain_level=0.8),
+             "rings": RingArtefacts(amplitude=0.05, radii=[10.0, 40.0], width=1.5)}
+    source = GaussianNoise(std=0.02)(clean, 1)
+    noise = estimate_noise(source, labels)
+    targets = {"histograms": phase_quantiles(source, phase_masks(signed_distance(labels), region)),
+               "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6}
+
+    def build(kept):
+        return [steps[name] for name in kept]
+
+    window = _lateral_window(region, 5, cupping=False)
+    assert window == (slice(64, 192), slice(64, 192)) and window[0].start % TILE == 0
+    assert _lateral_window(region, 5, cupping=True) == (slice(None), slice(None))  # cupping scales with the slice
+    whole = guard_steps(build, tuple(steps), clean, labels, region, **targets)
+    cut = (slice(None), *window)
+    windowed = guard_steps(build, tuple(steps), clean[cut], labels[cut], region[cut], **targets)
+    assert windowed == whole and whole[1]["figures"]["fitted"] != whole[1]["figures"]["none"]

@@ -73,7 +73,8 @@ its cost is fixed and vanishes per voxel on big packs.
 
 4. **The guard** (`~synthpack.artefacts.guard`): every subset of the steps (the blur, the
    noise of each phase, the cupping, the rings) is applied to the clean volume on the
-   measured slices, and the full-band histograms of grains, pores and edges (Wasserstein
+   measured slices (in the window of them `_lateral_window` keeps: the values of whole slices
+   on what is measured, at the cost of the region), and the full-band histograms of grains, pores and edges (Wasserstein
    distance over the contrast, against the source's
    `~synthpack.source.SourceStatistics.histogram_grains` and the others) and the noise
    levels are measured. The steps applied are the largest subset that leaves no figure
@@ -113,9 +114,9 @@ from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ..measure.steepness import edge_steepness, steepness_distance
 from ._base import Compose, Transform
 from .blur import GaussianBlur
-from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
+from .coloured_noise import TILE, ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
 from .intensity import RoundLevels
-from .guard import guard_steps
+from .guard import MEASURED_MARGIN, guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
 
@@ -655,14 +656,38 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
            histograms: dict[str, Sequence[float] | None], halo: int) -> dict:
     """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
-    The whole slices of `clean` (and `halo` more on each side, for the blur) are read,
-    so that the artefacts about the slice centre lie where the pack's will.
+    The slices of `clean` the region occupies (and `halo` more on each side, for the blur) are
+    read, in each the window `_lateral_window` keeps: the artefacts about the slice centre lie
+    where the pack's will, and every value the guard measures is the one whole slices give.
     """
     occupied = np.flatnonzero(region.any(axis=(1, 2)))
     low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
+    window = (slice(low, high), *_lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
     _, record = guard_steps(
-        calibration.transforms, calibration.fitted_steps(), np.asarray(clean[low:high], dtype=np.float32),
-        np.asarray(labels[low:high]), region[low:high], histograms=histograms,
+        calibration.transforms, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
+        np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
         requires=REQUIRES)
     return record
+
+
+def _lateral_window(region: np.ndarray, halo: int, cupping: bool) -> tuple[slice, slice]:
+    """The (y, x) window of the slices the guard needs around `region`: centred, cut by multiples of the noise tile.
+
+    A region much narrower than its slices (the central square of a wide tube's) needs no more
+    than itself, the measured margin and `halo`. Cut by the same multiple of `TILE` on either
+    side, the window keeps the slice centre (the rings' axis) and every voxel's noise (the
+    coloured noise repeats every `TILE` voxels from the array's first), and the blur beyond
+    the halo does not reach what is measured: the guard's figures are those of whole slices,
+    at a fraction of their cost and memory. Whole slices where `cupping` is applied: its
+    factor is scaled by the slice's size.
+    """
+    if cupping:
+        return slice(None), slice(None)
+    window = []
+    for axis in (1, 2):
+        occupied = np.flatnonzero(region.any(axis=tuple(a for a in range(3) if a != axis)))
+        spare = min(int(occupied[0]), region.shape[axis] - 1 - int(occupied[-1])) - halo - MEASURED_MARGIN
+        cut = max(spare, 0) // TILE * TILE
+        window.append(slice(cut, region.shape[axis] - cut))
+    return window[0], window[1]

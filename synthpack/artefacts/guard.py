@@ -3,8 +3,9 @@
 `~synthpack.artefacts.calibrate` fits its steps (the PSF, the noise of each phase)
 and adds the source's scanner artefacts; a fit can still go wrong on a scan it does
 not suit. `guard_steps` applies the steps to the clean volume, on the region the
-calibration measured (whole slices, so that the artefacts about the slice centre are
-where they will be), and measures there, against the source's figures (`figures`):
+calibration measured (in the slices' window that gives every measured voxel the value
+whole slices give it, so that the artefacts about the slice centre are where they will
+be: `~synthpack.artefacts.calibrate`), and measures there, against the source's figures (`figures`):
 
 * ``w_grains``, ``w_pores``, ``w_edges``: the Wasserstein distance of the phase's full-band
   intensity histogram from the source's (`~synthpack.measure.phase_histograms`), over the
@@ -53,7 +54,7 @@ from ._base import Transform
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FIGURES", "TARGET", "TOLERANCE", "figures", "guard_steps"]
+__all__ = ["FIGURES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "figures", "guard_steps"]
 
 #: The guard's figures, each lower = more like the source (see the module docstring).
 FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
@@ -64,7 +65,7 @@ TARGET = {"w_grains": 0.05, "w_pores": 0.05, "w_edges": 0.05, "noise_grains": 0.
 #: The kinds of transform a calibration holds, in pipeline order: each draws from its own key of the guard's stream.
 _KINDS = ("gaussian_blur", "coloured_noise", "beam_hardening", "ring_artefacts")
 #: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
-_MARGIN = 3
+MEASURED_MARGIN = 3
 
 Figures = dict[str, float]
 
@@ -173,7 +174,7 @@ def guard_steps(
         ``fitted``: with every step, ``applied``: with those kept), ``tolerance``, ``target``, ``voxels``.
     """
     where = np.argwhere(region)
-    box = tuple(slice(max(0, int(lo) - _MARGIN), int(hi) + 1 + _MARGIN)
+    box = tuple(slice(max(0, int(lo) - MEASURED_MARGIN), int(hi) + 1 + MEASURED_MARGIN)
                 for lo, hi in zip(where.min(axis=0), where.max(axis=0)))  # what is measured: region and margin
     masks = phase_masks(signed_distance(labels[box]), region[box])
     noise_labels = np.where(region[box], np.asarray(labels[box], dtype=np.int64), -1)
