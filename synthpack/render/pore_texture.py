@@ -78,7 +78,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -299,7 +299,7 @@ def _onto_histogram(values: np.ndarray, sigma: float, quantiles: np.ndarray) -> 
     return _by_slabs(look_up, values, values.dtype)
 
 
-def _by_slabs(function, values: np.ndarray, dtype: np.dtype) -> np.ndarray:
+def _by_slabs(function: Callable[[np.ndarray], np.ndarray], values: np.ndarray, dtype: type) -> np.ndarray:
     """``function(values)`` for an element-wise `function`, computed `_SLAB` slices of `values` at a time.
 
     The same values as one call, with the temporaries of a slab rather than of the whole cube.
@@ -315,15 +315,16 @@ def _mapped_in_band(field: np.ndarray, sigma: float, quantiles: np.ndarray, roll
     and its own roll-off: the map onto the histogram, then `BAND_ITERATIONS` times the field's own Fourier
     amplitudes (0 beyond the band) where `rolled` (bool, on the rfftn grid: the roll-off and beyond) with the
     values' phases, and, but for the last time, the histogram again (by the values' ranks)."""
-    amplitudes = np.abs(fft.rfftn(field, workers=thread_count(None))[rolled]).astype(np.float32)
+    workers = thread_count(None)
+    amplitudes = np.abs(fft.rfftn(field, workers=workers)[rolled]).astype(np.float32)
     values = _by_slabs(lambda slab: map_to_quantiles(slab, sigma, quantiles), field, np.float32)
     for step in range(BAND_ITERATIONS):
-        spectrum = fft.rfftn(values, workers=thread_count(None))
+        spectrum = fft.rfftn(values, workers=workers)
         del values
         outer = spectrum[rolled]
         spectrum[rolled] = outer * (amplitudes / np.maximum(np.abs(outer), np.finfo(np.float32).tiny))
         del outer
-        values = fft.irfftn(spectrum, s=field.shape, workers=thread_count(None))
+        values = fft.irfftn(spectrum, s=field.shape, workers=workers)
         del spectrum
         if step < BAND_ITERATIONS - 1:
             values = _onto_histogram(values, sigma, quantiles)
@@ -345,9 +346,10 @@ def _periodic_field(
                        sig(texture.sigma))
     shape = (period,) * 3
     density = _density(texture, pore_std, pore_spectrum, period)
-    spectrum = fft.rfftn(generator(seed, "pore_texture").standard_normal(shape), workers=thread_count(None))
+    workers = thread_count(None)
+    spectrum = fft.rfftn(generator(seed, "pore_texture").standard_normal(shape), workers=workers)
     spectrum *= np.sqrt(density[..., : period // 2 + 1])
-    field = fft.irfftn(spectrum, s=shape, workers=thread_count(None))
+    field = fft.irfftn(spectrum, s=shape, workers=workers)
     del spectrum
     expected = np.sqrt(density.mean())
     realised = field.std()
