@@ -74,8 +74,8 @@ its cost is fixed and vanishes per voxel on big packs.
 4. **The guard** (`~synthpack.artefacts.guard`): every subset of the steps (the blur, the
    noise of each phase, the cupping, the rings) is applied to the clean volume on the
    measured slices (in the window of them `_lateral_window` keeps: the values of whole slices
-   on what is measured, at the cost of the region), and the full-band histograms of grains, pores and edges (Wasserstein
-   distance over the contrast, against the source's
+   on what is measured, at the cost of the region), and the full-band histograms of grains,
+   pores and edges (Wasserstein distance over the contrast, against the source's
    `~synthpack.source.SourceStatistics.histogram_grains` and the others) and the noise
    levels are measured. The steps applied are the largest subset that leaves no figure
    worse than the clean volume's (beyond a small tolerance) unless that figure stays within
