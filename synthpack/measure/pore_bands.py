@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._shared.strict_json import plain
+
 __all__ = ["BANDS", "MIN_BAND_VOXELS", "PoreBands", "pore_bands"]
 
 #: Bands of one voxel from the boundary, the last one open (beyond ``BANDS - 1`` voxels).
@@ -45,10 +47,8 @@ class PoreBands:
     voxels: np.ndarray
 
     def to_dict(self) -> dict:
-        """JSON-able lists (None for NaN)."""
-        def listed(values: np.ndarray) -> list:
-            return [None if np.isnan(v) else float(v) for v in values]
-        return {"median": listed(self.median), "iqr": listed(self.iqr), "voxels": self.voxels.tolist()}
+        """JSON-able lists (None for NaN; `~synthpack._shared.strict_json.plain`)."""
+        return plain({"median": self.median, "iqr": self.iqr, "voxels": self.voxels})
 
 
 def pore_bands(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray) -> PoreBands:
