@@ -277,7 +277,7 @@ def _cmd_compare(args: argparse.Namespace) -> None:
         args.tomogram, args.labels = args.source
     slab = {} if args.slab is None else {"slab": args.slab}
     report = compare(_read_source_scan(args), args.packs, patch=args.patch, seed=args.seed,
-                     cnn=CnnConfig() if args.cnn else None, **slab)
+                     cnn=CnnConfig() if args.cnn else None, ablation=args.ablation, **slab)
     paths = report.write(args.out, overwrite=args.overwrite)
     figures = report.to_dict()
     print(f"floor (source against itself, slabs of {figures['floor']['slab']}): {_auc_summary(figures['floor'])}")
@@ -286,6 +286,8 @@ def _cmd_compare(args: argparse.Namespace) -> None:
         print(f"{pack['name']}: {_auc_summary(d['classifier'])}, KS diameter {d['ks_diameter']:.3f}, "
               f"W grains/pores/edges {d['wasserstein_grains']:.3f}/{d['wasserstein_pores']:.3f}/"
               f"{d['wasserstein_edges']:.3f}, edge half height shift {d['edge_half_height_shift']:+.3f}")
+        for name, summary in d.get("ablation", {}).items():
+            print(f"  {name}: {_auc_summary(summary)}")
     print(f"report: {paths['realism.md']}")
 
 
@@ -520,6 +522,9 @@ def _add_compare_command(commands: Any) -> None:
                               "its odd ones (default 10, synthpack.realism.floor.DEFAULT_SLAB)")
     compare.add_argument("--cnn", action=argparse.BooleanOptionalAction, default=True,
                          help="also judge with a small CNN trained from scratch (default: yes)")
+    compare.add_argument("--ablation", action=argparse.BooleanOptionalAction, default=True,
+                         help="also run the classifiers on each pack's patches with the grains, the pores or both "
+                              "made flat, to show where the difference lies (default: yes)")
     _add_overwrite_argument(compare)
     compare.set_defaults(run=_cmd_compare)
 

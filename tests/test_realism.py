@@ -223,12 +223,19 @@ def test_compare_measures_the_floor_and_the_cnn_and_shows_its_picks(packs, large
     assert "**The floor**" in markdown and "## Classifiers" in markdown and "(cnn_patches.png)" in markdown
     assert "CNN AUC (source: its floor)" in markdown and "edge half height" in markdown
     assert f"{floor['cnn']['auc']:.3f} +- {floor['cnn']['auc_std']:.3f}" in markdown
+    # the ablation: both classifiers again on the patches with phases made flat, shown as its own section
+    ablation = figures["packs"][0]["distances"]["ablation"]
+    assert list(ablation) == ["grains flat", "pores flat", "edges only", "labels only"]
+    for name, summary in ablation.items():
+        assert 0 <= summary["logistic"]["auc"] <= 1 and 0 <= summary["cnn"]["auc"] <= 1
+        assert f"| {name} | {summary['logistic']['auc']:.3f} / {summary['cnn']['auc']:.3f} |" in markdown
+    assert "## Where the classifiers see the difference" in markdown
 
 
 def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     out = tmp_path / "report"
     assert main(["-q", "compare", "--sample", "large", "--packs", str(packs[0]), str(packs[1]),
-                 "--out", str(out), "--patch", "12", "--no-cnn"]) == 0
+                 "--out", str(out), "--patch", "12", "--no-cnn", "--no-ablation"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [
         ".synthpack-files", "appearance.png", "realism.json", "realism.md", "slices.png", "structure.png"]
     report = json.loads((out / "realism.json").read_text())
@@ -244,6 +251,8 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
         assert 0 <= pack["distances"]["ks_diameter"] <= 1 and 0 <= pack["distances"]["ks_roughness"] <= 1
         assert 1.0 < pack["figures"]["roughness_median"] < pack["figures"]["roughness_p90"] < 1.5
     assert report["floor"]["slab"] == 10 and "cnn" not in report["floor"] and report["settings"]["cnn"] is None
+    assert report["settings"]["ablation"] is False and all("ablation" not in p["distances"] for p in report["packs"])
+    assert "Where the classifiers see" not in (out / "realism.md").read_text()
     assert "logistic AUC" in (out / "realism.md").read_text()
     # the two packs are of one pour (the same seed and config but the post-processing); no none pack: no flag
     assert report["settings"]["packs"][0]["pour"] == report["settings"]["packs"][1]["pour"]

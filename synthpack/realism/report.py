@@ -31,6 +31,8 @@ The report's sections (``realism.md``; the same figures in ``realism.json``):
   interquartile range in bands of one voxel from the nearest grain
   (`synthpack.measure.pore_bands`), a pack's band marked where it is off the source's;
 * **Classifiers**: the floor and each pack's AUCs, margins and timings;
+* **Where the classifiers see the difference**: each pack's AUCs with its grains, its pores or
+  both made flat (`synthpack.realism.ablation`);
 * the post-processing of each pack, and the pictures.
 
 Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
@@ -58,6 +60,7 @@ from ..io.atomic import Output, atomic_directory
 from .._shared.windows import intensity_window
 from ..store.pack import find_packs
 from ..scan.core import Scan
+from .ablation import ABLATIONS, ablated_patches
 from .appearance import Appearance, measure_appearance, nps_ratio
 from .discriminator import (DEFAULT_PATCH, MAX_PATCHES, ClassifierTest, CnnConfig, check_patch, classifier_test,
                             specimen_patches)
@@ -97,6 +100,9 @@ class Measurements:
     pore_widths : ndarray of int64, shape (M,)
         The local half-width of every pore voxel of the region, voxels
         (`~synthpack.measure.pore_width.pore_half_widths`).
+    ablated : dict of str to ndarray of float32, shape (N, S, S)
+        The patches with phases made flat (`~synthpack.realism.ablation.ablated_patches`),
+        per ablation; empty when not asked for.
     """
 
     specimen: Specimen
@@ -106,6 +112,7 @@ class Measurements:
     patches: np.ndarray
     patch_corners: np.ndarray
     pore_widths: np.ndarray
+    ablated: dict[str, np.ndarray] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Scalar figures of this specimen (JSON-able; None where not measurable)."""
@@ -144,7 +151,12 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def measure(
-    specimen: Specimen, window: tuple[float, float], *, patch: int = DEFAULT_PATCH, max_patches: int = MAX_PATCHES
+    specimen: Specimen,
+    window: tuple[float, float],
+    *,
+    patch: int = DEFAULT_PATCH,
+    max_patches: int = MAX_PATCHES,
+    ablation_levels: dict[str, float] | None = None,
 ) -> Measurements:
     """Measure a specimen's structure, appearance and classifier patches.
 
@@ -157,12 +169,17 @@ def measure(
         Classifier patch side, voxels.
     max_patches : int
         At most this many classifier patches, spread evenly over the region.
+    ablation_levels : dict, optional
+        ``{"grains": float, "pores": float}``: also cut the patches' ablations
+        (`~synthpack.realism.ablation`) with these flat levels (the source's).
     """
     logger.info("measuring %s", specimen.name)
     patches, corners = specimen_patches(specimen, window, size=patch, max_patches=max_patches)
+    ablated = ({} if ablation_levels is None
+               else ablated_patches(patches, specimen.labels, corners, ablation_levels, window))
     return Measurements(specimen, solid_fraction(specimen.labels, specimen.region), grain_table(specimen),
                         measure_appearance(specimen), patches, corners,
-                        pore_half_widths(specimen.labels, specimen.region))
+                        pore_half_widths(specimen.labels, specimen.region), ablated)
 
 
 def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -216,6 +233,9 @@ class RealismReport:
     settings : dict
         How it was measured (window, patch size, slab, seed, CNN settings, pack paths,
         manifests' post-processing and `~synthpack.realism.targets.pour_key`).
+    ablations : list of dict of str to ClassifierTest
+        One per pack (empty without the ablation): per `~synthpack.realism.ablation.ABLATIONS`
+        key, the classifiers on the source's and the pack's ablated patches.
     """
 
     source: Measurements
@@ -224,6 +244,7 @@ class RealismReport:
     floor: ClassifierTest | None = None
     tests: list[ClassifierTest] = field(default_factory=list)
     settings: dict = field(default_factory=dict)
+    ablations: list[dict[str, ClassifierTest]] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """JSON-able dict: settings, source figures, the floor, and per pack its figures and distances.
@@ -231,7 +252,9 @@ class RealismReport:
         A pack's ``distances["classifier"]`` holds ``n_per_class``, ``folds`` and per
         classifier (``logistic``, ``cnn``) its ``auc``, ``auc_std``, ``seconds`` and
         ``margin`` (AUC minus the floor's); ``floor`` holds the same for the source
-        against itself, and ``slab``. A pack's ``targets`` are its figures against the
+        against itself, and ``slab``. A pack's ``distances["ablation"]`` holds, per
+        ablation (`~synthpack.realism.ablation`), the same figures without margins (absent
+        without the ablation). A pack's ``targets`` are its figures against the
         targets (`synthpack.realism.targets.pack_targets`); ``worse_than_none`` lists,
         per pack with a ``postprocess: none`` pack of the same pour among the packs,
         the target figures where it is worse than that pack
@@ -242,6 +265,8 @@ class RealismReport:
         packs = [{"name": m.specimen.name, "figures": m.figures(),
                   "distances": {**d, "classifier": t.summary(self.floor)}}
                  for m, d, t in zip(self.packs, self.distances, self.tests)]
+        for pack, ablation in zip(packs, self.ablations):
+            pack["distances"]["ablation"] = {name: test.summary() for name, test in ablation.items()}
         for pack in packs:
             pack["targets"] = pack_targets(source, pack, floor)
         return {
@@ -298,6 +323,7 @@ def compare(
     seed: int = 0,
     slab: int = DEFAULT_SLAB,
     cnn: CnnConfig | None = CnnConfig(),
+    ablation: bool = True,
 ) -> RealismReport:
     """Measure a source scan and synthetic packs, and how far each pack is from the source.
 
@@ -317,6 +343,9 @@ def compare(
         (`synthpack.realism.floor`).
     cnn : CnnConfig or None
         Settings of the CNN discriminator; None = the logistic regression only.
+    ablation : bool
+        Also run the classifiers on each pack's ablations (`synthpack.realism.ablation`:
+        grains flat, pores flat, labels only), to show where the difference lies.
 
     Returns
     -------
@@ -337,21 +366,32 @@ def compare(
         check_patch(patch, tuple(manifest["shape"]), f"pack {directory}")
     window = intensity_window([source.tomogram])
     # twice the patches of a pack, so that each half of the floor has as many as a pack
-    reference = measure(Specimen.from_scan(source), window, patch=patch, max_patches=2 * MAX_PATCHES)
+    source_specimen = Specimen.from_scan(source)
+    reference = measure(source_specimen, window, patch=patch, max_patches=2 * MAX_PATCHES)
+    levels = None
+    if ablation:
+        levels = {"grains": reference.appearance.profile.grain_level, "pores": reference.appearance.profile.pore_level}
+        reference.ablated = ablated_patches(reference.patches, source_specimen.labels, reference.patch_corners,
+                                            levels, window)
     logger.info("floor: the source's even against its odd slabs of %d slices", slab)
     floor = floor_test(reference.patches, reference.patch_corners, slab=slab, seed=seed, cnn=cnn)
-    measured, manifests, tests = [], [], []
+    measured, manifests, tests, ablations = [], [], [], []
     for directory in directories:
         specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
-        measured.append(measure(specimen, window, patch=patch))
+        measured.append(measure(specimen, window, patch=patch, ablation_levels=levels))
         tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn))
+        if ablation:
+            logger.info("%s: the classifiers on its ablations", specimen.name)
+            ablations.append({name: classifier_test(reference.ablated[name], measured[-1].ablated[name], seed=seed,
+                                                    cnn=cnn) for name in ABLATIONS})
         manifest = pack_manifests[directory]
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
                           "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
                           "calibration": manifest.get("calibration"), "pour": pour_key(manifest)})
     settings = {"source": source.source, "window": list(window), "patch": patch, "seed": seed, "slab": slab,
-                "cnn": None if cnn is None else dataclasses.asdict(cnn), "packs": manifests}
-    return RealismReport(reference, measured, [distances(reference, m) for m in measured], floor, tests, settings)
+                "cnn": None if cnn is None else dataclasses.asdict(cnn), "ablation": ablation, "packs": manifests}
+    return RealismReport(reference, measured, [distances(reference, m) for m in measured], floor, tests, settings,
+                         ablations)
 
 
 def _column_name(directory: Path, directories: list[Path]) -> str:
