@@ -163,13 +163,13 @@ def _ablation_section(packs: list[dict]) -> list[str]:
 
     rows = [["as it is", *[cell(p["distances"]["classifier"]) for p in packs]]]
     rows += [[name, *[cell(p["distances"]["ablation"][name]) for p in packs]] for name in names]
-    note = ("Logistic / CNN AUC of the same patches, source and pack, with a phase made flat: its voxels "
-            "(by their labels) set to the source's level of that phase, so that only the rest can tell the pack "
-            "apart. Where making a phase flat brings an AUC down towards *labels only*, the difference lies in "
-            "that phase (its texture, its level); where neither does but *edges only* keeps the AUC, the difference "
-            "lies at the boundaries (the edge profile, the voxels next to the grains); *labels only* is the "
-            "geometry alone: grain shapes, sizes and arrangement, nothing of the intensities. The phases are "
-            "cut by a soft matte, the grain mask smoothed over about a voxel (`synthpack.realism.ablation`).\n")
+    note = ("Logistic / CNN AUC of the same patches, source and pack, with a phase made flat (set to the "
+            "source's level of that phase), so that only the rest can tell the pack apart. Where making a phase "
+            "flat brings an AUC down towards *labels only*, the difference lies in that phase (its texture, its "
+            "level); where neither does but *edges only* keeps the AUC, the difference lies at the boundaries "
+            "(the edge profile, the voxels next to the grains); *labels only* is the geometry alone: grain "
+            "shapes, sizes and arrangement, nothing of the intensities. The phases are cut by a soft matte, the "
+            "grain mask smoothed over about a voxel (`synthpack.realism.ablation`).\n")
     return ["\n## Where the classifiers see the difference\n",
             _table(["patches", *[p["name"] for p in packs]], rows), note]
 
