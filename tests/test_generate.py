@@ -9,7 +9,7 @@ import pytest
 import synthpack.store.pack as pack_module
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError, SynthpackInputError
-from synthpack.pipeline.generate import _grains_present, build_pack, generate_packs, pack_seed, resolve_view
+from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed, resolve_view
 from synthpack.physics.container import interior_radius
 from synthpack.realism import Specimen
 from synthpack.store.pack import is_complete_pack, open_pack
@@ -29,17 +29,6 @@ def test_labels_are_consecutive_and_map_to_placements(small_pack):
     present = np.unique(small_pack.labels)
     np.testing.assert_array_equal(present, np.arange(len(small_pack.placements) + 1))
     assert small_pack.manifest["n_labels"] == len(small_pack.placements)
-
-
-def test_grains_present_counts_each_placed_label_once_across_chunks_and_warns_of_the_missing(caplog):
-    labels = np.zeros((20, 30, 30), dtype=np.int32)
-    labels[2:5, 2:20, 2:20] = 3  # one grain across four chunks of 10 x 15 x 15
-    labels[15, 25, 25], labels[0, 0, 29] = 1, 6
-    with caplog.at_level(logging.WARNING, logger="synthpack.pipeline.generate"):
-        assert _grains_present(labels, 6, (10, 15, 15), 2) == 3
-    assert "3 of 6 placed grains have no voxel" in caplog.text
-    caplog.clear()
-    assert _grains_present(labels, 6, (10, 15, 15), 1, every=False) == 3 and not caplog.text
 
 
 def test_voxel_counts_match_the_source_particles(small_pack, large_library):
