@@ -31,8 +31,8 @@ The report's sections (``realism.md``; the same figures in ``realism.json``):
   interquartile range in bands of one voxel from the nearest grain
   (`synthpack.measure.pore_bands`), a pack's band marked where it is off the source's;
 * **Classifiers**: the floor and each pack's AUCs, margins and timings;
-* **Where the classifiers see the difference**: each pack's AUCs with its grains, its pores or
-  both made flat (`synthpack.realism.ablation`);
+* **Where the classifiers see the difference**: each pack's AUCs with its grains, its pores,
+  all but the boundaries or both phases made flat (`synthpack.realism.ablation`);
 * the post-processing of each pack, and the pictures.
 
 Distances (pack against source): KS = two-sample Kolmogorov-Smirnov distance (0 =
@@ -100,9 +100,6 @@ class Measurements:
     pore_widths : ndarray of int64, shape (M,)
         The local half-width of every pore voxel of the region, voxels
         (`~synthpack.measure.pore_width.pore_half_widths`).
-    ablated : dict of str to ndarray of float32, shape (N, S, S)
-        The patches with phases made flat (`~synthpack.realism.ablation.ablated_patches`),
-        per ablation; empty when not asked for.
     """
 
     specimen: Specimen
@@ -112,7 +109,6 @@ class Measurements:
     patches: np.ndarray
     patch_corners: np.ndarray
     pore_widths: np.ndarray
-    ablated: dict[str, np.ndarray] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Scalar figures of this specimen (JSON-able; None where not measurable)."""
@@ -151,12 +147,7 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def measure(
-    specimen: Specimen,
-    window: tuple[float, float],
-    *,
-    patch: int = DEFAULT_PATCH,
-    max_patches: int = MAX_PATCHES,
-    ablation_levels: dict[str, float] | None = None,
+    specimen: Specimen, window: tuple[float, float], *, patch: int = DEFAULT_PATCH, max_patches: int = MAX_PATCHES
 ) -> Measurements:
     """Measure a specimen's structure, appearance and classifier patches.
 
@@ -169,17 +160,12 @@ def measure(
         Classifier patch side, voxels.
     max_patches : int
         At most this many classifier patches, spread evenly over the region.
-    ablation_levels : dict, optional
-        ``{"grains": float, "pores": float}``: also cut the patches' ablations
-        (`~synthpack.realism.ablation`) with these flat levels (the source's).
     """
     logger.info("measuring %s", specimen.name)
     patches, corners = specimen_patches(specimen, window, size=patch, max_patches=max_patches)
-    ablated = ({} if ablation_levels is None
-               else ablated_patches(patches, specimen.labels, corners, ablation_levels, window))
     return Measurements(specimen, solid_fraction(specimen.labels, specimen.region), grain_table(specimen),
                         measure_appearance(specimen), patches, corners,
-                        pore_half_widths(specimen.labels, specimen.region), ablated)
+                        pore_half_widths(specimen.labels, specimen.region))
 
 
 def _ks(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -345,7 +331,7 @@ def compare(
         Settings of the CNN discriminator; None = the logistic regression only.
     ablation : bool
         Also run the classifiers on each pack's ablations (`synthpack.realism.ablation`:
-        grains flat, pores flat, labels only), to show where the difference lies.
+        grains flat, pores flat, edges only, labels only), to show where the difference lies.
 
     Returns
     -------
@@ -366,24 +352,25 @@ def compare(
         check_patch(patch, tuple(manifest["shape"]), f"pack {directory}")
     window = intensity_window([source.tomogram])
     # twice the patches of a pack, so that each half of the floor has as many as a pack
-    source_specimen = Specimen.from_scan(source)
-    reference = measure(source_specimen, window, patch=patch, max_patches=2 * MAX_PATCHES)
-    levels = None
-    if ablation:
-        levels = {"grains": reference.appearance.profile.grain_level, "pores": reference.appearance.profile.pore_level}
-        reference.ablated = ablated_patches(reference.patches, source_specimen.labels, reference.patch_corners,
-                                            levels, window)
+    reference = measure(Specimen.from_scan(source), window, patch=patch, max_patches=2 * MAX_PATCHES)
+    levels = {"grains": reference.appearance.profile.grain_level, "pores": reference.appearance.profile.pore_level}
+
+    def ablated(measured: Measurements) -> dict[str, np.ndarray]:
+        return ablated_patches(measured.patches, measured.specimen.labels, measured.patch_corners, levels, window)
+
+    reference_ablated = ablated(reference) if ablation else {}
     logger.info("floor: the source's even against its odd slabs of %d slices", slab)
     floor = floor_test(reference.patches, reference.patch_corners, slab=slab, seed=seed, cnn=cnn)
     measured, manifests, tests, ablations = [], [], [], []
     for directory in directories:
         specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
-        measured.append(measure(specimen, window, patch=patch, ablation_levels=levels))
+        measured.append(measure(specimen, window, patch=patch))
         tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn))
         if ablation:
             logger.info("%s: the classifiers on its ablations", specimen.name)
-            ablations.append({name: classifier_test(reference.ablated[name], measured[-1].ablated[name], seed=seed,
-                                                    cnn=cnn) for name in ABLATIONS})
+            pack_ablated = ablated(measured[-1])
+            ablations.append({name: classifier_test(reference_ablated[name], pack_ablated[name], seed=seed, cnn=cnn)
+                              for name in ABLATIONS})
         manifest = pack_manifests[directory]
         manifests.append({"path": str(directory), "postprocess": manifest["config"]["postprocess"],
                           "mode": manifest.get("postprocess_mode"), "applied": manifest.get("postprocessing"),
