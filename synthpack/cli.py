@@ -523,8 +523,8 @@ def _add_compare_command(commands: Any) -> None:
     compare.add_argument("--cnn", action=argparse.BooleanOptionalAction, default=True,
                          help="also judge with a small CNN trained from scratch (default: yes)")
     compare.add_argument("--ablation", action=argparse.BooleanOptionalAction, default=True,
-                         help="also run the classifiers on each pack's patches with the grains, the pores or both "
-                              "made flat, to show where the difference lies (default: yes)")
+                         help="also run the classifiers on each pack's patches with the grains, the pores, all but "
+                              "the edges or both phases made flat, to show where the difference lies (default: yes)")
     _add_overwrite_argument(compare)
     compare.set_defaults(run=_cmd_compare)
 

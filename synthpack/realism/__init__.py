@@ -10,7 +10,7 @@ Modules, one job each:
                   regression and of the CNN on the same folds; `CnnConfig`
 ``cnn``           the small CNN discriminator (torch), trained from scratch per fold
 ``floor``         the floor: the source's even against its odd slabs along z
-``ablation``      the patches with grains, pores or both made flat: where the classifiers see a pack differ
+``ablation``      the patches with phases made flat: where the classifiers see a pack differ
 ``targets``       the realism targets (thresholds), pass / fail per pack, modes worse than none
 ``report``        `compare`: measure a source and packs, `RealismReport` (JSON, Markdown)
 ``markdown``      the report's Markdown
