@@ -368,6 +368,7 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
         loss = loss_function(model(x.to(device)), y.to(device))
         loss.backward()
         optimizer.step()
+        loss = loss.item()
         schedule.step()
         seen += len(indices)
         passed = [epoch for epoch in due if epoch * plan.images <= seen]
@@ -377,13 +378,13 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
         predict_label_images(model, val_images[0].parent, out / "curve_pred", imgsz=settings.imgsz, device=device)
         dice = score(out / "curve_pred", val_truth)["dice"]
         points.append({"epoch": passed[-1], "images_seen": seen, "steps": seen / plan.batch, "val_dice": dice,
-                       "loss": float(loss)})
+                       "loss": loss})
         with atomic_file(out / "curve.json") as staging:
             staging.write_text(json.dumps(points, indent=1))
         if best is None or dice > best:
             best = dice
             _save(model, unet, out / "weights" / "best.pt")
-        logger.info("step %d/%d: loss %.3f, val Dice %.3f", step + 1, n_steps, float(loss), dice)
+        logger.info("step %d/%d: loss %.3f, val Dice %.3f", step + 1, n_steps, loss, dice)
     _save(model, unet, out / "weights" / "last.pt")
     seconds = time.perf_counter() - start
     record = {"data": str(data), "device": device, "seconds": seconds, "family": "unet",
