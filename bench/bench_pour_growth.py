@@ -4,7 +4,6 @@ Run from the repository root::
 
     .venv/bin/python bench/bench_pour_growth.py                          # 2,000 grains, about 3 minutes
     .venv/bin/python bench/bench_pour_growth.py --max-hull-vertices 32   # the same pour, coarser hulls
-    .venv/bin/python bench/bench_pour_growth.py --grains 1000 --pyramid  # friction cone against pyramid
 
 It pours ``--grains`` grains of the built-in ``large`` sample's library, scaled by
 ``--scale`` (2), in batches of ``--batch-size`` (200) into a tube ``--width`` voxels wide
@@ -15,8 +14,7 @@ and, from the same run, the seconds per grain of the second half of the batches 
 first half's: a flat cost per grain gives 1. The first batches land on the bare floor,
 the later ones on a bed of locked grains. Also the pour's packing fraction, its largest
 grain-grain penetration and the grains outside, to check that a cheaper setting keeps the
-packing. With ``--pyramid`` the same pour runs a second time with ``engine_options:
-{cone_friction: false}`` and the seconds per grain of the two are printed as a ratio.
+packing.
 """
 
 from __future__ import annotations
@@ -60,8 +58,6 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=1000, help="tube width, voxels (default 1,000)")
     parser.add_argument("--max-hull-vertices", type=int, default=None,
                         help="cap on each collision hull's vertices (default: the engine's)")
-    parser.add_argument("--pyramid", action="store_true",
-                        help="pour again with Bullet's pyramid friction (cone_friction: false) and compare")
     parser.add_argument("--workdir", type=Path, default=None, help="where the library is kept (default: temporary)")
     args = parser.parse_args()
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench_pour_growth_"))
@@ -70,33 +66,23 @@ def main() -> None:
         ParticleLibrary.from_scan(sample_scan("large", seed=0), workers=1, progress=False).save(library_dir)
     library = ParticleLibrary.load(library_dir)
     options = {} if args.max_hull_vertices is None else {"max_hull_vertices": args.max_hull_vertices}
-    print(f"# bench_pour_growth.py ({platform.node()}, {os.cpu_count()} cores, Python {platform.python_version()}); "
-          f"load average before: {load_average()}\n")
-    seconds_per_grain = _pour_and_print(library, args, options)
-    if args.pyramid:
-        pyramid = _pour_and_print(library, args, {**options, "cone_friction": False})
-        print(f"\n- s/grain with pyramid friction over the cone's (same run): **{pyramid / seconds_per_grain:.2f}**.")
-
-
-def _pour_and_print(library: ParticleLibrary, args: argparse.Namespace, options: dict) -> float:
-    """Pour with engine `options`, print its figures and table; its seconds per grain."""
     config = PackConfig().replace(pour={"n_particles": args.grains, "batch_size": args.batch_size, "scale": args.scale,
                                         "tube_radius": tube_radius(library, args.width), "engine_options": options})
     clock = BatchClock()
     driver_log = logging.getLogger("synthpack.physics.driver")
     driver_log.addHandler(clock)
     driver_log.setLevel(logging.DEBUG)
+    print(f"# bench_pour_growth.py ({platform.node()}, {os.cpu_count()} cores, Python {platform.python_version()}); "
+          f"load average before: {load_average()}\n")
     start = time.time()
     placements = pour(library, config.pour, 0, progress=False)
     wall = time.time() - start
-    driver_log.removeHandler(clock)
     seconds = [b - a for a, b in zip([start] + clock.times[:-1], clock.times)]  # the first also holds the set-up
     checks = placements.checks
     print(f"{args.grains} grains of the `large` library at scale {args.scale:g}, batches of {args.batch_size}, "
-          f"tube {args.width} voxels wide, engine options {options or 'default'}: {wall:.1f} s "
-          f"({wall / args.grains:.4f} s/grain, {sum(clock.steps)} solver steps); packing fraction "
-          f"{checks.packing_fraction:.3f}, largest grain penetration {checks.max_grain_penetration_voxels:.2f} voxels, "
-          f"{checks.n_outside} outside.\n")
+          f"tube {args.width} voxels wide, hull vertices {args.max_hull_vertices or 'default'}: {wall:.1f} s "
+          f"({wall / args.grains:.4f} s/grain); packing fraction {checks.packing_fraction:.3f}, largest grain "
+          f"penetration {checks.max_grain_penetration_voxels:.2f} voxels, {checks.n_outside} outside.\n")
     print("| batch | seconds | solver steps | seconds per 1,000 steps |")
     print("|---|---|---|---|")
     for number, (s, steps) in enumerate(zip(seconds, clock.steps)):
@@ -107,7 +93,6 @@ def _pour_and_print(library: ParticleLibrary, args: argparse.Namespace, options:
         ratio = (sum(seconds[half:]) / sum(sizes[half:])) / (sum(seconds[:half]) / sum(sizes[:half]))
         print(f"\n- s/grain of batches {half}-{len(seconds) - 1} over batches 0-{half - 1} (same run): **{ratio:.2f}** "
               f"(flat: 1). Load average after: {load_average()}.")
-    return wall / args.grains
 
 
 if __name__ == "__main__":

@@ -434,19 +434,6 @@ def test_engine_options_reach_the_engine(large_library, monkeypatch):
     assert placements.parameters["engine_options"] == {"max_hull_vertices": 16}
 
 
-def test_pyramid_friction_pours_differently_and_as_validly(large_library):
-    """``cone_friction: false`` reaches Bullet (another pour, same seed) and keeps the pour's checks and height."""
-    cone, pyramid = (pour(large_library, PourConfig(n_particles=30, batch_size=15, target_solid_fraction=None,
-                                                    engine_options=options), 2, progress=False)
-                     for options in ({}, {"cone_friction": False}))
-    assert not np.allclose(cone.positions, pyramid.positions)
-    assert pyramid.parameters["engine_options"] == {"cone_friction": False}
-    for placements in (cone, pyramid):
-        assert placements.checks.n_outside == 0 and placements.checks.max_grain_penetration_voxels < 1.5
-    # 30 grains have no bulk to measure a fraction in: the heap's mean height stands for it
-    assert pyramid.positions[:, 2].mean() == pytest.approx(cone.positions[:, 2].mean(), rel=0.15)
-
-
 def test_engine_options_of_a_config_reach_the_engine(large_library, monkeypatch):
     """YAML ``pour.engine_options`` and ``pour.collision_shape`` -> PourConfig -> build_pack -> pour -> the engine's options."""
     received = []

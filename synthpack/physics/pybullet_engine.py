@@ -116,13 +116,6 @@ class PybulletConfig(EngineConfig):
         Let Bullet put grains that have been nearly still for 2 s to sleep (they wake
         when hit). False keeps every grain of the batch awake, as Blender's rigid
         bodies are by default (no deactivation).
-    cone_friction : bool
-        Solve friction as Coulomb's cone (pybullet's default). False uses Bullet's two
-        friction directions per contact (a pyramid), as Blender does: about 15% less
-        time per grain on a deep pour, with the same packing fraction but a different
-        pour (1,000 grains of `large` scaled by 2, batches of 200: 59-61 s against 71-73
-        s, fraction 0.615 both, largest penetration 0.97 against 0.89 voxels; measured in
-        docs/benchmarks.md).
 
     See :class:`~synthpack.physics.scene.EngineConfig` for ``max_hull_vertices``,
     ``fixed_steps`` and ``record_snapshots``.
@@ -130,9 +123,6 @@ class PybulletConfig(EngineConfig):
 
     allow_sleeping: bool = setting(
         True, None, "let grains that have been nearly still for 2 s sleep until something hits them"
-    )
-    cone_friction: bool = setting(
-        True, None, "friction as a cone (true) or as Bullet's faster two-direction pyramid (false)"
     )
 
 
@@ -187,7 +177,7 @@ class _PybulletWorld(World):
     def __init__(self, client: Client, scene: Scene) -> None:
         self.client, self.scene = client, scene
         try:
-            _configure(client, scene.settle, scene.options.cone_friction)
+            _configure(client, scene.settle)
             self._shapes: dict[bytes, _Shape] = {}
             self._parts: dict[bytes, list[trimesh.Trimesh]] = {}  # each grain's V-HACD parts, for every shell
             self._body_shapes = [self._shape(body, 0.0) for body in scene.bodies]
@@ -271,14 +261,13 @@ class _PybulletWorld(World):
         self.client.close()
 
 
-def _configure(client: Client, settle: SettleCriteria, cone_friction: bool) -> None:
+def _configure(client: Client, settle: SettleCriteria) -> None:
     client.resetSimulation()
     client.setGravity(0.0, 0.0, -GRAVITY)
     client.setPhysicsEngineParameter(
         fixedTimeStep=settle.time_step,
         numSubSteps=settle.substeps if settle.substeps > 1 else 0,
         numSolverIterations=SOLVER_ITERATIONS,
-        enableConeFriction=int(cone_friction),
         deterministicOverlappingPairs=1,
     )
 
