@@ -84,9 +84,17 @@ its cost is fixed and vanishes per voxel on big packs.
    post-processing on a figure it misses. Each drop is a warning and is recorded
    (`Calibration.guard`).
 
-5. **The grey-level grid.** Where the source holds whole numbers only (an 8 or 16 bit
+5. **The band map**, where the guard still finds a phase histogram beyond its target and the
+   source's histograms by distance from the boundary are known
+   (`~synthpack.source.SourceStatistics.band_histograms`): a monotone map of each band of
+   signed distance onto the source's, fitted after the steps kept and kept only where it
+   brings the histograms closer (`~synthpack.artefacts.band_map`, `Calibration.band_map`).
+   It reads the pack's labels, so it is applied after the pipeline
+   (`~synthpack.artefacts.band_map.apply_band_map`).
+
+6. **The grey-level grid.** Where the source holds whole numbers only (an 8 or 16 bit
    file, `~synthpack.source.SourceStatistics.whole_levels`), `~synthpack.artefacts.RoundLevels`
-   rounds the pack's intensities last, so that its neighbour differences come in the
+   rounds the pack's intensities last (after the band map, where there is one), so that its neighbour differences come in the
    source's steps (not a guarded step: it moves no figure by more than the rounding).
 
 The fit has no random part (the guard draws from its own fixed stream); with the pack's
@@ -113,6 +121,7 @@ from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
 from ..measure.steepness import edge_steepness, steepness_distance
 from ._base import Compose, Transform
+from .band_map import BandMap
 from .blur import GaussianBlur
 from .coloured_noise import TILE, ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
 from .intensity import RoundLevels
@@ -225,8 +234,11 @@ class Calibration:
         noise's own knots carry it) that `~synthpack.artefacts.ColouredNoise` adds with it;
         None: no semivariogram to fit (not measured in the source or the pack).
     round_levels : bool
-        Whether the pipeline ends with `~synthpack.artefacts.RoundLevels` (the source holds
-        whole numbers only).
+        Whether the pack's intensities end on whole numbers (the source holds whole numbers only):
+        `pipeline` ends with `~synthpack.artefacts.RoundLevels`, or, with a `band_map`, the map rounds.
+    band_map : dict or None
+        The `~synthpack.artefacts.band_map.BandMap` kept by the guard (`BandMap.to_dict`), applied
+        after the pipeline with the pack's labels (`band_mapping`); None: none.
     """
 
     blur_sigma: float
@@ -259,6 +271,7 @@ class Calibration:
     clean_semivariogram: dict[str, list[float] | None] | None = None
     textured: dict[str, dict | None] | None = None
     round_levels: bool = False
+    band_map: dict | None = None
 
     def fitted_steps(self) -> tuple[str, ...]:
         """The steps of `STEPS` that do something: a blur wider than 0, noise added to a phase, the source's artefacts."""
@@ -309,8 +322,14 @@ class Calibration:
         return transforms
 
     def pipeline(self) -> Compose:
-        """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid."""
-        return Compose(self.transforms(self.applied_steps()) + ([RoundLevels()] if self.round_levels else []))
+        """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid
+        (unless a `band_map` follows, which rounds)."""
+        rounds = self.round_levels and self.band_map is None
+        return Compose(self.transforms(self.applied_steps()) + ([RoundLevels()] if rounds else []))
+
+    def band_mapping(self) -> BandMap | None:
+        """The `band_map`, or None."""
+        return None if self.band_map is None else BandMap.from_dict(self.band_map)
 
     def to_dict(self) -> dict:
         """JSON-able dict of every field."""
@@ -457,6 +476,7 @@ def calibrate(
     target_histograms: dict[str, Sequence[float] | None] | None = None,
     target_semivariogram: dict[str, Sequence[float] | None] | None = None,
     target_steepness: Sequence[float] | None = None,
+    target_bands: dict[int, Sequence[float] | None] | None = None,
     round_levels: bool = False,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
@@ -508,6 +528,10 @@ def calibrate(
     target_steepness : sequence of float, optional
         The source's edge steepness (`~synthpack.source.SourceStatistics.edge_steepness`,
         intensity units): the PSF width is fitted to it (step 1); None: to the edge profile alone.
+    target_bands : dict of int to sequence of float or None, optional
+        The source's histograms by band of distance from the boundary
+        (`~synthpack.source.SourceStatistics.band_histograms`, keyed by band): what a band map is
+        fitted to (step 5); None: none is.
     round_levels : bool
         End the pipeline with `~synthpack.artefacts.RoundLevels` (the source holds whole numbers only).
     steps : int
@@ -612,7 +636,8 @@ def calibrate(
                 calibration = fit_at(sigma, *edge(sigma))
             calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
     calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
-                               calibration_halo(target_sigma))
+                               calibration_halo(target_sigma), target_bands)
+    calibration.band_map = calibration.guard.pop("band_map")
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
                            if std is not None)
     noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
@@ -620,11 +645,12 @@ def calibrate(
                           for phase, t in calibration.textured.items()
                           if t is not None and f"{phase[:-1]}_texture" in calibration.applied_steps())
     dropped = calibration.guard["dropped"]
-    logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s%s",
+    logger.info("calibrated: PSF sigma %s vx (edges %s vx, source %s), noise added: %s%s%s%s%s",
                 sig(sigma, 2), sig(calibration.edge_sigma, 2), sig(target_sigma, 2), noise_text or "none",
                 "" if cupping_strength is None else f", cupping {sig(cupping_strength, 2)}",
                 "" if rings is None else f", {len(rings[0])} ring(s)",
-                f"; dropped by the guard: {', '.join(dropped)}" if dropped else "")
+                f"; dropped by the guard: {', '.join(dropped)}" if dropped else "",
+                "" if calibration.band_map is None else f"; band map of {len(calibration.band_map['bands'])} bands")
     logger.debug("%r", calibration)
     return calibration
 
@@ -653,7 +679,8 @@ def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequenc
 
 
 def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
-           histograms: dict[str, Sequence[float] | None], halo: int) -> dict:
+           histograms: dict[str, Sequence[float] | None], halo: int,
+           bands: dict[int, Sequence[float] | None] | None) -> dict:
     """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
     The slices of `clean` the region occupies (and `halo` more on each side, for the blur) are
@@ -667,7 +694,7 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
         np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
-        requires=REQUIRES)
+        requires=REQUIRES, bands=bands)
     return record
 
 

@@ -28,10 +28,22 @@ step whose leaving out makes some figure better and none worse (beyond the
 tolerances) is left out too. A step left out is dropped: it made the pack less like
 its source.
 
+**The band map.** Where, with the steps kept, a phase histogram (``w_grains``, ``w_pores``
+or ``w_edges``) is still beyond its target and the source's histograms by distance from the
+boundary are known (``bands``), a `~synthpack.artefacts.band_map.BandMap` is fitted on the
+measured region after every subset of the steps, and the subset with its map that is
+admissible and misses the fewest targets (ties: the most steps, then the lowest sum) is
+applied instead, if it misses fewer targets than the steps kept without a map. A map
+changes the noise level too (it stretches a band whose source histogram is wider), so it
+may go with other steps than those kept without it (a texture left out where the map
+gives the spread). It is asked for only where a histogram misses: a pack whose histograms
+meet their targets keeps its bytes.
+
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
 noise and replaces it), and subsets without it are not tried. Every drop is logged as a
 warning. The guard is deterministic, and its cost fixed (at most 72 subsets: the blur,
-cupping and rings each on or off, each phase's noise off, on or with its texture; of the calibration's at most
+cupping and rings each on or off, each phase's noise off, on or with its texture; each once
+more with a band map where one is tried; of the calibration's at most
 `~synthpack.artefacts.calibrate.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
 (``calibration_guard``, keyed by the step's kind), so that the figures with and without
 a step compare the same noise realisation.
@@ -51,13 +63,16 @@ from ..measure.edges import signed_distance
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phase_histograms import phase_masks, phase_quantiles, quantile_distance
 from ._base import Transform
+from .band_map import BandMap, fit_band_map
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FIGURES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "figures", "guard_steps"]
+__all__ = ["FIGURES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "W_FIGURES", "figures", "guard_steps"]
 
 #: The guard's figures, each lower = more like the source (see the module docstring).
 FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
+#: The figures of the phase histograms: a band map is fitted where one of them misses its target.
+W_FIGURES = FIGURES[:3]
 #: How much a figure must change to count as better or worse: W as a fraction of the contrast, noise relative.
 TOLERANCE = {"w_grains": 0.002, "w_pores": 0.002, "w_edges": 0.002, "noise_grains": 0.02, "noise_pores": 0.02}
 #: The realism target of each figure (issue 26): a figure within it may get worse, to the benefit of others.
@@ -144,6 +159,7 @@ def guard_steps(
     noise: Mapping[str, float | None],
     contrast: float,
     requires: Mapping[str, str] | None = None,
+    bands: Mapping[int, Sequence[float] | None] | None = None,
 ) -> tuple[tuple[str, ...], dict]:
     """The steps to keep: the admissible subset most like the source (see the module docstring).
 
@@ -164,6 +180,9 @@ def guard_steps(
     requires : dict of str to str, optional
         A step that is only applied with another (a phase's texture with its noise): subsets
         with the first and not the second are not tried.
+    bands : dict of int to sequence of float or None, optional
+        The source's quantiles per band of distance (`~synthpack.source.SourceStatistics.band_histograms`):
+        a band map is fitted where a phase histogram misses its target (module docstring); None: none.
 
     Returns
     -------
@@ -171,20 +190,30 @@ def guard_steps(
         The steps kept, in order.
     record : dict
         ``dropped`` (the steps left out), ``figures`` (``none``: the clean volume's,
-        ``fitted``: with every step, ``applied``: with those kept), ``tolerance``, ``target``, ``voxels``.
+        ``fitted``: with every step, ``applied``: with those kept, ``band_mapped``: with them and
+        the band map, where one was fitted), ``band_map`` (the map kept, `BandMap.to_dict`, or
+        None), ``band_map_status`` (``"applied"``, ``"dropped"``, ``"not needed"``: every phase
+        histogram within target, ``"not measured"``: no source bands), ``tolerance``, ``target``, ``voxels``.
     """
     where = np.argwhere(region)
     box = tuple(slice(max(0, int(lo) - MEASURED_MARGIN), int(hi) + 1 + MEASURED_MARGIN)
                 for lo, hi in zip(where.min(axis=0), where.max(axis=0)))  # what is measured: region and margin
-    masks = phase_masks(signed_distance(labels[box]), region[box])
+    distance = signed_distance(labels[box])
+    masks = phase_masks(distance, region[box])
     noise_labels = np.where(region[box], np.asarray(labels[box], dtype=np.int64), -1)
 
-    def at(kept: tuple[str, ...]) -> Figures:
+    def applied(kept: tuple[str, ...]) -> np.ndarray:
         out = volume
         for transform in build(kept):
             kind = _KINDS.index(transform.name) if transform.name in _KINDS else len(_KINDS)
             out = transform(out, generator(0, "calibration_guard", kind))
-        return figures(out[box], masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast)
+        return out[box]
+
+    def measure(out: np.ndarray) -> Figures:
+        return figures(out, masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast)
+
+    def at(kept: tuple[str, ...]) -> Figures:
+        return measure(applied(kept))
 
     steps, requires = tuple(steps), dict(requires or {})
 
@@ -203,12 +232,60 @@ def guard_steps(
         if better is None:
             break
         kept = better
+    band_map, status, mapped = None, "not measured", None
+    if bands and any(q is not None for q in bands.values()):
+        status = "not needed"
+        if _missed(measured[kept], W_FIGURES):
+            kept, band_map, mapped = _band_mapped(subsets, measured, kept, applied, measure, distance, region[box], bands)
+            status = "dropped" if band_map is None else "applied"
     dropped = [s for s in steps if s not in kept]
     for step in dropped:
         logger.warning("calibration: the %s step is dropped: it makes the pack less like its source "
                        "(with every step: %s; applied: %s; no post-processing: %s)", step, _text(fitted),
-                       _text(measured[kept]), _text(none))
+                       _text(mapped or measured[kept]), _text(none))
     record = {"dropped": dropped, "figures": {"none": none, "fitted": fitted, "applied": measured[kept]},
+              "band_map": None if band_map is None else band_map.to_dict(), "band_map_status": status,
               "tolerance": dict(TOLERANCE), "target": dict(TARGET), "voxels": int(np.count_nonzero(region))}
-    logger.info("calibration guard: %s (no post-processing: %s)", _text(measured[kept]), _text(none))
+    if mapped is not None:
+        record["figures"]["band_mapped"] = mapped
+    logger.info("calibration guard: %s (no post-processing: %s)", _text(mapped or measured[kept]), _text(none))
     return kept, record
+
+
+def _missed(figures_: Figures, names: Sequence[str] = FIGURES) -> int:
+    """How many of the figures `names` measured in `figures_` are beyond their target."""
+    return sum(figures_[name] > TARGET[name] for name in names if name in figures_)
+
+
+def _band_mapped(
+    subsets: list[tuple[str, ...]], measured: dict[tuple[str, ...], Figures], kept: tuple[str, ...],
+    applied: Callable[[tuple[str, ...]], np.ndarray], measure: Callable[[np.ndarray], Figures],
+    distance: np.ndarray, region: np.ndarray, bands: Mapping[int, Sequence[float] | None],
+) -> tuple[tuple[str, ...], BandMap | None, Figures | None]:
+    """The steps and band map to apply, and their figures; `kept` and None where no band map makes the pack more alike.
+
+    A band map is fitted on every subset of the steps, and the subset with its map that is
+    admissible (no figure worse than no post-processing beyond its tolerance, unless within
+    target) and misses the fewest targets (ties: the most steps, then the lowest sum of the
+    figures) is taken if it misses fewer than `kept` does without one.
+    """
+    none = measured[()]
+    fits: dict[tuple[str, ...], tuple[BandMap, Figures]] = {}
+    for subset in subsets:
+        volume = applied(subset)
+        band_map = fit_band_map(volume, distance, region, bands)
+        if band_map is not None:
+            fits[subset] = band_map, measure(band_map.apply(volume, distance))
+    admissible = [s for s in fits if _admissible(fits[s][1], none)]
+    if admissible:
+        best = min(admissible, key=lambda s: (_missed(fits[s][1]), -len(s), sum(fits[s][1].values()),
+                                              subsets.index(s)))
+        band_map, mapped = fits[best]
+        if _missed(mapped) < _missed(measured[kept]):
+            logger.info("calibration: band map fitted (%d bands) with the steps %s: %s", len(band_map.bands),
+                        ", ".join(best) or "none", _text(mapped))
+            return best, band_map, mapped
+    logger.warning("calibration: no band map is applied: none brings the pack's histograms closer to its source's "
+                   "without moving another figure away (without one: %s)", _text(measured[kept]))
+    return kept, None, None
+

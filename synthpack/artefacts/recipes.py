@@ -82,9 +82,11 @@ from . import (
     noise_to_add,
 )
 from .._shared.seeds import generator
+from .band_map import BandMap
 from ..errors import SynthpackInputError
 from ..render.grid import Grid
 from ..measure.noise_estimate import estimate_noise
+from ..measure.phase_histograms import BAND_KEYS
 from ..measure.spectrum import NPS_PATCH, white_ring_powers
 from ..physics.checks import bulk_shortfall
 from ..source.statistics import SourceStatistics
@@ -130,6 +132,10 @@ class Postprocessing:
     ----------
     pipeline : Compose
         The transforms to apply to the clean pack (seeded at application).
+    band_map : BandMap or None
+        Applied after `pipeline`, with the pack's labels (`~synthpack.artefacts.band_map.apply_band_map`):
+        ``calibrated``'s, where its guard kept one; it rounds to whole numbers where the
+        calibration does (``calibration.round_levels``).
     record : dict
         Entries for the pack manifest: ``postprocess_mode`` (the mode applied:
         one of `POSTPROCESS_MODES`, or ``custom``), and every fitted or matched
@@ -140,6 +146,7 @@ class Postprocessing:
 
     pipeline: Compose
     record: dict[str, Any] = field(default_factory=dict)
+    band_map: BandMap | None = None
 
 
 @functools.cache
@@ -200,6 +207,7 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
                                   "edges": statistics.histogram_edges},
             "target_semivariogram": {"grains": statistics.semivariogram_grains, "pores": statistics.semivariogram_pores},
             "target_steepness": statistics.edge_steepness,
+            "target_bands": None if statistics.band_histograms is None else dict(zip(BAND_KEYS, statistics.band_histograms)),
             "round_levels": bool(statistics.whole_levels)}
 
 
@@ -282,7 +290,8 @@ def resolve_postprocessing(
         calibration, fallback = _fit(statistics, clean, labels, grid, packing_region, pore_texture, n_grains)
         if calibration is not None and postprocess == "calibrated":
             return Postprocessing(calibration.pipeline(),
-                                  {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()})
+                                  {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()},
+                                  band_map=calibration.band_mapping())
         if fallback is not None:
             _fallback(fallback, postprocess)
     matched = None if calibration is not None else _matched_noise(statistics, clean, labels)

@@ -11,16 +11,23 @@ phases are those of the realism report (`synthpack.realism.appearance`):
 * **grains**: voxels at least `~synthpack.measure.edges.INTERIOR` voxels inside a grain;
 * **pores**: voxels at least as far inside the pore space;
 * **edges**: the voxels within `EDGE_BAND` voxel of the boundary, on either side.
+
+`band_quantiles` keeps the same table for shells of voxels by their signed distance
+from the boundary (`band_of`: band ``-k`` the pore voxels with ``k - 1 < -d <= k``,
+``+k`` the grain voxels likewise, the last band on each side open), so a phase whose
+intensity depends on how far a voxel lies from the other (a cement paste brighter next
+to its aggregates, a blur tail into narrow pores) is described band by band.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .pore_bands import BANDS
 from .spectrum import phase_interiors
 
-__all__ = ["EDGE_BAND", "HISTOGRAM_QUANTILES", "MIN_HISTOGRAM_VOXELS", "phase_masks", "phase_quantiles",
-           "quantile_distance"]
+__all__ = ["BAND_KEYS", "EDGE_BAND", "HISTOGRAM_QUANTILES", "MIN_HISTOGRAM_VOXELS", "band_of", "band_quantiles",
+           "phase_masks", "phase_quantiles", "quantile_distance"]
 
 #: Quantiles per histogram.
 HISTOGRAM_QUANTILES = 200
@@ -28,6 +35,8 @@ HISTOGRAM_QUANTILES = 200
 EDGE_BAND = 1.0
 #: A phase needs at least this many voxels for its histogram.
 MIN_HISTOGRAM_VOXELS = 200
+#: The signed bands of `band_of`, pore side first: ``-BANDS .. -1, 1 .. BANDS``.
+BAND_KEYS = tuple(range(-BANDS, 0)) + tuple(range(1, BANDS + 1))
 
 
 def phase_masks(distance: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
@@ -72,3 +81,43 @@ def phase_quantiles(tomogram: np.ndarray, masks: dict[str, np.ndarray]) -> dict[
 def quantile_distance(quantiles: np.ndarray, reference: np.ndarray) -> float:
     """Wasserstein-1 distance of two histograms given by `phase_quantiles`: ``mean |q - r|``, intensity units."""
     return float(np.mean(np.abs(np.asarray(quantiles, dtype=np.float64) - np.asarray(reference, dtype=np.float64))))
+
+
+def band_of(distance: np.ndarray) -> np.ndarray:
+    """The signed band of each voxel: ``sign(d) * min(ceil(|d|), BANDS)`` (`BAND_KEYS`).
+
+    Parameters
+    ----------
+    distance : ndarray of float32
+        From `~synthpack.measure.edges.signed_distance` (never 0: ``+-0.5`` next to the boundary).
+
+    Returns
+    -------
+    ndarray of int64, same shape
+        ``-BANDS .. -1`` in the pore, ``1 .. BANDS`` in the grains.
+    """
+    band = np.minimum(np.ceil(np.abs(distance)), BANDS).astype(np.int64)
+    return np.where(distance > 0, band, -band)
+
+
+def band_quantiles(tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray) -> dict[int, np.ndarray | None]:
+    """The intensity quantiles of the voxels of `region` in each band of distance from the boundary.
+
+    Parameters
+    ----------
+    tomogram : ndarray, shape (Z, Y, X)
+        Intensities.
+    distance : ndarray of float32, same shape
+        From `~synthpack.measure.edges.signed_distance`.
+    region : ndarray of bool, same shape
+        Voxels to use.
+
+    Returns
+    -------
+    dict of int to ndarray or None
+        Per band of `BAND_KEYS`: as `phase_quantiles` (None where the band has fewer than
+        `MIN_HISTOGRAM_VOXELS` voxels in `region`).
+    """
+    bands = band_of(distance[region])
+    values = np.asarray(tomogram)[region]
+    return phase_quantiles(values, {band: bands == band for band in BAND_KEYS})

@@ -21,6 +21,7 @@ from .. import __version__
 from ..io.atomic import check_output
 from .._shared.chunks import bounded_map, chunk_boxes, thread_count
 from .._shared.seeds import derived_seed, record as random_streams
+from ..artefacts.band_map import apply_band_map
 from ..artefacts.blockwise import apply_blockwise, device_for
 from .._shared.budget import check_pack_grid
 from .config import PackConfig
@@ -195,7 +196,8 @@ def build_pack(
         )
         # any render order post-processes on the device, if every transform has a torch version
         postprocess_device = device_for(postprocessing.pipeline, resolve_device(config.run.device))
-        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device)
+        tomogram, applied = _postprocess(postprocessing, render, seed, threads, allocate, chunks, postprocess_device,
+                                         placements.tube.inner_radius)
     grid = render.grid
     manifest = dict(
         seed=seed, random_streams=random_streams(), config=config.to_dict(), library_source=library.source,
@@ -325,11 +327,13 @@ def _view_record(view: str, requested: str, placements: Placements, crop: tuple[
 
 def _postprocess(
     postprocessing: Postprocessing, render: _Render, seed: int, threads: int | None, allocate: Allocate,
-    chunks: tuple[int, int, int], device: str | None,
+    chunks: tuple[int, int, int], device: str | None, tube_radius: float,
 ) -> tuple[Any, list[dict]]:
     """The post-processed tomogram, chunk by chunk into `allocate`'s array, and the record of what was applied.
 
-    On the torch `device` (`synthpack.artefacts.torch_blocks`) where the pipeline allows, or with NumPy.
+    On the torch `device` (`synthpack.artefacts.torch_blocks`) where the pipeline allows, or with NumPy;
+    then the band map, where there is one, with NumPy, inside the tube of `tube_radius` (physical
+    units) or, for an interior crop, everywhere.
     """
     shape = render.grid.shape
     tomogram = allocate("tomogram", shape, np.float32, chunks)
@@ -337,7 +341,22 @@ def _postprocess(
         postprocessing.pipeline, render.clean, tomogram, derived_seed(seed, "artefacts"), chunks, threads=threads,
         scratch=lambda: allocate("scratch", shape, np.float32, chunks), device=device,
     )
+    band_map = postprocessing.band_map
+    if band_map is not None:
+        rounds = bool(postprocessing.record.get("calibration", {}).get("round_levels"))
+        apply_band_map(band_map, tomogram, render.labels, chunks, threads=threads,
+                       inside=None if render.wall is None else _in_tube(render.grid, tube_radius), round_levels=rounds)
+        applied.append({"name": "band_map", "bands": list(band_map.bands), "round_levels": rounds})
     return tomogram, applied
+
+
+def _in_tube(grid: Grid, radius: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``inside(lo, hi)``: the voxels of the chunk ``[lo, hi)`` of `grid` inside the tube (within `radius` of the
+    world z axis, above its floor at z = 0): the specimen a band map applies to, not the wall or the air."""
+    def inside(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        z, y, x = (grid.origin[a] + grid.voxel_size[a] * np.arange(lo[a], hi[a]) for a in range(3))
+        return (z >= 0)[:, None, None] & (np.hypot(y[:, None], x[None, :]) < radius)[None]
+    return inside
 
 
 def _grains_present(labels, n_placed: int, chunks: tuple[int, int, int], threads: int | None, *,

@@ -231,6 +231,22 @@ def _pore_bands_section(source: dict, packs: list[dict]) -> list[str]:
             _table(["band (voxels)", "source", *[p["name"] for p in packs]], rows), note]
 
 
+def _postprocessing_line(name: str, info: dict) -> str:
+    """The report's line of one pack's post-processing: its mode and, if calibrated, what the fit applied and dropped."""
+    line = f"- **{name}** (`{info['path']}`): `postprocess: {info['postprocess']}`"
+    calibration = info.get("calibration")
+    if calibration:
+        line += (f"; fitted blur sigma {calibration['blur_sigma']:.3f} voxels (edge width "
+                 f"{calibration['edge_width']:.3f}, source {calibration['target_edge_width']:.3f}) and "
+                 f"noise std {calibration['noise_std']:.4g} (source noise {calibration['target_noise']:.4g})")
+        guard = calibration.get("guard") or {}
+        if guard.get("dropped"):
+            line += f"; dropped by the guard: {', '.join(guard['dropped'])}"
+        if calibration.get("band_map"):
+            line += f"; band map of {len(calibration['band_map']['bands'])} shells of distance from the grains"
+    return line + "\n"
+
+
 def report_markdown(report: dict) -> str:
     """Markdown of a realism report.
 
@@ -313,14 +329,7 @@ def report_markdown(report: dict) -> str:
     out += _ablation_section(packs)
     if packs:
         out.append("\n## Post-processing of each pack\n")
-    for pack, info in zip(packs, settings["packs"]):
-        line = f"- **{pack['name']}** (`{info['path']}`): `postprocess: {info['postprocess']}`"
-        calibration = info.get("calibration")
-        if calibration:
-            line += (f"; fitted blur sigma {calibration['blur_sigma']:.3f} voxels (edge width "
-                     f"{calibration['edge_width']:.3f}, source {calibration['target_edge_width']:.3f}) and "
-                     f"noise std {calibration['noise_std']:.4g} (source noise {calibration['target_noise']:.4g})")
-        out.append(line + "\n")
+    out += [_postprocessing_line(pack["name"], info) for pack, info in zip(packs, settings["packs"])]
     lo, hi = settings["window"]
     out.append(f"\nIntensity window of the patches and pictures: [{lo:.4g}, {hi:.4g}] (source 0.5-99.5 %); "
                f"patches {settings['patch']}x{settings['patch']} voxels.\n")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from typing import Any
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -20,7 +21,7 @@ from ..measure.psf import fit_edge_spread
 from ..measure.pore_histogram import measure_pore_quantiles
 from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
-from ..measure.phase_histograms import phase_masks, phase_quantiles
+from ..measure.phase_histograms import band_quantiles, phase_masks, phase_quantiles
 from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import phase_interiors, phase_spectra
@@ -122,6 +123,13 @@ class SourceStatistics:
         (`~synthpack.measure.phase_histograms.phase_quantiles`), intensity units: what the
         calibration's guard (`~synthpack.artefacts.guard`) measures a pack against. None
         where a phase has too few voxels.
+    band_histograms : tuple of (tuple of float or None) or None
+        The full-band intensity histogram of the specimen's voxels in each band of signed
+        distance from the labels' boundary (`~synthpack.measure.phase_histograms.band_quantiles`,
+        bands `~synthpack.measure.phase_histograms.BAND_KEYS`, in that order), as quantiles,
+        intensity units; None for a band with too few voxels. ``postprocess: calibrated`` maps a
+        pack's bands onto them where its phase histograms miss the source's
+        (`~synthpack.artefacts.band_map`). None in a library of an older synthpack.
     coordination : float or None
         Mean coordination number: contacts per grain of the complete grains centred in
         the specimen (`~synthpack.measure.contacts.mean_coordination`, the count the
@@ -189,6 +197,7 @@ class SourceStatistics:
     whole_levels: bool | None = None
     edge_steepness: tuple[float, ...] | None = None
     air_intensity: float | None = None
+    band_histograms: tuple[tuple[float, ...] | None, ...] | None = None
 
     @property
     def contrast(self) -> float:
@@ -222,15 +231,24 @@ class SourceStatistics:
             parts.append(f"{sig(self.coordination, 2)} contacts/grain")
         return ", ".join(parts)
 
-    def to_dict(self) -> dict[str, float | list[float]]:
+    def to_dict(self) -> dict[str, float | list]:
         """The measured fields as a JSON-able dict, in field order, without those that are None."""
-        return {name: list(value) if isinstance(value, tuple) else value
-                for name, value in asdict(self).items() if value is not None}
+        return {name: _lists(value) for name, value in asdict(self).items() if value is not None}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, float | list[float]]) -> SourceStatistics:
         """Read back what `to_dict` wrote (a missing optional field is None)."""
-        return cls(**{name: tuple(value) if isinstance(value, list) else value for name, value in data.items()})
+        return cls(**{name: _tuples(value) for name, value in data.items()})
+
+
+def _lists(value: Any) -> Any:
+    """`value` with its tuples, nested too, as lists (JSON)."""
+    return [_lists(v) for v in value] if isinstance(value, tuple) else value
+
+
+def _tuples(value: Any) -> Any:
+    """`value` with its lists, nested too, as tuples (what `_lists` wrote)."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
 def _whole_levels(tomogram: np.ndarray) -> bool:
@@ -292,6 +310,9 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     spectra.update({f"histogram_{phase}": tuple(float(q) for q in quantiles)
                     for phase, quantiles in phase_quantiles(scan.tomogram, phase_masks(distance, specimen)).items()
                     if quantiles is not None})
+    bands = band_quantiles(scan.tomogram, distance, specimen)
+    if any(quantiles is not None for quantiles in bands.values()):
+        spectra["band_histograms"] = tuple(None if q is None else tuple(float(v) for v in q) for q in bands.values())
     scanner = measure_scanner(scan.tomogram, scan.labels, whole, distance, pore_level=levels.pore_mean,
                               grain_level=levels.grain_mean, region=specimen)
     scanner_fields = scanner.statistics_fields() if scanner is not None else {}

@@ -1,0 +1,188 @@
+"""The band map: a pack's histograms by distance from the boundary mapped onto its source's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from synthpack.artefacts import GaussianNoise
+from synthpack._shared.seeds import derived_seed
+from synthpack.artefacts.band_map import BandMap, apply_band_map, fit_band_map
+from synthpack.artefacts.blockwise import apply_blockwise
+from synthpack.artefacts.calibrate import Calibration
+from synthpack.artefacts.guard import TARGET, guard_steps
+from synthpack.measure.edges import signed_distance
+from synthpack.measure.noise_estimate import estimate_noise
+from synthpack.measure.phase_histograms import (
+    BAND_KEYS,
+    band_of,
+    band_quantiles,
+    phase_masks,
+    phase_quantiles,
+    quantile_distance,
+)
+from synthpack.library.core import ParticleLibrary
+from synthpack.pipeline.config import PackConfig
+from synthpack.pipeline.generate import build_pack
+from synthpack.realism.markdown import _postprocessing_line
+from synthpack.scan import Scan
+from synthpack.source import SourceStatistics, measure_source
+
+
+def test_bands_are_shells_of_signed_distance_open_at_the_last():
+    distance = np.array([-7.3, -4.2, -1.0, -0.5, 0.5, 0.914, 1.23, 4.9, 12.0], dtype=np.float32)
+    assert band_of(distance).tolist() == [-5, -5, -1, -1, 1, 1, 2, 5, 5]
+    assert BAND_KEYS == (-5, -4, -3, -2, -1, 1, 2, 3, 4, 5)
+
+
+@pytest.fixture(scope="module")
+def halo_source(phantom):
+    """The phantom with a bright pore shell (+0.15 within 2 voxels of the grains), noisy: a paste with a transition zone."""
+    clean, labels = phantom
+    distance = signed_distance(labels)
+    shell = ((distance < 0) & (distance >= -2.0)).astype(np.float32)
+    source = GaussianNoise(std=0.02)(clean + 0.15 * shell, 1)
+    return source, labels, distance
+
+
+def test_band_quantiles_read_each_shell_of_the_pore_and_grains(halo_source):
+    source, labels, distance = halo_source
+    bands = band_quantiles(source, distance, np.ones(labels.shape, bool))
+    assert set(bands) == set(BAND_KEYS)
+    medians = {band: float(np.median(q)) for band, q in bands.items() if q is not None}
+    # the shell is 0.15 brighter than the pore beyond it; the grains' interior at the grains' level
+    assert medians[-2] - medians[-4] == pytest.approx(0.15, abs=0.03)
+    assert medians[5] == pytest.approx(0.8, abs=0.05)
+
+
+@pytest.fixture(scope="module")
+def fitted(phantom, halo_source):
+    """A pack of the phantom with the source's noise but no shell, and the band map fitted from it to `halo_source`."""
+    clean, labels = phantom
+    source, _, distance = halo_source
+    region = np.ones(labels.shape, bool)
+    pack = GaussianNoise(std=0.02)(clean, 2)
+    return pack, fit_band_map(pack, distance, region, band_quantiles(source, distance, region))
+
+
+def test_a_fitted_band_map_takes_each_band_to_the_source_and_keeps_its_order(halo_source, fitted):
+    source, labels, distance = halo_source
+    region = np.ones(labels.shape, bool)
+    pack, band_map = fitted
+    assert band_map is not None and band_map.bands == BAND_KEYS
+    assert all(a < b for a, b in zip(band_map.knots[5:], band_map.knots[6:]))  # grain side, nearer first
+    mapped = band_map.apply(pack, distance)
+    assert mapped.dtype == np.float32 and mapped.shape == pack.shape
+    before = band_quantiles(pack, distance, region)
+    after = band_quantiles(mapped, distance, region)
+    target = band_quantiles(source, distance, region)
+    for band in (-5, -2, -1, 1, 5):  # every band comes to the source's (within its blend with the next)
+        assert quantile_distance(after[band], target[band]) < 0.3 * quantile_distance(before[band], target[band])
+    # monotone within a shell of one distance: neighbours keep their order
+    shell = np.isclose(distance, -3.5)
+    order = np.argsort(pack[shell], kind="stable")
+    assert np.all(np.diff(mapped[shell][order]) >= 0)
+    assert BandMap.from_dict(band_map.to_dict()) == band_map
+
+
+def test_a_band_map_to_the_packs_own_histograms_changes_nothing(phantom):
+    clean, labels = phantom
+    distance = signed_distance(labels)
+    region = np.ones(labels.shape, bool)
+    pack = GaussianNoise(std=0.02)(clean, 3)
+    band_map = fit_band_map(pack, distance, region, band_quantiles(pack, distance, region))
+    np.testing.assert_allclose(band_map.apply(pack, distance), pack, atol=2e-3)
+
+
+def test_the_band_map_applied_chunk_by_chunk_is_the_whole_volumes(halo_source, fitted):
+    _, labels, distance = halo_source
+    pack, band_map = fitted
+    whole = band_map.apply(pack, distance)
+    chunked = pack.copy()
+    apply_band_map(band_map, chunked, labels, (8, 16, 16), threads=2)
+    np.testing.assert_array_equal(chunked, whole)
+    # only the voxels inside are mapped; rounding puts them on whole numbers
+    outside = pack.copy() * 100
+    inside = lambda lo, hi: np.arange(lo[0], hi[0])[:, None, None] < 16 + np.zeros((1, hi[1] - lo[1], hi[2] - lo[2]))
+    apply_band_map(band_map, outside, labels, (8, 16, 16), inside=inside, round_levels=True)
+    np.testing.assert_array_equal(outside[16:], np.round(pack[16:] * 100))
+    assert not np.array_equal(outside[:16], np.round(pack[:16] * 100))
+
+
+def _targets(source, labels):
+    region = np.ones(labels.shape, bool)
+    distance = signed_distance(labels)
+    noise = estimate_noise(source, labels)
+    return region, {"histograms": phase_quantiles(source, phase_masks(distance, region)),
+                    "noise": {"grains": noise.grain_std, "pores": noise.pore_std}, "contrast": 0.6,
+                    "bands": band_quantiles(source, distance, region)}
+
+
+def test_the_guard_fits_a_band_map_where_a_phase_histogram_misses_its_target(phantom, halo_source):
+    clean, labels = phantom
+    source, _, _ = halo_source
+    region, targets = _targets(source, labels)
+    steps = {"noise": GaussianNoise(std=0.02)}
+    kept, record = guard_steps(lambda kept: [steps[s] for s in kept], ("noise",), clean, labels, region, **targets)
+    assert kept == ("noise",)
+    figures = record["figures"]
+    assert figures["applied"]["w_edges"] > TARGET["w_edges"]  # the bright shell is missing
+    assert record["band_map_status"] == "applied"
+    assert figures["band_mapped"]["w_edges"] < TARGET["w_edges"] < figures["applied"]["w_edges"]
+    assert BandMap.from_dict(record["band_map"]).bands
+
+
+def test_the_guard_fits_no_band_map_where_the_histograms_meet_their_targets(phantom):
+    clean, labels = phantom
+    source = GaussianNoise(std=0.02)(clean, 1)
+    region, targets = _targets(source, labels)
+    steps = {"noise": GaussianNoise(std=0.02)}
+    _, record = guard_steps(lambda kept: [steps[s] for s in kept], ("noise",), clean, labels, region, **targets)
+    assert record["band_map_status"] == "not needed" and record["band_map"] is None
+    assert "band_mapped" not in record["figures"]
+    _, record = guard_steps(lambda kept: [steps[s] for s in kept], ("noise",), clean, labels, region,
+                            **{**targets, "bands": None})
+    assert record["band_map_status"] == "not measured"
+
+
+def test_the_source_statistics_keep_their_band_histograms(halo_source):
+    source, labels, _ = halo_source
+    statistics = measure_source(Scan(source, labels))
+    assert len(statistics.band_histograms) == len(BAND_KEYS)
+    assert all(q is None or len(q) == 200 for q in statistics.band_histograms)
+    assert SourceStatistics.from_dict(statistics.to_dict()) == statistics
+
+
+CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
+
+
+@pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
+def test_a_calibrated_pack_of_the_concrete_scan_gets_a_band_map_inside_its_tube_only():
+    """The paste next to the aggregates is brighter and calmer than far from them: the guard's map brings every
+    phase histogram within target, and the wall and the air around the tube keep the pipeline's values."""
+    tomogram = tifffile.imread(CONCRETE / "concrete_neutron.tif")
+    labels = tifffile.imread(CONCRETE / "concrete_neutron_labels_watershed.tif").astype(np.int32)
+    library = ParticleLibrary.from_scan(Scan(tomogram, labels), workers=1, progress=False)
+    config = PackConfig().replace(pour={"n_particles": 150, "batch_size": 50})
+    pack = build_pack(library, config, seed=0, progress=False)
+    calibration = pack.manifest["calibration"]
+    guard = calibration["guard"]
+    assert guard["band_map_status"] == "applied" and calibration["band_map"] is not None
+    assert all(guard["figures"]["band_mapped"][name] <= TARGET[name] for name in ("w_grains", "w_pores", "w_edges"))
+    assert pack.manifest["postprocessing"][-1]["name"] == "band_map"
+    line = _postprocessing_line("pack", {"path": "pack", "postprocess": "calibrated", "calibration": calibration})
+    assert f"band map of {len(calibration['band_map']['bands'])} shells" in line  # the realism report says so
+    # outside the tube: the calibrated pipeline's values, rounded as the source's whole numbers are
+    pipeline = Calibration(**calibration).pipeline()
+    expected = np.empty_like(pack.clean)
+    apply_blockwise(pipeline, pack.clean, expected, derived_seed(pack.manifest["seed"], "artefacts"),
+                    tuple(config.run.chunks))
+    z, y, x = (pack.grid.origin[a] + pack.grid.voxel_size[a] * np.arange(n) for a, n in enumerate(pack.grid.shape))
+    tube = pack.manifest["view"]["container"]["inner_radius"]
+    outside = (z < 0)[:, None, None] | (np.hypot(y[:, None], x[None, :]) >= tube)[None]
+    np.testing.assert_array_equal(pack.tomogram[outside], np.round(expected[outside]))
+    assert not np.array_equal(pack.tomogram[~outside], np.round(expected[~outside]))
+    assert np.array_equal(pack.tomogram, np.round(pack.tomogram))
