@@ -134,6 +134,8 @@ def test_smoke_arms_train_for_equal_steps_and_record_their_learning_curves(smoke
         assert plan["compute"] == "equal_steps" and budget <= plan["images_seen"] < budget + plan["images"]
         record = json.loads((smoke / "runs" / arm / "seed0" / "train.json").read_text())
         assert record["epochs"] == plan["epochs"] and record["plan"] == plan
+        if not arm.startswith("unet_"):  # the smoke config's train.imgsz_by_scan: small's YOLO arms at 96 px
+            assert record["imgsz"] == (96 if arm.startswith("small") else 64), arm
         curve = results["curves"][arm]["0"]
         assert curve[-1]["epoch"] == plan["epochs"] and curve[-1]["images_seen"] == plan["images_seen"]
         assert all(0.0 <= point["val_dice"] <= 1.0 for point in curve)
@@ -141,6 +143,7 @@ def test_smoke_arms_train_for_equal_steps_and_record_their_learning_curves(smoke
     assert {int(row["images_seen"]) for row in rows} == {plan["images_seen"] for plan in plans.values()}
     report = (smoke / "report.md").read_text()
     assert "**Training compute: equal steps" in report and "## Learning curves" in report
+    assert "at 64 px (small's arms at 96 px, its slices upscaled)" in report
     assert (smoke / "learning_curves.png").stat().st_size > 0
 
 
@@ -221,6 +224,19 @@ def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_wh
         assert {"unet_" + scan, "unet_" + scan + "+syn", "unet_" + scan + ":syn"} <= names
     # the kinds beyond the paper on the built-in sample
     assert {"large:syn-rand", f"large@{config.budgets[0]}", f"large@{config.budgets[0]}+syn"} <= names
+    # YOLO on concrete's small grains at 192 px, every other arm at train.imgsz
+    sizes = {arm.name: config.imgsz(arm) for arm in config.arm_list}
+    assert {sizes[name] for name in names if name.startswith("large")} == {config.train.imgsz}
+    if present:
+        assert sizes["concrete"] == sizes["concrete+syn"] == 192 != config.train.imgsz == sizes["unet_concrete"]
+
+
+def test_image_sizes_by_scan_name_scans_of_the_config_and_whole_sizes(tmp_path):
+    for value, match in (({"gone": 192}, "unknown scans"), ({"large": 19.5}, "whole image sizes"), ([192], "map")):
+        config = tmp_path / "c.yaml"
+        config.write_text(yaml.safe_dump({"real": {"large": {"sample": "large"}}, "train": {"imgsz_by_scan": value}}))
+        with pytest.raises(SynthpackInputError, match=match):
+            ExperimentConfig.load(config)
 
 
 @pytest.mark.slow
@@ -361,12 +377,15 @@ def test_a_run_trained_under_another_compute_plan_is_refused_on_resume(tmp_path)
     equal = plan_compute(settings, CPU_SIZES)["large"]
     fixed = plan_compute(settings.__class__(**{**vars(settings), "compute": "fixed_epochs"}), CPU_SIZES)["large"]
     (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": 30}))  # a run from before the plans
-    assert _trained(tmp_path, fixed)["epochs"] == 30
+    assert _trained(tmp_path, fixed, 96)["epochs"] == 30
     with pytest.raises(SynthpackInputError, match="new --out folder"):
-        _trained(tmp_path, equal)
-    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": equal.epochs, "plan": equal.to_dict()}))
-    assert _trained(tmp_path, equal)["plan"] == equal.to_dict()
-    assert _trained(tmp_path / "none", equal) is None
+        _trained(tmp_path, equal, 96)
+    (tmp_path / "train.json").write_text(json.dumps({"seconds": 1.0, "epochs": equal.epochs, "plan": equal.to_dict(),
+                                                     "imgsz": 96}))
+    assert _trained(tmp_path, equal, 96)["plan"] == equal.to_dict()
+    with pytest.raises(SynthpackInputError, match="trained at 96 px, this config trains it at 192 px"):
+        _trained(tmp_path, equal, 192)  # a scan's image size changed (train.imgsz_by_scan)
+    assert _trained(tmp_path / "none", equal, 96) is None
 
 
 def test_each_model_family_is_planned_on_its_own_with_the_unet_budget_where_given(tmp_path):

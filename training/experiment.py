@@ -133,6 +133,11 @@ class ExperimentConfig:
     unet_kinds : dict
         The U-Net family's arms, as `kinds` (config ``unet.arms``; default `kinds`); run
         when ``train.model_family`` names ``unet``.
+    imgsz_by_scan : dict
+        Scan name -> YOLO's image size for the arms trained on that scan (config
+        ``train.imgsz_by_scan``; their slices upscaled so that small grains span enough
+        pixels), used in training and in every evaluation of those arms; other arms
+        take ``train.imgsz``. The U-Net's training crops are ``train.imgsz`` for every scan.
     """
 
     name: str
@@ -147,6 +152,7 @@ class ExperimentConfig:
     budgets: list = field(default_factory=list)
     unet: UNetSettings = field(default_factory=UNetSettings)
     unet_kinds: dict = field(default_factory=dict)
+    imgsz_by_scan: dict = field(default_factory=dict)
 
     @classmethod
     def load(cls, config: str | os.PathLike) -> ExperimentConfig:
@@ -168,18 +174,25 @@ class ExperimentConfig:
         real = {name: spec for name, spec in listed.items() if _present(name, spec)}
         unet = dict(data.get("unet") or {})
         unet_arms = unet.pop("arms", data.get("arms"))
+        train = dict(data.get("train") or {})
+        imgsz_by_scan = _imgsz_by_scan(train.pop("imgsz_by_scan", None) or {}, list(listed))
         return cls(
             name=data.get("name", path.stem), real=real, axis=int(data.get("axis", 0)),
             n_packs=int(synthetic.get("n_packs", 1)),
             packs={name: common.replace(**per_scan.get(name, {})) for name in real},
-            train=TrainSettings.from_dict(data.get("train", {})),
+            train=TrainSettings.from_dict(train),
             seeds=[int(s) for s in data.get("seeds", [0])],
             conf=float(data.get("evaluate", {}).get("conf", 0.25)),
             kinds=_kinds(data.get("arms"), list(listed), list(real)),
             budgets=_budgets(data.get("budgets", [])),
             unet=UNetSettings.from_dict(unet),
             unet_kinds=_kinds(unet_arms, list(listed), list(real)),
+            imgsz_by_scan={name: size for name, size in imgsz_by_scan.items() if name in real},
         )
+
+    def imgsz(self, arm: Arm) -> int:
+        """The image size `arm` trains and is evaluated at: its scan's `imgsz_by_scan` for YOLO, else ``train.imgsz``."""
+        return self.imgsz_by_scan.get(arm.scan, self.train.imgsz) if arm.family == "yolo" else self.train.imgsz
 
     @property
     def arm_list(self) -> list[Arm]:
@@ -191,6 +204,19 @@ class ExperimentConfig:
     def arms(self) -> list[str]:
         """Names of the arms, e.g. ``large``, ``large+syn``, ``large:syn``, ``large@5+syn``, ``unet_large``, ..."""
         return [arm.name for arm in self.arm_list]
+
+
+def _imgsz_by_scan(value: dict, listed: list[str]) -> dict[str, int]:
+    """``train.imgsz_by_scan``, checked: names of ``real`` to positive whole image sizes."""
+    if not isinstance(value, dict):
+        raise SynthpackInputError(f"train.imgsz_by_scan must map scan names to image sizes, got {value!r}")
+    unknown = sorted(set(value) - set(listed))
+    if unknown:
+        raise SynthpackInputError(f"train.imgsz_by_scan names unknown scans {unknown}: use names of 'real'")
+    bad = {name: size for name, size in value.items() if isinstance(size, bool) or not isinstance(size, int) or size < 32}
+    if bad:
+        raise SynthpackInputError(f"train.imgsz_by_scan needs whole image sizes of at least 32 px, got {bad}")
+    return dict(value)
 
 
 def _present(name: str, spec: dict) -> bool:
@@ -319,7 +345,7 @@ def _scores(folder: Path, arm: Arm, weights: Path, test_data: Path, config: Expe
     if scores is None and arm.family == "unet":
         return evaluate_unet(weights, test_data.parent, folder, imgsz=config.train.imgsz, device=config.train.device)
     if scores is None:
-        return evaluate(weights, test_data.parent, folder, imgsz=config.train.imgsz, conf=config.conf,
+        return evaluate(weights, test_data.parent, folder, imgsz=config.imgsz(arm), conf=config.conf,
                         device=config.train.device, config_dir=config_dir)
     if "instance_f1" not in scores or any(key not in (scores.get("slices") or [{}])[0] for key in SLICE_COUNTS):
         again = score(folder / "pred", test_data.parent / "truth" / "test")
@@ -345,8 +371,8 @@ def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
     return {arm.name: plans[arm.name] for arm in config.arm_list}
 
 
-def _trained(run: Path, plan: ArmPlan) -> dict | None:
-    """The ``train.json`` of a finished training, or None; refused if it followed another plan.
+def _trained(run: Path, plan: ArmPlan, imgsz: int) -> dict | None:
+    """The ``train.json`` of a finished training, or None; refused if it followed another plan or image size.
 
     A record from before the compute plans counts as ``fixed_epochs`` with its epochs.
     """
@@ -359,6 +385,9 @@ def _trained(run: Path, plan: ArmPlan) -> dict | None:
         raise SynthpackInputError(
             f"{run} was trained with {recorded['compute']} for {recorded['epochs']} epochs, this config plans "
             f"{plan.compute} for {plan.epochs}: give a new --out folder (or delete that run)")
+    if record.get("imgsz", imgsz) != imgsz:
+        raise SynthpackInputError(f"{run} was trained at {record['imgsz']} px, this config trains it at {imgsz} px: "
+                                  "give a new --out folder (or delete that run)")
     return record
 
 
@@ -385,17 +414,17 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
         plan = plans[arm.name]
         for seed in config.seeds:
             run = out / "runs" / arm.name / f"seed{seed}"
-            record = _trained(run, plan)
+            record = _trained(run, plan, config.imgsz(arm))
             if record is None:
                 start = time.perf_counter()
                 logger.info("training %s, seed %d: %d epochs of %d images (%d images seen)", arm.name, seed,
                             plan.epochs, plan.images, plan.images_seen)
-                settings = TrainSettings(**{**vars(config.train), "seed": seed})
+                settings = TrainSettings(**{**vars(config.train), "seed": seed, "imgsz": config.imgsz(arm)})
                 if arm.family == "unet":
                     train_unet(data[arm.name], run, settings, config.unet, plan)
                 else:
                     recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch,
-                                             imgsz=config.train.imgsz, conf=config.conf, device=device)
+                                             imgsz=config.imgsz(arm), conf=config.conf, device=device)
                     train(data[arm.name], run, settings, config_dir=config_dir, plan=plan,
                           callbacks=recorder.callbacks)
                 record = _done(run / "train.json")

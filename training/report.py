@@ -286,7 +286,9 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         f"# Augmentation experiment `{config.name}`",
         "",
         f"synthpack {__version__}; "
-        + (f"YOLO arms: {t.model} from scratch (no pretrained weights) at {t.imgsz} px, batch {t.batch}, "
+        + (f"YOLO arms: {t.model} from scratch (no pretrained weights) at {t.imgsz} px"
+           + "".join(f" ({name}'s arms at {size} px, its slices upscaled)" for name, size in config.imgsz_by_scan.items())
+           + f", batch {t.batch}, "
            f"optimizer {t.optimizer} (lr0 {t.lr0}), confidence threshold {config.conf}; "
            if "yolo" in t.families else "")
         + f"device `{device}` "
