@@ -2,17 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-import tifffile
 
 from synthpack.artefacts import GaussianNoise
-from synthpack._shared.seeds import derived_seed
 from synthpack.artefacts.band_map import BandMap, apply_band_map, fit_band_map
-from synthpack.artefacts.blockwise import apply_blockwise
-from synthpack.artefacts.calibrate import Calibration
 from synthpack.artefacts.guard import TARGET, guard_steps
 from synthpack.measure.edges import signed_distance
 from synthpack.measure.noise_estimate import estimate_noise
@@ -24,10 +18,6 @@ from synthpack.measure.phase_histograms import (
     phase_quantiles,
     quantile_distance,
 )
-from synthpack.library.core import ParticleLibrary
-from synthpack.pipeline.config import PackConfig
-from synthpack.pipeline.generate import build_pack
-from synthpack.realism.markdown import _postprocessing_line
 from synthpack.scan import Scan
 from synthpack.source import SourceStatistics, measure_source
 
@@ -155,34 +145,3 @@ def test_the_source_statistics_keep_their_band_histograms(halo_source):
     assert all(q is None or len(q) == 200 for q in statistics.band_histograms)
     assert SourceStatistics.from_dict(statistics.to_dict()) == statistics
 
-
-CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
-
-
-@pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
-def test_a_calibrated_pack_of_the_concrete_scan_gets_a_band_map_inside_its_tube_only():
-    """The paste next to the aggregates is brighter and calmer than far from them: the guard's map brings every
-    phase histogram within target, and the wall and the air around the tube keep the pipeline's values."""
-    tomogram = tifffile.imread(CONCRETE / "concrete_neutron.tif")
-    labels = tifffile.imread(CONCRETE / "concrete_neutron_labels_watershed.tif").astype(np.int32)
-    library = ParticleLibrary.from_scan(Scan(tomogram, labels), workers=1, progress=False)
-    config = PackConfig().replace(pour={"n_particles": 150, "batch_size": 50})
-    pack = build_pack(library, config, seed=0, progress=False)
-    calibration = pack.manifest["calibration"]
-    guard = calibration["guard"]
-    assert guard["band_map_status"] == "applied" and calibration["band_map"] is not None
-    assert all(guard["figures"]["band_mapped"][name] <= TARGET[name] for name in ("w_grains", "w_pores", "w_edges"))
-    assert pack.manifest["postprocessing"][-1]["name"] == "band_map"
-    line = _postprocessing_line("pack", {"path": "pack", "postprocess": "calibrated", "calibration": calibration})
-    assert f"band map of {len(calibration['band_map']['bands'])} shells" in line  # the realism report says so
-    # outside the tube: the calibrated pipeline's values, rounded as the source's whole numbers are
-    pipeline = Calibration(**calibration).pipeline()
-    expected = np.empty_like(pack.clean)
-    apply_blockwise(pipeline, pack.clean, expected, derived_seed(pack.manifest["seed"], "artefacts"),
-                    tuple(config.run.chunks))
-    z, y, x = (pack.grid.origin[a] + pack.grid.voxel_size[a] * np.arange(n) for a, n in enumerate(pack.grid.shape))
-    tube = pack.manifest["view"]["container"]["inner_radius"]
-    outside = (z < 0)[:, None, None] | (np.hypot(y[:, None], x[None, :]) >= tube)[None]
-    np.testing.assert_array_equal(pack.tomogram[outside], np.round(expected[outside]))
-    assert not np.array_equal(pack.tomogram[~outside], np.round(expected[~outside]))
-    assert np.array_equal(pack.tomogram, np.round(pack.tomogram))

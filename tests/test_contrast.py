@@ -19,7 +19,10 @@ import pytest
 from scipy import stats
 
 from synthpack._shared.windows import intensity_window
-from synthpack.artefacts.guard import TOLERANCE
+from synthpack._shared.seeds import derived_seed
+from synthpack.artefacts.blockwise import apply_blockwise
+from synthpack.artefacts.calibrate import Calibration
+from synthpack.artefacts.guard import TARGET, TOLERANCE
 from synthpack.cli import main
 from synthpack.io.read import read_scan
 from synthpack.pipeline.config import PackConfig, ReconstructConfig
@@ -27,6 +30,8 @@ from synthpack.pipeline.generate import generate_packs
 from synthpack.io import write_tiff
 from synthpack.library.core import ParticleLibrary
 from synthpack.realism import Specimen
+from synthpack.realism.markdown import _postprocessing_line
+from synthpack.store.pack import open_pack
 from synthpack.realism.appearance import measure_appearance, noise_levels
 from synthpack.realism.discriminator import classifier_test, specimen_patches
 from synthpack.render import Background
@@ -108,12 +113,20 @@ def test_generate_and_compare_run_on_the_real_concrete_neutron_scan(tmp_path):
     assert 0.5 <= report["packs"][0]["distances"]["classifier"]["logistic"]["auc"] <= 1.0
 
 
-@pytest.mark.skipif(not CONCRETE.is_dir(), reason="the concrete scans (../shared/data/concrete) are absent")
-def test_calibration_leaves_a_pack_of_the_real_concrete_scan_no_less_like_it_than_no_post_processing(tmp_path):
+@pytest.fixture(scope="module")
+def concrete_pack(tmp_path_factory):
+    """The real concrete scan, its library, and one calibrated 60-grain pack of it (seed 2) in a narrow tube."""
+    if not CONCRETE.is_dir():
+        pytest.skip("the concrete scans (../shared/data/concrete) are absent")
     scan = read_scan(CONCRETE / "concrete_neutron.tif", CONCRETE / "concrete_neutron_labels_watershed.tif", 1.0, "px")
     library = ParticleLibrary.from_scan(scan, workers=1, progress=False)
     config = PackConfig().replace(seed=2, pour={"n_particles": 60, "batch_size": 25, "tube_radius": 25.0})
-    (path,) = generate_packs(library, tmp_path, 1, config, progress=False)
+    (path,) = generate_packs(library, tmp_path_factory.mktemp("concrete"), 1, config, progress=False)
+    return scan, library, config, path
+
+
+def test_calibration_leaves_a_pack_of_the_real_concrete_scan_no_less_like_it_than_no_post_processing(concrete_pack):
+    scan, library, _, path = concrete_pack
     manifest = json.loads((path / "manifest.json").read_text())
     assert manifest["postprocess_mode"] == "calibrated"
     assert set(manifest["calibration"]["guard"]["figures"]["applied"]) >= {"w_pores", "w_edges", "noise_pores"}
@@ -137,3 +150,34 @@ def test_calibration_leaves_a_pack_of_the_real_concrete_scan_no_less_like_it_tha
     # the pores get the source's noise, where the clean volume has next to none
     assert figures["none"]["pore_noise"] < 0.2 * library.statistics.noise_pore_std
     assert figures["calibrated"]["pore_noise"] == pytest.approx(library.statistics.noise_pore_std, rel=0.2), figures
+
+
+def test_the_calibrated_concrete_pack_gets_a_band_map_inside_its_tube_only(concrete_pack):
+    """The scan's paste next to the aggregates is brighter and calmer than far from them: the guard's band map
+    brings every phase histogram within target, and the wall and the air around the tube keep the pipeline's values."""
+    _, _, config, path = concrete_pack
+    manifest = json.loads((path / "manifest.json").read_text())
+    calibration = manifest["calibration"]
+    guard = calibration["guard"]
+    assert guard["band_map_status"] == "applied" and calibration["band_map"] is not None
+    mapped, unmapped = guard["figures"]["band_mapped"], guard["figures"]["applied"]
+    def missed(figures):
+        return sum(value > TARGET[name] for name, value in figures.items())
+
+    assert missed(mapped) < missed(unmapped), guard["figures"]  # the steps alone miss more targets
+    assert mapped["w_pores"] < unmapped["w_pores"] and mapped["w_edges"] < unmapped["w_edges"]
+    assert manifest["postprocessing"][-1]["name"] == "band_map"
+    line = _postprocessing_line("pack", {"path": "pack", "postprocess": "calibrated", "calibration": calibration})
+    assert f"band map of {len(calibration['band_map']['bands'])} shells" in line  # the realism report says so
+    # outside the tube: the calibrated pipeline's values, rounded as the source's whole numbers are
+    pack = open_pack(path)
+    clean, tomogram = np.asarray(pack.clean), np.asarray(pack.tomogram)
+    expected = np.empty_like(clean)
+    apply_blockwise(Calibration(**calibration).pipeline(), clean, expected, derived_seed(manifest["seed"], "artefacts"),
+                    tuple(config.run.chunks))
+    shape, origin = manifest["shape"], manifest["grid_origin"]
+    z, y, x = (origin[a] + np.arange(n) * size for a, (n, size) in enumerate(zip(shape, pack.voxel_size)))
+    outside = (z < 0)[:, None, None] | (np.hypot(y[:, None], x[None, :]) >= manifest["view"]["container"]["inner_radius"])[None]
+    np.testing.assert_array_equal(tomogram[outside], np.round(expected[outside]))
+    assert not np.array_equal(tomogram[~outside], np.round(expected[~outside]))
+    assert np.array_equal(tomogram, np.round(tomogram))
