@@ -12,7 +12,7 @@ from scipy import ndimage
 from synthpack.artefacts import recipes as postprocess_module
 from synthpack.artefacts import (ColouredNoise, GaussianBlur, GaussianNoise, RoundLevels, calibrate,
                                  generic_postprocessing)
-from synthpack.artefacts.calibrate import _clean_ring_powers, central_slices, measured_slices
+from synthpack.artefacts.calibrate import Calibration, _clean_ring_powers, central_slices, measured_slices
 from synthpack.artefacts.guard import TOLERANCE, guard_steps
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import (POSTPROCESS_MODES, _calibration_targets, bulk_region, check_postprocess,
@@ -301,6 +301,22 @@ def test_the_guard_keeps_steps_that_make_the_pack_like_its_source(rendered, sour
     for phase in ("grains", "pores"):  # and the noise within 10 % of the source's, where the clean pack has half
         assert figures["applied"][f"noise_{phase}"] < 0.1 < 0.4 < figures["none"][f"noise_{phase}"]
     assert figures["applied"]["w_grains"] < figures["none"]["w_grains"] - TOLERANCE["w_grains"]
+
+
+def test_a_noise_scale_scales_each_phases_noise_amplitude_alone(rendered, source_statistics):
+    fit = _resolve("calibrated", rendered, source_statistics).record["calibration"]
+    calibration = Calibration(**fit)
+    steps = ("grain_noise", "pore_noise")
+    (plain,) = calibration.transforms(steps)
+    (scaled,) = calibration.transforms(steps, {"grains": 1.0, "pores": 0.5})
+    np.testing.assert_allclose(scaled.pore_power, 0.25 * np.asarray(plain.pore_power))
+    assert list(scaled.grain_power) == list(plain.grain_power)
+    if plain.pore_std is not None:
+        assert scaled.pore_std == pytest.approx(0.5 * plain.pore_std)
+    calibration.noise_scale = {"grains": 1.0, "pores": 0.5}  # what the pack's pipeline applies
+    noise = next(t for t in calibration.pipeline() if t.name == "coloured_noise")
+    unscaled = next(t for t in calibration.transforms(calibration.applied_steps()) if t.name == "coloured_noise")
+    np.testing.assert_allclose(noise.pore_power, 0.25 * np.asarray(unscaled.pore_power))
 
 
 def test_the_guard_drops_a_noise_step_fitted_to_structure_and_records_it(rendered, source_statistics, caplog):

@@ -106,7 +106,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -239,6 +239,10 @@ class Calibration:
     band_map : dict or None
         The `~synthpack.artefacts.band_map.BandMap` kept by the guard (`BandMap.to_dict`), applied
         after the pipeline with the pack's labels (`band_mapping`); None: none.
+    noise_scale : dict of str to float or None
+        ``"grains"``, ``"pores"``: the amplitude factor of each phase's fitted noise (and texture)
+        that the guard applies with the band map, which stretches the noise with each shell's
+        histogram (`~synthpack.artefacts.guard`); None: 1.
     """
 
     blur_sigma: float
@@ -272,6 +276,7 @@ class Calibration:
     textured: dict[str, dict | None] | None = None
     round_levels: bool = False
     band_map: dict | None = None
+    noise_scale: dict[str, float] | None = None
 
     def fitted_steps(self) -> tuple[str, ...]:
         """The steps of `STEPS` that do something: a blur wider than 0, noise added to a phase, the source's artefacts."""
@@ -289,13 +294,14 @@ class Calibration:
         dropped = () if self.guard is None else self.guard["dropped"]
         return tuple(step for step in self.fitted_steps() if step not in dropped)
 
-    def transforms(self, steps: Sequence[str]) -> list[Transform]:
+    def transforms(self, steps: Sequence[str], noise_scale: Mapping[str, float] | None = None) -> list[Transform]:
         """The transforms of `steps` (names of `STEPS`), in pipeline order.
 
         `GaussianBlur` (``blur``), one `ColouredNoise` holding the noise of the phases named
         (``grain_noise``, ``pore_noise``; none in a phase not named; with ``grain_texture`` or
         ``pore_texture`` too, the noise fitted with the texture and the texture), `BeamHardening`
-        (``cupping``) and `RingArtefacts` (``rings``).
+        (``cupping``) and `RingArtefacts` (``rings``). `noise_scale` (``"grains"``, ``"pores"``)
+        multiplies each phase's noise and texture amplitude (default 1).
         """
         transforms: list[Transform] = []
         if "blur" in steps:
@@ -305,10 +311,13 @@ class Calibration:
             fit = {phase: ((self.textured or {}).get(phase) if f"{phase[:-1]}_texture" in steps else None) or
                    {"power": self.added_power[phase], "noise": self.added_phase_noise[phase], "texture": None}
                    for phase in noisy}
-            power = {phase: fit[phase]["power"] if noisy[phase] else [0.0] * len(self.added_power[phase])
-                     for phase in noisy}
-            std = {phase: fit[phase]["noise"] if noisy[phase] else None for phase in noisy}
-            texture = {phase: fit[phase]["texture"] if noisy[phase] else None for phase in noisy}
+            gain = {phase: (noise_scale or {}).get(phase, 1.0) for phase in noisy}
+            power = {phase: [gain[phase] ** 2 * v for v in fit[phase]["power"]] if noisy[phase]
+                     else [0.0] * len(self.added_power[phase]) for phase in noisy}
+            std = {phase: None if not noisy[phase] or fit[phase]["noise"] is None else gain[phase] * fit[phase]["noise"]
+                   for phase in noisy}
+            texture = {phase: None if not noisy[phase] or fit[phase]["texture"] is None else
+                       [gain[phase] ** 2 * fit[phase]["texture"][0], fit[phase]["texture"][1]] for phase in noisy}
             transforms.append(ColouredNoise(pore_power=power["pores"], grain_power=power["grains"],
                                             pore_level=self.pore_level, grain_level=self.grain_level,
                                             pore_std=std["pores"], grain_std=std["grains"],
@@ -325,7 +334,7 @@ class Calibration:
         """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid
         (unless a `band_map` follows, which rounds)."""
         rounds = self.round_levels and self.band_map is None
-        return Compose(self.transforms(self.applied_steps()) + ([RoundLevels()] if rounds else []))
+        return Compose(self.transforms(self.applied_steps(), self.noise_scale) + ([RoundLevels()] if rounds else []))
 
     def band_mapping(self) -> BandMap | None:
         """The `band_map`, or None."""
@@ -638,6 +647,7 @@ def calibrate(
     calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
                                calibration_halo(target_sigma), target_bands)
     calibration.band_map = calibration.guard.pop("band_map")
+    calibration.noise_scale = calibration.guard.pop("noise_scale")
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
                            if std is not None)
     noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
@@ -694,7 +704,8 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
         np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
-        requires=REQUIRES, bands=bands)
+        requires=REQUIRES, bands=bands, rescaled=lambda steps, scale: calibration.transforms(steps, scale)
+        if any(step.endswith(("_noise", "_texture")) for step in steps) else None)
     return record
 
 

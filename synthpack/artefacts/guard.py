@@ -34,16 +34,17 @@ boundary are known (``bands``), a `~synthpack.artefacts.band_map.BandMap` is fit
 measured region after every subset of the steps, and the subset with its map that is
 admissible and misses the fewest targets (ties: the most steps, then the lowest sum) is
 applied instead, if it misses fewer targets than the steps kept without a map. A map
-changes the noise level too (it stretches a band whose source histogram is wider), so it
-may go with other steps than those kept without it (a texture left out where the map
-gives the spread). It is asked for only where a histogram misses: a pack whose histograms
+changes the noise level too (it stretches a band whose source histogram is wider), so each
+subset that adds noise is tried again with each phase's noise scaled by what the map made of
+its level (twice: the map is refitted on the rescaled volume), and a map may go with other
+steps than those kept without it (a texture left out where the map gives the spread). It is asked for only where a histogram misses: a pack whose histograms
 meet their targets keeps its bytes.
 
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
 noise and replaces it), and subsets without it are not tried. Every drop is logged as a
 warning. The guard is deterministic, and its cost fixed (at most 72 subsets: the blur,
-cupping and rings each on or off, each phase's noise off, on or with its texture; each once
-more with a band map where one is tried; of the calibration's at most
+cupping and rings each on or off, each phase's noise off, on or with its texture; each up to
+three times more with a band map where one is tried; of the calibration's at most
 `~synthpack.artefacts.calibrate.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
 (``calibration_guard``, keyed by the step's kind), so that the figures with and without
 a step compare the same noise realisation.
@@ -79,6 +80,10 @@ TOLERANCE = {"w_grains": 0.002, "w_pores": 0.002, "w_edges": 0.002, "noise_grain
 TARGET = {"w_grains": 0.05, "w_pores": 0.05, "w_edges": 0.05, "noise_grains": 0.1, "noise_pores": 0.1}
 #: The kinds of transform a calibration holds, in pipeline order: each draws from its own key of the guard's stream.
 _KINDS = ("gaussian_blur", "coloured_noise", "beam_hardening", "ring_artefacts")
+#: Rounds of refitting the noise's amplitude after a band map (`guard_steps`'s ``rescaled``).
+RESCALE_ROUNDS = 2
+#: The range of that amplitude factor.
+NOISE_SCALES = (0.25, 4.0)
 #: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
 MEASURED_MARGIN = 3
 
@@ -160,6 +165,7 @@ def guard_steps(
     contrast: float,
     requires: Mapping[str, str] | None = None,
     bands: Mapping[int, Sequence[float] | None] | None = None,
+    rescaled: Callable[[tuple[str, ...], Mapping[str, float]], list[Transform] | None] | None = None,
 ) -> tuple[tuple[str, ...], dict]:
     """The steps to keep: the admissible subset most like the source (see the module docstring).
 
@@ -183,6 +189,11 @@ def guard_steps(
     bands : dict of int to sequence of float or None, optional
         The source's quantiles per band of distance (`~synthpack.source.SourceStatistics.band_histograms`):
         a band map is fitted where a phase histogram misses its target (module docstring); None: none.
+    rescaled : callable, optional
+        ``rescaled(steps, scale)``: as ``build(steps)`` with the noise each phase's steps add
+        scaled in amplitude by ``scale[phase]`` (``"grains"``, ``"pores"``), or None where no step
+        of `steps` adds noise: the noise is then refitted after a band map (module docstring).
+        None: it is not.
 
     Returns
     -------
@@ -193,7 +204,9 @@ def guard_steps(
         ``fitted``: with every step, ``applied``: with those kept, ``band_mapped``: with them and
         the band map, where one was fitted), ``band_map`` (the map kept, `BandMap.to_dict`, or
         None), ``band_map_status`` (``"applied"``, ``"dropped"``, ``"not needed"``: every phase
-        histogram within target, ``"not measured"``: no source bands), ``tolerance``, ``target``, ``voxels``.
+        histogram within target, ``"not measured"``: no source bands), ``noise_scale`` (the
+        amplitude factor of each phase's noise applied with the map, or None), ``tolerance``,
+        ``target``, ``voxels``.
     """
     where = np.argwhere(region)
     box = tuple(slice(max(0, int(lo) - MEASURED_MARGIN), int(hi) + 1 + MEASURED_MARGIN)
@@ -202,9 +215,9 @@ def guard_steps(
     masks = phase_masks(distance, region[box])
     noise_labels = np.where(region[box], np.asarray(labels[box], dtype=np.int64), -1)
 
-    def applied(kept: tuple[str, ...]) -> np.ndarray:
+    def applied(kept: tuple[str, ...], scale: Mapping[str, float] | None = None) -> np.ndarray:
         out = volume
-        for transform in build(kept):
+        for transform in (build(kept) if scale is None else rescaled(kept, scale)):
             kind = _KINDS.index(transform.name) if transform.name in _KINDS else len(_KINDS)
             out = transform(out, generator(0, "calibration_guard", kind))
         return out[box]
@@ -232,11 +245,15 @@ def guard_steps(
         if better is None:
             break
         kept = better
-    band_map, status, mapped = None, "not measured", None
+    band_map, status, mapped, scale = None, "not measured", None, None
     if bands and any(q is not None for q in bands.values()):
         status = "not needed"
         if _missed(measured[kept], W_FIGURES):
-            kept, band_map, mapped = _band_mapped(subsets, measured, kept, applied, measure, distance, region[box], bands)
+            def ratios(out: np.ndarray) -> dict[str, float]:
+                return _noise_ratios(out, noise_labels, noise)
+
+            kept, band_map, mapped, scale = _band_mapped(subsets, measured, kept, applied, measure, ratios, distance,
+                                                         region[box], bands, rescaled)
             status = "dropped" if band_map is None else "applied"
     dropped = [s for s in steps if s not in kept]
     for step in dropped:
@@ -245,6 +262,7 @@ def guard_steps(
                        _text(mapped or measured[kept]), _text(none))
     record = {"dropped": dropped, "figures": {"none": none, "fitted": fitted, "applied": measured[kept]},
               "band_map": None if band_map is None else band_map.to_dict(), "band_map_status": status,
+              "noise_scale": scale,
               "tolerance": dict(TOLERANCE), "target": dict(TARGET), "voxels": int(np.count_nonzero(region))}
     if mapped is not None:
         record["figures"]["band_mapped"] = mapped
@@ -257,35 +275,68 @@ def _missed(figures_: Figures, names: Sequence[str] = FIGURES) -> int:
     return sum(figures_[name] > TARGET[name] for name in names if name in figures_)
 
 
+def _noise_ratios(volume: np.ndarray, noise_labels: np.ndarray, noise: Mapping[str, float | None]) -> dict[str, float]:
+    """Each phase's noise level in `volume` over the source's (`estimate_noise`), where both are measured."""
+    try:
+        estimate = estimate_noise(volume, noise_labels)
+    except SynthpackInputError:
+        return {}
+    levels = {"grains": estimate.grain_std, "pores": estimate.pore_std}
+    return {phase: levels[phase] / target for phase, target in noise.items()
+            if target and levels.get(phase) is not None}
+
+
 def _band_mapped(
     subsets: list[tuple[str, ...]], measured: dict[tuple[str, ...], Figures], kept: tuple[str, ...],
-    applied: Callable[[tuple[str, ...]], np.ndarray], measure: Callable[[np.ndarray], Figures],
-    distance: np.ndarray, region: np.ndarray, bands: Mapping[int, Sequence[float] | None],
-) -> tuple[tuple[str, ...], BandMap | None, Figures | None]:
-    """The steps and band map to apply, and their figures; `kept` and None where no band map makes the pack more alike.
+    applied: Callable[..., np.ndarray], measure: Callable[[np.ndarray], Figures],
+    ratios: Callable[[np.ndarray], dict[str, float]], distance: np.ndarray, region: np.ndarray,
+    bands: Mapping[int, Sequence[float] | None], rescaled: Callable | None,
+) -> tuple[tuple[str, ...], BandMap | None, Figures | None, dict[str, float] | None]:
+    """The steps, band map and noise scale to apply, with their figures; `kept`, None, None, None where no band map
+    makes the pack more alike.
 
-    A band map is fitted on every subset of the steps, and the subset with its map that is
-    admissible (no figure worse than no post-processing beyond its tolerance, unless within
-    target) and misses the fewest targets (ties: the most steps, then the lowest sum of the
-    figures) is taken if it misses fewer than `kept` does without one.
+    A band map is fitted on every subset of the steps, and, where the subset adds noise
+    (`rescaled` says so), again with each phase's noise scaled by what the map made of it
+    (``scale / (level / source's level)``, `RESCALE_ROUNDS` times, within `NOISE_SCALES`). Of
+    these, the one that is admissible (no figure worse than no post-processing beyond its
+    tolerance, unless within target) and misses the fewest targets (ties: the most steps, the
+    lowest sum of the figures, unscaled first) is taken if it misses fewer than `kept` does
+    without one.
     """
     none = measured[()]
-    fits: dict[tuple[str, ...], tuple[BandMap, Figures]] = {}
-    for subset in subsets:
-        volume = applied(subset)
+    fits: list[tuple[tuple[str, ...], dict[str, float] | None, BandMap, Figures]] = []
+
+    def fit(subset: tuple[str, ...], scale: dict[str, float] | None) -> dict[str, float] | None:
+        volume = applied(subset, scale)
         band_map = fit_band_map(volume, distance, region, bands)
-        if band_map is not None:
-            fits[subset] = band_map, measure(band_map.apply(volume, distance))
-    admissible = [s for s in fits if _admissible(fits[s][1], none)]
+        if band_map is None:
+            return None
+        mapped = band_map.apply(volume, distance)
+        fits.append((subset, scale, band_map, measure(mapped)))
+        return ratios(mapped)
+
+    for subset in subsets:
+        levels = fit(subset, None)
+        scale = {"grains": 1.0, "pores": 1.0}
+        if levels is None or rescaled is None or rescaled(subset, scale) is None:
+            continue
+        for _ in range(RESCALE_ROUNDS):
+            off = {phase: r for phase, r in levels.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
+            if not off:
+                break
+            scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
+            levels = fit(subset, scale)
+    admissible = [f for f in fits if _admissible(f[3], none)]
     if admissible:
-        best = min(admissible, key=lambda s: (_missed(fits[s][1]), -len(s), sum(fits[s][1].values()),
-                                              subsets.index(s)))
-        band_map, mapped = fits[best]
+        subset, scale, band_map, mapped = min(admissible, key=lambda f: (
+            _missed(f[3]), -len(f[0]), sum(f[3].values()), f[1] is not None, subsets.index(f[0])))
         if _missed(mapped) < _missed(measured[kept]):
-            logger.info("calibration: band map fitted (%d bands) with the steps %s: %s", len(band_map.bands),
-                        ", ".join(best) or "none", _text(mapped))
-            return best, band_map, mapped
+            logger.info("calibration: band map fitted (%d bands) with the steps %s%s: %s", len(band_map.bands),
+                        ", ".join(subset) or "none", "" if scale is None else
+                        ", the noise scaled by " + ", ".join(f"{sig(v, 3)} in the {p}" for p, v in scale.items()),
+                        _text(mapped))
+            return subset, band_map, mapped, scale
     logger.warning("calibration: no band map is applied: none brings the pack's histograms closer to its source's "
                    "without moving another figure away (without one: %s)", _text(measured[kept]))
-    return kept, None, None
+    return kept, None, None, None
 
