@@ -12,7 +12,8 @@ from scipy import ndimage
 from synthpack.artefacts import recipes as postprocess_module
 from synthpack.artefacts import (ColouredNoise, GaussianBlur, GaussianNoise, RoundLevels, calibrate,
                                  generic_postprocessing)
-from synthpack.artefacts.calibrate import Calibration, _clean_ring_powers, central_slices, measured_slices
+from synthpack.artefacts.calibrate import Calibration, _clean_ring_powers
+from synthpack.artefacts.calibration_region import central_slices, measured_slices
 from synthpack.artefacts.guard import TOLERANCE, guard_steps
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import (POSTPROCESS_MODES, _calibration_targets, bulk_region, check_postprocess,
@@ -533,7 +534,7 @@ def test_the_guard_measures_a_narrow_region_of_wide_slices_in_a_window_with_the_
     """A wide tube's calibration region is its slices' central square: the guard reads a centred window cut by
     multiples of the noise tile around it, and measures there what it measures on whole slices."""
     from synthpack.artefacts import ColouredNoise, RingArtefacts
-    from synthpack.artefacts.calibrate import _lateral_window
+    from synthpack.artefacts.calibration_region import lateral_window
     from synthpack.artefacts.coloured_noise import TILE
 
     clean, labels = (np.tile(a, (1, 4, 4)) for a in phantom)  # 32 x 256 x 256
@@ -551,9 +552,9 @@ def test_the_guard_measures_a_narrow_region_of_wide_slices_in_a_window_with_the_
     def build(kept):
         return [steps[name] for name in kept]
 
-    window = _lateral_window(region, 5, cupping=False)
+    window = lateral_window(region, 5, cupping=False)
     assert window == (slice(64, 192), slice(64, 192)) and window[0].start % TILE == 0
-    assert _lateral_window(region, 5, cupping=True) == (slice(None), slice(None))  # cupping scales with the slice
+    assert lateral_window(region, 5, cupping=True) == (slice(None), slice(None))  # cupping scales with the slice
     whole = guard_steps(build, tuple(steps), clean, labels, region, **targets)
     cut = (slice(None), *window)
     windowed = guard_steps(build, tuple(steps), clean[cut], labels[cut], region[cut], **targets)

@@ -41,7 +41,8 @@ its noise alone), keeping only the steps that its guard (``guard``) finds make t
 from ._base import Compose, Transform, available_transforms, from_config
 from ._param import Param
 from .blur import GaussianBlur, MotionBlur, line_kernel
-from .calibrate import Calibration, calibrate, calibration_halo, measured_slices, noise_to_add
+from .calibrate import Calibration, calibrate, noise_to_add
+from .calibration_region import calibration_halo, measured_slices
 from .coloured_noise import ColouredNoise
 from .ct import CTSimulation
 from .intensity import ContrastGamma, RoundLevels

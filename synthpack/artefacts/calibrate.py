@@ -6,8 +6,9 @@ thinned by resampling, between pores that hold the pore texture. `calibrate`
 fits the rest of the scanner's image formation to the source
 (`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk).
 A representative sample is enough: the fit measures the central slices of the
-region holding at most `CALIBRATION_VOXELS` of its voxels (`central_slices`; in
-a region too wide for `MIN_CALIBRATION_SLICES` slices, a central square of them), so
+region holding at most `~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS` of its
+voxels (`~synthpack.artefacts.calibration_region.central_slices`; in a region too wide, a central
+square of them), so
 its cost is fixed and vanishes per voxel on big packs.
 
 1. **Point-spread function.** The width of the clean volume's edge-spread function
@@ -73,7 +74,7 @@ its cost is fixed and vanishes per voxel on big packs.
 
 4. **The guard** (`~synthpack.artefacts.guard`): every subset of the steps (the blur, the
    noise of each phase, the cupping, the rings) is applied to the clean volume on the
-   measured slices (in the window of them `_lateral_window` keeps: the values of whole slices
+   measured slices (in the window of them `~synthpack.artefacts.calibration_region.lateral_window` keeps: the values of whole slices
    on what is measured, at the cost of the region), and the full-band histograms of grains,
    pores and edges (Wasserstein distance over the contrast, against the source's
    `~synthpack.source.SourceStatistics.histogram_grains` and the others) and the noise
@@ -123,29 +124,23 @@ from ..measure.steepness import edge_steepness, steepness_distance
 from ._base import Compose, Transform
 from .band_map import BandMap
 from .blur import GaussianBlur
-from .coloured_noise import TILE, ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
+from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
 from .intensity import RoundLevels
-from .guard import MEASURED_MARGIN, guard_steps
+from .calibration_region import (CALIBRATION_VOXELS, bounding_box, calibration_halo, central_slices,
+                                 lateral_window)
+from .guard import guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CALIBRATION_VOXELS", "Calibration", "PSF_STEPS", "STEEPNESS_FACTORS", "STEPS", "calibrate", "calibration_halo", "central_slices",
-           "measured_slices", "noise_to_add"]
+__all__ = ["Calibration", "PSF_STEPS", "STEEPNESS_FACTORS", "STEPS", "calibrate", "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
 #: The PSF widths the steepness fit tries, as multiples of the edge profile's fixed point: at most 1, as the
 #: labels' scatter only ever widens the profile.
 STEEPNESS_FACTORS = tuple(round(0.5 + 0.05 * k, 2) for k in range(11))
-#: The fit measures at most about this many voxels of the region (its central slices, `central_slices`):
-#: more than a 150-grain pack's whole bulk. On a 600-grain pack of the "large" sample (bulk 3.2 M voxels)
-#: the PSF sigma fitted on it is within 0.003 voxel, the noise levels within 0.1 % and the ring powers
-#: within 2 % of the whole-bulk fit, at a quarter of its cost.
-CALIBRATION_VOXELS = 1 << 20
-#: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`).
-MIN_CALIBRATION_SLICES = 16
 #: The steps of a calibration, in the order they apply (`Calibration.transforms`).
 STEPS = ("blur", "grain_noise", "grain_texture", "pore_noise", "pore_texture", "cupping", "rings")
 #: A step that is only applied with another: a phase's texture replaces its noise by the noise fitted with it.
@@ -345,106 +340,6 @@ class Calibration:
         return asdict(self)
 
 
-def _crop(region: np.ndarray, halo: int) -> tuple[slice, ...]:
-    """Bounding box of `region` grown by `halo` voxels (clipped to the volume)."""
-    where = np.argwhere(region)
-    low, high = where.min(axis=0) - halo, where.max(axis=0) + 1 + halo
-    return tuple(slice(max(0, int(lo)), min(n, int(hi))) for lo, hi, n in zip(low, high, region.shape))
-
-
-def central_slices(region: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> np.ndarray:
-    """The part of `region` in its central slices (along axis 0), holding at most about `max_voxels` voxels.
-
-    Where fewer than `MIN_CALIBRATION_SLICES` of the region's widest slices would fit in
-    `max_voxels` (a pack much wider than tall, e.g. a tube 1,000 voxels wide), the region
-    is first cut to the central square of its slices (about its lateral centre) in which
-    that many slices fit: the noise and spectra need voxels a few slices deep.
-
-    Parameters
-    ----------
-    region : ndarray of bool, shape (Z, Y, X)
-        Not empty.
-    max_voxels : int
-        Bound on the voxels kept; at least the central slice (of the central square) is kept.
-
-    Returns
-    -------
-    ndarray of bool, same shape
-        `region` itself when it holds at most `max_voxels` voxels; else `region` on
-        ``n`` consecutive slices of those it occupies, centred in their range, with
-        ``n = max_voxels // (the most voxels on one of its slices)`` (at least 1).
-    """
-    per_slice = np.count_nonzero(region, axis=(1, 2))
-    if per_slice.sum() <= max_voxels:
-        return region
-    square = _central_square(region.any(axis=0), int(per_slice.max()), max_voxels)
-    if square is not None:
-        cut = np.zeros_like(region)
-        cut[(slice(None), *square)] = region[(slice(None), *square)]
-        region = cut
-        per_slice = np.count_nonzero(region, axis=(1, 2))
-    start, stop = _central_range(per_slice, max_voxels)
-    kept = np.zeros_like(region)
-    kept[start:stop] = region[start:stop]
-    return kept
-
-
-def measured_slices(in_slices: np.ndarray, in_slice: np.ndarray, max_voxels: int = CALIBRATION_VOXELS) -> tuple[int, int]:
-    """The slices `central_slices` keeps of a region that is a stack of one shape, without making the region.
-
-    For a region ``in_slices[:, None, None] & in_slice[None]`` (a pack's bulk
-    cylinder): a caller can read only these slices (and `calibration_halo` more on
-    each side) of a volume larger than memory, and get the same calibration as
-    from the whole region.
-
-    Parameters
-    ----------
-    in_slices : ndarray of bool, shape (Z,)
-        The slices the region occupies.
-    in_slice : ndarray of bool, shape (Y, X)
-        The region on each of them.
-    max_voxels : int
-        As for `central_slices`.
-
-    Returns
-    -------
-    (start, stop) : tuple of int
-    """
-    per_slice = in_slices.astype(np.int64) * int(np.count_nonzero(in_slice))
-    if per_slice.sum() <= max_voxels:
-        occupied = np.flatnonzero(per_slice)
-        return int(occupied[0]), int(occupied[-1]) + 1
-    square = _central_square(in_slice, int(per_slice.max()), max_voxels)
-    if square is not None:
-        per_slice = in_slices.astype(np.int64) * int(np.count_nonzero(in_slice[square]))
-    return _central_range(per_slice, max_voxels)
-
-
-def _central_square(lateral: np.ndarray, widest: int, max_voxels: int) -> tuple[slice, slice] | None:
-    """The central square of `lateral` ((Y, X) bool) in which `MIN_CALIBRATION_SLICES` slices fit, or None."""
-    if max_voxels // widest >= MIN_CALIBRATION_SLICES:
-        return None
-    side = max(1, math.isqrt(max_voxels // MIN_CALIBRATION_SLICES))
-    rows, columns = np.flatnonzero(lateral.any(axis=1)), np.flatnonzero(lateral.any(axis=0))
-    y0 = max(0, (int(rows[0]) + int(rows[-1]) + 1 - side) // 2)
-    x0 = max(0, (int(columns[0]) + int(columns[-1]) + 1 - side) // 2)
-    return slice(y0, y0 + side), slice(x0, x0 + side)
-
-
-def _central_range(per_slice: np.ndarray, max_voxels: int) -> tuple[int, int]:
-    """``(start, stop)`` of the central occupied slices holding at most `max_voxels` (at least one slice)."""
-    occupied = np.flatnonzero(per_slice)
-    n = min(len(occupied), max(1, max_voxels // int(per_slice.max())))
-    start = occupied[(len(occupied) - n) // 2]
-    stop = occupied[(len(occupied) - n) // 2 + n - 1] + 1
-    return int(start), int(stop)
-
-
-def calibration_halo(target_sigma: float) -> int:
-    """Voxels read around the measured region for a source edge width `target_sigma` (voxels)."""
-    return int(math.ceil(4 * target_sigma)) + 2
-
-
 def _clean_ring_powers(
     spectrum: NoiseSpectrum | None, n_rings: int, noise_std: float | None, texture: np.ndarray | None,
 ) -> np.ndarray:
@@ -501,7 +396,7 @@ def calibrate(
         Its labels (0 = pore, tube or outside).
     region : ndarray of bool, shape (Z, Y, X)
         Where to measure (the pack's bulk region, `~synthpack.artefacts.recipes.bulk_region`): its central
-        slices holding at most `max_voxels` voxels (`central_slices`).
+        slices holding at most `max_voxels` voxels (`~synthpack.artefacts.calibration_region.central_slices`).
     target_sigma, target_shift : float
         The source's fitted edge width and shift, voxels (`~synthpack.source.SourceStatistics.edge_sigma`).
     target_power : dict
@@ -546,7 +441,8 @@ def calibrate(
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
     max_voxels : int
-        Bound on the region's voxels measured (default `CALIBRATION_VOXELS`).
+        Bound on the region's voxels measured (default
+        `~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS`).
 
     Returns
     -------
@@ -559,7 +455,7 @@ def calibrate(
             f"{target_shift!r}"
         )
     region = central_slices(region, max_voxels)
-    box = _crop(region, calibration_halo(target_sigma))
+    box = bounding_box(region, calibration_halo(target_sigma))
     volume, box_labels, box_region = clean[box], np.asarray(labels[box]), region[box]
     distance = signed_distance(box_labels)
 
@@ -694,12 +590,12 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
     """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
     The slices of `clean` the region occupies (and `halo` more on each side, for the blur) are
-    read, in each the window `_lateral_window` keeps: the artefacts about the slice centre lie
+    read, in each the window `~synthpack.artefacts.calibration_region.lateral_window` keeps: the artefacts about the slice centre lie
     where the pack's will, and every value the guard measures is the one whole slices give.
     """
     occupied = np.flatnonzero(region.any(axis=(1, 2)))
     low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
-    window = (slice(low, high), *_lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
+    window = (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
     _, record = guard_steps(
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
         np.asarray(labels[window]), region[window], histograms=histograms,
@@ -707,25 +603,3 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         requires=REQUIRES, bands=bands, rescaled=lambda steps, scale: calibration.transforms(steps, scale)
         if any(step.endswith(("_noise", "_texture")) for step in steps) else None)
     return record
-
-
-def _lateral_window(region: np.ndarray, halo: int, cupping: bool) -> tuple[slice, slice]:
-    """The (y, x) window of the slices the guard needs around `region`: centred, cut by multiples of the noise tile.
-
-    A region much narrower than its slices (the central square of a wide tube's) needs no more
-    than itself, the measured margin and `halo`. Cut by the same multiple of `TILE` on either
-    side, the window keeps the slice centre (the rings' axis) and every voxel's noise (the
-    coloured noise repeats every `TILE` voxels from the array's first), and the blur beyond
-    the halo does not reach what is measured: the guard's figures are those of whole slices,
-    at a fraction of their cost and memory. Whole slices where `cupping` is applied: its
-    factor is scaled by the slice's size.
-    """
-    if cupping:
-        return slice(None), slice(None)
-    window = []
-    for axis in (1, 2):
-        occupied = np.flatnonzero(region.any(axis=tuple(a for a in range(3) if a != axis)))
-        spare = min(int(occupied[0]), region.shape[axis] - 1 - int(occupied[-1])) - halo - MEASURED_MARGIN
-        cut = max(spare, 0) // TILE * TILE
-        window.append(slice(cut, region.shape[axis] - cut))
-    return window[0], window[1]

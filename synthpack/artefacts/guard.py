@@ -45,7 +45,7 @@ noise and replaces it), and subsets without it are not tried. Every drop is logg
 warning. The guard is deterministic, and its cost fixed (at most 72 subsets: the blur,
 cupping and rings each on or off, each phase's noise off, on or with its texture; each up to
 three times more with a band map where one is tried; of the calibration's at most
-`~synthpack.artefacts.calibrate.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
+`~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
 (``calibration_guard``, keyed by the step's kind), so that the figures with and without
 a step compare the same noise realisation.
 """
