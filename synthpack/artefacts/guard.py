@@ -37,8 +37,8 @@ applied instead, if it misses fewer targets than the steps kept without a map. A
 changes the noise level too (it stretches a band whose source histogram is wider), so each
 subset that adds noise is tried again with each phase's noise scaled by what the map made of
 its level (twice: the map is refitted on the rescaled volume), and a map may go with other
-steps than those kept without it (a texture left out where the map gives the spread). It is asked for only where a histogram misses: a pack whose histograms
-meet their targets keeps its bytes.
+steps than those kept without it. It is asked for only where a histogram misses: a pack
+whose histograms meet their targets keeps its bytes.
 
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
 noise and replaces it), and subsets without it are not tried. Every drop is logged as a
@@ -68,7 +68,7 @@ from .band_map import BandMap, fit_band_map
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FIGURES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "W_FIGURES", "figures", "guard_steps"]
+__all__ = ["FIGURES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "W_FIGURES", "figures", "guard_steps", "noise_ratios"]
 
 #: The guard's figures, each lower = more like the source (see the module docstring).
 FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
@@ -121,15 +121,22 @@ def figures(
         reference = histograms.get(phase)
         if quantiles is not None and reference is not None:
             result[f"w_{phase}"] = quantile_distance(quantiles, reference) / abs(contrast)
+    result.update({f"noise_{phase}": abs(ratio - 1.0) for phase, ratio in noise_ratios(volume, noise_labels, noise).items()})
+    return result
+
+
+def noise_ratios(volume: np.ndarray, noise_labels: np.ndarray, noise: Mapping[str, float | None]) -> dict[str, float]:
+    """Each phase's noise level in `volume` over the source's (`estimate_noise`; `figures`' noise figures are
+    ``|ratio - 1|``), for the phases measured in both; empty where the noise cannot be estimated."""
+    if not any(noise.values()):
+        return {}
     try:
         estimate = estimate_noise(volume, noise_labels)
     except SynthpackInputError:
-        return result
-    for phase, level in (("grains", estimate.grain_std), ("pores", estimate.pore_std)):
-        target = noise.get(phase)
-        if level is not None and target:
-            result[f"noise_{phase}"] = abs(level / target - 1.0)
-    return result
+        return {}
+    levels = {"grains": estimate.grain_std, "pores": estimate.pore_std}
+    return {phase: levels[phase] / target for phase, target in noise.items()
+            if phase in levels and target and levels[phase] is not None}
 
 
 def _excess(figures_: Figures, reference: Figures) -> dict[str, float]:
@@ -249,11 +256,13 @@ def guard_steps(
     if bands and any(q is not None for q in bands.values()):
         status = "not needed"
         if _missed(measured[kept], W_FIGURES):
-            def ratios(out: np.ndarray) -> dict[str, float]:
-                return _noise_ratios(out, noise_labels, noise)
+            def measure_with_ratios(out: np.ndarray) -> tuple[Figures, dict[str, float]]:
+                ratios = noise_ratios(out, noise_labels, noise)
+                without_noise = figures(out, masks, noise_labels, histograms=histograms, noise={}, contrast=contrast)
+                return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}}, ratios
 
-            kept, band_map, mapped, scale = _band_mapped(subsets, measured, kept, applied, measure, ratios, distance,
-                                                         region[box], bands, rescaled)
+            kept, band_map, mapped, scale = _band_mapped(subsets, measured, kept, applied, measure_with_ratios,
+                                                         distance, region[box], bands, rescaled)
             status = "dropped" if band_map is None else "applied"
     dropped = [s for s in steps if s not in kept]
     for step in dropped:
@@ -275,21 +284,10 @@ def _missed(figures_: Figures, names: Sequence[str] = FIGURES) -> int:
     return sum(figures_[name] > TARGET[name] for name in names if name in figures_)
 
 
-def _noise_ratios(volume: np.ndarray, noise_labels: np.ndarray, noise: Mapping[str, float | None]) -> dict[str, float]:
-    """Each phase's noise level in `volume` over the source's (`estimate_noise`), where both are measured."""
-    try:
-        estimate = estimate_noise(volume, noise_labels)
-    except SynthpackInputError:
-        return {}
-    levels = {"grains": estimate.grain_std, "pores": estimate.pore_std}
-    return {phase: levels[phase] / target for phase, target in noise.items()
-            if target and levels.get(phase) is not None}
-
-
 def _band_mapped(
     subsets: list[tuple[str, ...]], measured: dict[tuple[str, ...], Figures], kept: tuple[str, ...],
-    applied: Callable[..., np.ndarray], measure: Callable[[np.ndarray], Figures],
-    ratios: Callable[[np.ndarray], dict[str, float]], distance: np.ndarray, region: np.ndarray,
+    applied: Callable[..., np.ndarray], measure: Callable[[np.ndarray], tuple[Figures, dict[str, float]]],
+    distance: np.ndarray, region: np.ndarray,
     bands: Mapping[int, Sequence[float] | None], rescaled: Callable | None,
 ) -> tuple[tuple[str, ...], BandMap | None, Figures | None, dict[str, float] | None]:
     """The steps, band map and noise scale to apply, with their figures; `kept`, None, None, None where no band map
@@ -311,9 +309,9 @@ def _band_mapped(
         band_map = fit_band_map(volume, distance, region, bands)
         if band_map is None:
             return None
-        mapped = band_map.apply(volume, distance)
-        fits.append((subset, scale, band_map, measure(mapped)))
-        return ratios(mapped)
+        mapped, ratios = measure(band_map.apply(volume, distance))
+        fits.append((subset, scale, band_map, mapped))
+        return ratios
 
     for subset in subsets:
         levels = fit(subset, None)
