@@ -134,8 +134,10 @@ class Postprocessing:
         The transforms to apply to the clean pack (seeded at application).
     band_map : BandMap or None
         Applied after `pipeline`, with the pack's labels (`~synthpack.artefacts.band_map.apply_band_map`):
-        ``calibrated``'s, where its guard kept one; it rounds to whole numbers where the
-        calibration does (``calibration.round_levels``).
+        ``calibrated``'s, where its guard kept one.
+    band_map_rounds : bool
+        Whether the band map's output is rounded to whole numbers (the calibration's
+        ``round_levels``: the pipeline then leaves the rounding to it).
     record : dict
         Entries for the pack manifest: ``postprocess_mode`` (the mode applied:
         one of `POSTPROCESS_MODES`, or ``custom``), and every fitted or matched
@@ -147,6 +149,7 @@ class Postprocessing:
     pipeline: Compose
     record: dict[str, Any] = field(default_factory=dict)
     band_map: BandMap | None = None
+    band_map_rounds: bool = False
 
 
 @functools.cache
@@ -291,7 +294,7 @@ def resolve_postprocessing(
         if calibration is not None and postprocess == "calibrated":
             return Postprocessing(calibration.pipeline(),
                                   {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()},
-                                  band_map=calibration.band_mapping())
+                                  band_map=calibration.band_mapping(), band_map_rounds=calibration.round_levels)
         if fallback is not None:
             _fallback(fallback, postprocess)
     matched = None if calibration is not None else _matched_noise(statistics, clean, labels)

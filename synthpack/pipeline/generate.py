@@ -343,7 +343,7 @@ def _postprocess(
     )
     band_map = postprocessing.band_map
     if band_map is not None:
-        rounds = bool(postprocessing.record.get("calibration", {}).get("round_levels"))
+        rounds = postprocessing.band_map_rounds
         apply_band_map(band_map, tomogram, render.labels, chunks, threads=threads,
                        inside=None if render.wall is None else _in_tube(render.grid, tube_radius), round_levels=rounds)
         applied.append({"name": "band_map", "bands": list(band_map.bands), "round_levels": rounds})
