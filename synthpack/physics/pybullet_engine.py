@@ -33,12 +33,16 @@ Choices, and why:
   inside the real tube. Grains have continuous collision detection
   (``ccdSweptSphereRadius``, half their inradius), against tunnelling when they move
   fast.
-* Mass and inertia: the body frame is the particle-local frame; the inertial frame
-  sits at the mesh's centre of mass, turned to the principal axes of the mesh's
-  inertia tensor (uniform density, scaled to the body's mass), passed as
-  ``baseInertialFramePosition/Orientation`` plus ``localInertiaDiagonal``. pybullet
-  reports the INERTIAL frame's pose (``getBasePositionAndOrientation``; measured),
-  so the local origin's pose is recovered as ``T_world_inertial @ T_inertial_local``.
+* Mass and inertia: each body's frame is its grain's PRINCIPAL frame: origin at the
+  mesh's centre of mass, axes the principal axes of the mesh's inertia tensor (uniform
+  density, scaled to the body's mass; ``localInertiaDiagonal``), and the collision
+  shape's vertices are given in it. With an inertial frame offset from the shape's
+  (``baseInertialFramePosition/Orientation``, as before 0.12) pybullet wraps the hull
+  in a compound shape at that offset (its URDF importer unwraps a single child only at
+  the identity transform), and hull-hull contacts then go through the compound-compound
+  algorithm: 17% of a pour's time in a py-spy profile, a quarter of the cost of a step
+  on a bed of grains (docs/benchmarks.md). The local origin's pose is recovered as
+  ``T_world_principal @ T_principal_local``.
 * The tube is a ring of static boxes (their inner faces form a regular polygon of
   :data:`WALL_SEGMENTS` sides with apothem ``inner_radius``) on a static box floor.
   A concave triangle mesh (``GEOM_FORCE_CONCAVE_TRIMESH``, 48 sections) was
@@ -54,7 +58,12 @@ Choices, and why:
   reported by the frontend's checks.
 * Settling: after ``min_steps`` steps, a batch has settled once all its grains are
   below ``linear_speed`` and ``angular_speed`` for ``quiet_steps`` consecutive
-  steps (at most ``max_steps``).
+  steps (at most ``max_steps``). With ``lock_quiet_grains`` (the default), once at
+  most :data:`FREEZE_SHARE` of the batch still moves, each grain that has been below
+  the settle speeds for ``quiet_steps`` steps is locked at once (made static, as
+  below) while the last ones slide: Bullet keeps an island of touching grains awake
+  while any of them moves, so a batch's last sliding grains otherwise keep all of its
+  grains in the collision detection, for about half of its steps.
 * Locking: a settled batch's bodies are removed and re-created as STATIC bodies
   (mass 0) at their final poses, with the same collision shapes. Static bodies are
   never integrated and static-static pairs are never collided, but every body in
@@ -95,7 +104,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["PybulletEngine", "PybulletConfig", "WALL_SEGMENTS", "SOLVER_ITERATIONS", "GRAVITY"]
+__all__ = ["PybulletEngine", "PybulletConfig", "WALL_SEGMENTS", "SOLVER_ITERATIONS", "GRAVITY", "FREEZE_SHARE"]
 
 #: Number of boxes in the wall ring.
 WALL_SEGMENTS = 48
@@ -103,6 +112,8 @@ WALL_SEGMENTS = 48
 SOLVER_ITERATIONS = 20
 #: Gravitational acceleration, simulation units / s^2 (along -z).
 GRAVITY = 9.81
+#: Quiet grains are made static early once at most this share of their batch still moves.
+FREEZE_SHARE = 0.1
 _MIN_COLLIDER_THICKNESS = 1.0  # sim units: walls and floor are at least this thick
 
 
@@ -116,6 +127,12 @@ class PybulletConfig(EngineConfig):
         Let Bullet put grains that have been nearly still for 2 s to sleep (they wake
         when hit). False keeps every grain of the batch awake, as Blender's rigid
         bodies are by default (no deactivation).
+    lock_quiet_grains : bool
+        Make each grain static (as :meth:`_PybulletWorld.lock` does) once it has been
+        below the settle speeds for ``quiet_steps`` consecutive steps, while the rest of
+        its batch still moves. Bullet wakes a whole island of touching grains while one
+        of them moves, so without it the batch's last sliding grains keep every grain
+        of the batch in the collision detection.
 
     See :class:`~synthpack.physics.scene.EngineConfig` for ``max_hull_vertices``,
     ``fixed_steps`` and ``record_snapshots``.
@@ -123,6 +140,10 @@ class PybulletConfig(EngineConfig):
 
     allow_sleeping: bool = setting(
         True, None, "let grains that have been nearly still for 2 s sleep until something hits them"
+    )
+    lock_quiet_grains: bool = setting(
+        True, None, "make each grain static once it has been quiet for quiet_steps steps, while the rest of its "
+        "batch still moves"
     )
 
 
@@ -189,7 +210,9 @@ class _PybulletWorld(World):
         except BaseException:
             client.close()
             raise
-        self._batch: list[tuple[int, int, _Shape]] = []  # (body index, body id, shape) of the moving batch
+        self._batch: list[tuple[int, int, _Shape]] = []  # (body index, body id, shape) of the batch, in order
+        self._frozen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # batch grains made static early: pose
+        self._friction = scene.material.friction  # the batch's friction now
         self._static: dict[int, int] = {}  # body index -> its static body id, while it is in the world
         n = len(scene.bodies)
         self._positions, self._quaternions = np.zeros((n, 3)), np.zeros((n, 4))  # poses of the locked grains
@@ -222,26 +245,80 @@ class _PybulletWorld(World):
             if not scene.options.allow_sleeping:
                 client.changeDynamics(body_id, -1, activationState=client.ACTIVATION_STATE_DISABLE_SLEEPING)
             self._batch.append((int(i), body_id, shape))
+        self._friction = friction
 
     def settle(self, criteria: SettleCriteria, fixed_steps: int | None) -> tuple[int, bool]:
-        return _run_batch(self.client, [body_id for _, body_id, _ in self._batch], criteria, fixed_steps)
+        if fixed_steps is not None or not self.scene.options.lock_quiet_grains:
+            return _run_batch(self.client, [body_id for _, body_id, _ in self._batch], criteria, fixed_steps)
+        return self._settle_locking_quiet(criteria)
+
+    def _settle_locking_quiet(self, criteria: SettleCriteria) -> tuple[int, bool]:
+        """Step until the batch has settled by `criteria`, making quiet grains static as it goes.
+
+        A grain below the scene's settle speeds (not `criteria`'s, which a compacted
+        batch's fall loosens) for its ``quiet_steps`` consecutive steps, after
+        `criteria`'s ``min_steps``, is made static where it is (:meth:`_freeze`).
+        """
+        client, strict = self.client, self.scene.settle
+        calm = {i: 0 for i, _, _ in self._batch if i not in self._frozen}
+        quiet, loud = 0, len(self._batch)
+        for step in range(1, criteria.max_steps + 1):
+            client.stepSimulation()
+            freezing = step >= criteria.min_steps and loud <= FREEZE_SHARE * len(self._batch)
+            loud = 0
+            for i, body_id, shape in self._batch:
+                if i in self._frozen:
+                    continue
+                (vx, vy, vz), (wx, wy, wz) = client.getBaseVelocity(body_id)
+                linear, angular = vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz
+                if linear > criteria.linear_speed**2 or angular > criteria.angular_speed**2:
+                    loud += 1
+                calm[i] = calm[i] + 1 if linear <= strict.linear_speed**2 and angular <= strict.angular_speed**2 else 0
+                if freezing and calm[i] >= strict.quiet_steps:
+                    self._freeze(i)
+            quiet = quiet + 1 if loud == 0 else 0
+            if step >= criteria.min_steps and (quiet >= criteria.quiet_steps or len(self._frozen) == len(self._batch)):
+                return step, True
+        return criteria.max_steps, False
+
+    def _freeze(self, index: int) -> None:
+        """Make the batch's grain `index` a static body at its pose, keeping the batch's friction."""
+        k = next(k for k, (i, _, _) in enumerate(self._batch) if i == index)
+        _, body_id, shape = self._batch[k]
+        position, quaternion = _local_pose(self.client, body_id, shape)
+        self.client.removeBody(body_id)
+        static = _create_static(self.client, shape, position, quaternion, self.scene.material)
+        if self._friction != self.scene.material.friction:
+            self.client.changeDynamics(static, -1, lateralFriction=self._friction)
+        self._batch[k] = (index, static, shape)
+        self._frozen[index] = (position, quaternion)
 
     def set_friction(self, friction: float) -> None:
         for _, body_id, _ in self._batch:
             self.client.changeDynamics(body_id, -1, lateralFriction=friction)
+        self._friction = friction
 
     def lock(self) -> LockedBatch:
         """Each body of the batch removed and re-created as a STATIC body (mass 0), same shape, same pose."""
         client, material = self.client, self.scene.material
         hulls = []
         for i, body_id, shape in self._batch:
-            position, quaternion = _local_pose(client, body_id, shape)
-            client.removeBody(body_id)
-            self._static[i] = _create_static(client, shape, position, quaternion, material)
+            if i in self._frozen:  # static already
+                position, quaternion = self._frozen[i]
+                self._static[i] = body_id
+                if self._friction != material.friction:
+                    client.changeDynamics(body_id, -1, lateralFriction=material.friction)
+            else:
+                position, quaternion = _local_pose(client, body_id, shape)
+                client.removeBody(body_id)
+                self._static[i] = _create_static(client, shape, position, quaternion, material)
             self._positions[i], self._quaternions[i] = position, quaternion
             hulls.append(Rotation.from_quat(quaternion, scalar_first=True).apply(shape.hull_vertices) + position)
         members = [i for i, _, _ in self._batch]
-        self._batch = []
+        logger.debug("Batch locked: %d of its %d grains were made static early, when quiet", len(self._frozen),
+                     len(members))
+        self._batch, self._frozen = [], {}
+        self._friction = material.friction
         return LockedBatch(self._positions[members].copy(), self._quaternions[members].copy(), hulls)
 
     def retire(self, indices: Sequence[int]) -> None:
@@ -251,9 +328,11 @@ class _PybulletWorld(World):
     def poses(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The batch's poses from pybullet; a locked grain's the pose it was locked at (static bodies never move)."""
         positions, quaternions = self._positions[indices].copy(), self._quaternions[indices].copy()
-        moving = {i: (body_id, shape) for i, body_id, shape in self._batch}
+        moving = {i: (body_id, shape) for i, body_id, shape in self._batch if i not in self._frozen}
         for k, i in enumerate(indices):
-            if int(i) in moving:
+            if int(i) in self._frozen:
+                positions[k], quaternions[k] = self._frozen[int(i)]
+            elif int(i) in moving:
                 positions[k], quaternions[k] = _local_pose(self.client, *moving[int(i)])
         return positions, quaternions
 
@@ -357,12 +436,14 @@ def _shape_for(
     else:
         parts = [simplify_hull(hull, max_vertices)]
     shrunk = [shrink_hull(part, material.collision_margin) for part in parts]
-    shape_id = _collision_shape(client, shrunk)
     mesh = trimesh.Trimesh(true_vertices, faces, process=False)
     inertia = np.asarray(mesh.moment_inertia) * (body.mass / mesh.volume)
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
         axes[:, 2] *= -1
+    # The collider in the principal frame (origin at the centre of mass, axes the principal
+    # axes): pybullet then keeps the bare hull, not a compound wrapping it at an offset.
+    shape_id = _collision_shape(client, [(part - centre) @ axes for part in shrunk])
     shape = _Shape(
         shape_id=shape_id,
         com=np.asarray(body.center_mass, dtype=float),
@@ -422,13 +503,12 @@ def _create_dynamic(
     client: Client, shape: _Shape, mass: float, position: np.ndarray, quat_wxyz: np.ndarray,
     material: Material,
 ) -> int:
+    centre, orientation = _principal_pose(shape, position, quat_wxyz)
     body = client.createMultiBody(
         baseMass=mass,
         baseCollisionShapeIndex=shape.shape_id,
-        basePosition=position.tolist(),
-        baseOrientation=_xyzw(quat_wxyz),
-        baseInertialFramePosition=shape.com.tolist(),
-        baseInertialFrameOrientation=shape.inertial_quat.tolist(),
+        basePosition=centre,
+        baseOrientation=orientation,
         useMaximalCoordinates=True,
     )
     # The mass must be repeated: for maximal-coordinate bodies pybullet otherwise
@@ -442,11 +522,12 @@ def _create_dynamic(
 def _create_static(
     client: Client, shape: _Shape, position: np.ndarray, quat_wxyz: np.ndarray, material: Material
 ) -> int:
+    centre, orientation = _principal_pose(shape, position, quat_wxyz)
     body = client.createMultiBody(
         baseMass=0.0,
         baseCollisionShapeIndex=shape.shape_id,
-        basePosition=position.tolist(),
-        baseOrientation=_xyzw(quat_wxyz),
+        basePosition=centre,
+        baseOrientation=orientation,
         useMaximalCoordinates=True,
     )
     _apply_material(client, body, material, grain=True)
@@ -479,6 +560,13 @@ def _is_quiet(client: Client, body_ids: list[int], settle: SettleCriteria) -> bo
     return True
 
 
+def _principal_pose(shape: _Shape, position: np.ndarray, quat_wxyz: np.ndarray) -> tuple[list[float], list[float]]:
+    """pybullet's pose (centre of mass, x y z w) of a body whose local origin has the pose given."""
+    local = Rotation.from_quat(quat_wxyz, scalar_first=True)
+    centre = np.asarray(position, dtype=float) + local.apply(shape.com)
+    return centre.tolist(), (local * Rotation.from_quat(shape.inertial_quat)).as_quat().tolist()
+
+
 def _local_pose(client: Client, body_id: int, shape: _Shape) -> tuple[np.ndarray, np.ndarray]:
     """World pose of the local origin, from pybullet's inertial-frame pose."""
     com_world, inertial_xyzw = client.getBasePositionAndOrientation(body_id)
@@ -486,8 +574,3 @@ def _local_pose(client: Client, body_id: int, shape: _Shape) -> tuple[np.ndarray
     position = np.asarray(com_world) - local.apply(shape.com)
     quat = local.as_quat(scalar_first=True)
     return position, quat * (1.0 if quat[0] >= 0 else -1.0)
-
-
-def _xyzw(quat_wxyz: np.ndarray) -> list[float]:
-    w, x, y, z = (float(v) for v in quat_wxyz)
-    return [x, y, z, w]
