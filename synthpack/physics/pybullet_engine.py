@@ -266,7 +266,7 @@ class _PybulletWorld(World):
             client.stepSimulation()
             freezing = step >= criteria.min_steps and loud <= FREEZE_SHARE * len(self._batch)
             loud = 0
-            for i, body_id, shape in self._batch:
+            for k, (i, body_id, _) in enumerate(self._batch):
                 if i in self._frozen:
                     continue
                 (vx, vy, vz), (wx, wy, wz) = client.getBaseVelocity(body_id)
@@ -275,16 +275,15 @@ class _PybulletWorld(World):
                     loud += 1
                 calm[i] = calm[i] + 1 if linear <= strict.linear_speed**2 and angular <= strict.angular_speed**2 else 0
                 if freezing and calm[i] >= strict.quiet_steps:
-                    self._freeze(i)
+                    self._freeze(k)
             quiet = quiet + 1 if loud == 0 else 0
             if step >= criteria.min_steps and (quiet >= criteria.quiet_steps or len(self._frozen) == len(self._batch)):
                 return step, True
         return criteria.max_steps, False
 
-    def _freeze(self, index: int) -> None:
-        """Make the batch's grain `index` a static body at its pose, keeping the batch's friction."""
-        k = next(k for k, (i, _, _) in enumerate(self._batch) if i == index)
-        _, body_id, shape = self._batch[k]
+    def _freeze(self, k: int) -> None:
+        """Make the batch's `k`-th grain a static body at its pose, keeping the batch's friction."""
+        index, body_id, shape = self._batch[k]
         position, quaternion = _local_pose(self.client, body_id, shape)
         self.client.removeBody(body_id)
         static = _create_static(self.client, shape, position, quaternion, self.scene.material)
