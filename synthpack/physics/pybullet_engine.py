@@ -260,6 +260,8 @@ class _PybulletWorld(World):
         `criteria`'s ``min_steps``, is made static where it is (:meth:`_freeze`).
         """
         client, strict = self.client, self.scene.settle
+        loud_linear, loud_angular = criteria.linear_speed**2, criteria.angular_speed**2
+        calm_linear, calm_angular = strict.linear_speed**2, strict.angular_speed**2
         calm = {i: 0 for i, _, _ in self._batch if i not in self._frozen}
         quiet, loud = 0, len(self._batch)
         for step in range(1, criteria.max_steps + 1):
@@ -271,9 +273,9 @@ class _PybulletWorld(World):
                     continue
                 (vx, vy, vz), (wx, wy, wz) = client.getBaseVelocity(body_id)
                 linear, angular = vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz
-                if linear > criteria.linear_speed**2 or angular > criteria.angular_speed**2:
+                if linear > loud_linear or angular > loud_angular:
                     loud += 1
-                calm[i] = calm[i] + 1 if linear <= strict.linear_speed**2 and angular <= strict.angular_speed**2 else 0
+                calm[i] = calm[i] + 1 if linear <= calm_linear and angular <= calm_angular else 0
                 if freezing and calm[i] >= strict.quiet_steps:
                     self._freeze(k)
             quiet = quiet + 1 if loud == 0 else 0
