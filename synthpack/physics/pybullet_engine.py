@@ -248,16 +248,17 @@ class _PybulletWorld(World):
         self._friction = friction
 
     def settle(self, criteria: SettleCriteria, fixed_steps: int | None) -> tuple[int, bool]:
-        if fixed_steps is not None or not self.scene.options.lock_quiet_grains:
-            return _run_batch(self.client, [body_id for _, body_id, _ in self._batch], criteria, fixed_steps)
-        return self._settle_locking_quiet(criteria)
+        if fixed_steps is not None:
+            return _run_fixed(self.client, [body_id for _, body_id, _ in self._batch], criteria, fixed_steps)
+        return self._settle(criteria, self.scene.options.lock_quiet_grains)
 
-    def _settle_locking_quiet(self, criteria: SettleCriteria) -> tuple[int, bool]:
-        """Step until the batch has settled by `criteria`, making quiet grains static as it goes.
+    def _settle(self, criteria: SettleCriteria, lock_quiet: bool) -> tuple[int, bool]:
+        """Step until the batch has settled by `criteria`; with `lock_quiet`, making quiet grains static as it goes.
 
         A grain below the scene's settle speeds (not `criteria`'s, which a compacted
         batch's fall loosens) for its ``quiet_steps`` consecutive steps, after
-        `criteria`'s ``min_steps``, is made static where it is (:meth:`_freeze`).
+        `criteria`'s ``min_steps`` and once at most `FREEZE_SHARE` of the batch still
+        moves, is made static where it is (:meth:`_freeze`).
         """
         client, strict = self.client, self.scene.settle
         loud_linear, loud_angular = criteria.linear_speed**2, criteria.angular_speed**2
@@ -266,7 +267,7 @@ class _PybulletWorld(World):
         quiet, loud = 0, len(self._batch)
         for step in range(1, criteria.max_steps + 1):
             client.stepSimulation()
-            freezing = step >= criteria.min_steps and loud <= FREEZE_SHARE * len(self._batch)
+            freezing = lock_quiet and step >= criteria.min_steps and loud <= FREEZE_SHARE * len(self._batch)
             loud = 0
             for k, (i, body_id, _) in enumerate(self._batch):
                 if i in self._frozen:
@@ -535,30 +536,16 @@ def _create_static(
     return body
 
 
-def _run_batch(
-    client: Client, body_ids: list[int], settle: SettleCriteria, fixed_steps: int | None
-) -> tuple[int, bool]:
-    """Step until the batch has settled (or for exactly `fixed_steps`); (steps, settled)."""
-    if fixed_steps is not None:
-        for _ in range(fixed_steps):
-            client.stepSimulation()
-        return fixed_steps, _is_quiet(client, body_ids, settle)
-    quiet = 0
-    for step in range(1, settle.max_steps + 1):
+def _run_fixed(client: Client, body_ids: list[int], settle: SettleCriteria, steps: int) -> tuple[int, bool]:
+    """Step exactly `steps` times (the paper's fixed-frame schedule); (steps, whether every body is quiet then)."""
+    for _ in range(steps):
         client.stepSimulation()
-        quiet = quiet + 1 if _is_quiet(client, body_ids, settle) else 0
-        if step >= settle.min_steps and quiet >= settle.quiet_steps:
-            return step, True
-    return settle.max_steps, False
-
-
-def _is_quiet(client: Client, body_ids: list[int], settle: SettleCriteria) -> bool:
     for body in body_ids:
-        linear, angular = client.getBaseVelocity(body)
-        if (linear[0] ** 2 + linear[1] ** 2 + linear[2] ** 2 > settle.linear_speed**2
-                or angular[0] ** 2 + angular[1] ** 2 + angular[2] ** 2 > settle.angular_speed**2):
-            return False
-    return True
+        (vx, vy, vz), (wx, wy, wz) = client.getBaseVelocity(body)
+        linear, angular = vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz
+        if linear > settle.linear_speed**2 or angular > settle.angular_speed**2:
+            return steps, False
+    return steps, True
 
 
 def _principal_pose(shape: _Shape, position: np.ndarray, quat_wxyz: np.ndarray) -> tuple[list[float], list[float]]:
