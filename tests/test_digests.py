@@ -140,11 +140,16 @@ def archive_record(archive: np.lib.npyio.NpzFile) -> dict:
     keys = sorted(archive.files)
     exact = [k for k in keys if archive[k].dtype.kind in "biu"]
     floats = [np.asarray(archive[k], np.float64).ravel() for k in keys if k not in exact]
-    values = np.abs(np.concatenate([np.zeros(0), *floats]))
-    weights = np.arange(values.size) % 7 + 1.0  # a moved value changes the weighted sum
     return {"arrays": [f"{k} {archive[k].dtype} {archive[k].shape}" for k in keys],
             "sha256": hashlib.sha256("".join(f"{k}:{_array_digest(archive[k])}" for k in exact).encode()).hexdigest(),
-            "max_abs": float(values.max(initial=0.0)), "abs_sum": float(values.sum()),
+            **float_record(np.concatenate([np.zeros(0), *floats]))}
+
+
+def float_record(values: np.ndarray) -> dict:
+    """Float values whatever the CPU: their extreme, sums and a weighted sum (compared within RTOL)."""
+    values = np.abs(np.asarray(values, dtype=np.float64).ravel())
+    weights = np.arange(values.size) % 7 + 1.0  # a moved value changes the weighted sum
+    return {"max_abs": float(values.max(initial=0.0)), "abs_sum": float(values.sum()),
             "square_sum": float(values @ values), "weighted_abs_sum": float(values @ weights)}
 
 
@@ -166,6 +171,10 @@ def library_record(folder: Path) -> dict:
                 record[path.name] = archive_record(archive)
         elif path.suffix == ".json":
             record[path.name] = _json_digest(json.loads(path.read_text()))
+            phases = record[path.name].get("phases", {})
+            if "patch_features" in phases:  # a table of 600 x 41: by its shape and sums
+                table = np.asarray(phases["patch_features"])
+                phases["patch_features"] = {"shape": list(table.shape), **float_record(table)}
         elif path.name == FILE_RECORD:  # the names synthpack wrote: portable as they are
             record[path.name] = json.loads(path.read_text())
         elif path.suffix == ".csv":

@@ -98,18 +98,18 @@ def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
         ParticleLibrary.load(out)
 
 
-@pytest.mark.parametrize("version", [None, 0, 5, 7, "6"])
+@pytest.mark.parametrize("version", [None, 0, 6, 8, "7"])
 def test_library_of_another_format_version_says_to_rebuild(large_library, tmp_path, version):
     out = large_library[:3].save(tmp_path / "lib")
     meta = json.loads((out / "library.json").read_text())
-    assert meta["version"] == 6
+    assert meta["version"] == 7
     if version is None:
         del meta["version"]
     else:
         meta["version"] = version
     (out / "library.json").write_text(json.dumps(meta))
     with pytest.raises(SynthpackInputError, match=f"format version {version!r}, but this synthpack reads "
-                                                  "version 6: rebuild it with `synthpack library build`"):
+                                                  "version 7: rebuild it with `synthpack library build`"):
         ParticleLibrary.load(out)
 
 
@@ -123,7 +123,8 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
                                     "solid_fraction", "histogram_grains", "histogram_pores",
                                     "histogram_edges", "coordination", "edge_coverage", "semivariogram_grains",
                                     "semivariogram_pores", "whole_levels", "edge_steepness",
-                                    "band_histograms"]  # no scanner artefact
+                                    "band_histograms", "patch_window", "patch_features",
+                                    "logistic_floor"]  # no scanner artefact
     assert large_library[:2].statistics is large_library.statistics
 
 

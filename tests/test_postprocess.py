@@ -302,6 +302,7 @@ def test_the_guard_keeps_steps_that_make_the_pack_like_its_source(rendered, sour
     for phase in ("grains", "pores"):  # and the noise within 10 % of the source's, where the clean pack has half
         assert figures["applied"][f"noise_{phase}"] < 0.1 < 0.4 < figures["none"][f"noise_{phase}"]
     assert figures["applied"]["w_grains"] < figures["none"]["w_grains"] - TOLERANCE["w_grains"]
+    assert guard["logistic"]["applied"] < guard["logistic"]["none"] - 0.05  # the patches look more alike too
 
 
 def test_a_noise_scale_scales_each_phases_noise_amplitude_alone(rendered, source_statistics):
@@ -515,7 +516,11 @@ def test_calibrated_fits_the_psf_to_the_edges_steepness_where_the_labels_scatter
         assert fit.blur_sigma == pytest.approx(0.8, abs=0.1)
         assert fit.steepness_sigmas[int(np.argmin(fit.steepness_distances))] == fit.blur_sigma
         assert profile_only.steepness_sigmas is None
-    assert profile_only.blur_sigma > 1.05  # the scattered labels' profile alone: a PSF 0.3 voxel too wide
+    wide = profile_only.sigmas[-1]
+    assert wide > 1.05  # the scattered labels' profile alone: a PSF 0.3 voxel too wide
+    # which the guard drops (its patches look less like the source's), and half of it is kept (NARROWER_PSF)
+    assert [tried["sigma"] for tried in profile_only.guard["psf_tried"]] == pytest.approx([wide, wide / 2])
+    assert profile_only.blur_sigma == pytest.approx(wide / 2)
 
 
 def test_a_calibration_region_too_small_for_the_steepness_keeps_the_profile_width(phantom, caplog):

@@ -83,7 +83,12 @@ its cost is fixed and vanishes per voxel on big packs.
    its realism target; a step whose removal makes some figure better and none worse is
    dropped too: calibration never makes a pack less like its source than no
    post-processing on a figure it misses. Each drop is a warning and is recorded
-   (`Calibration.guard`).
+   (`Calibration.guard`). Where the guard drops the blur, the PSF is fitted again at
+   `NARROWER_PSF` of its width and guarded, and kept where the pack then misses fewer
+   targets. Where the source's classifier patches are known
+   (`~synthpack.source.SourceStatistics.patch_reference`), the realism report's logistic AUC
+   of the region's patches against them is recorded, without and with the steps, and a
+   warning given where the steps raise it.
 
 5. **The band map**, where the guard still finds a phase histogram beyond its target and the
    source's histograms by distance from the boundary are known
@@ -117,6 +122,7 @@ from .._shared.text import sig
 from ..errors import SynthpackInputError
 from ..measure.edges import EdgeProfile, edge_profile, edge_width, interior_depth, signed_distance
 from ..measure.noise_estimate import estimate_noise
+from ..measure.patch_features import PatchReference
 from ..measure.psf import EdgeSpread, fit_edge_spread
 from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import NoiseSpectrum, phase_spectra, white_ring_powers
@@ -128,19 +134,23 @@ from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of
 from .intensity import RoundLevels
 from .calibration_region import (CALIBRATION_VOXELS, bounding_box, calibration_halo, central_slices,
                                  lateral_window)
-from .guard import guard_steps
+from .guard import guard_missed, guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Calibration", "PSF_STEPS", "STEEPNESS_FACTORS", "STEPS", "calibrate", "noise_to_add"]
+__all__ = ["Calibration", "NARROWER_PSF", "PSF_STEPS", "STEEPNESS_FACTORS", "STEPS", "calibrate", "noise_to_add"]
 
 #: Fixed-point steps of the PSF fit (the fitted width is within about 0.01 voxel after 3).
 PSF_STEPS = 3
 #: The PSF widths the steepness fit tries, as multiples of the edge profile's fixed point: at most 1, as the
 #: labels' scatter only ever widens the profile.
 STEEPNESS_FACTORS = tuple(round(0.5 + 0.05 * k, 2) for k in range(11))
+#: Where the guard drops the fitted blur, the PSF is fitted again at these fractions of its width and guarded,
+#: and kept where its guarded pack misses fewer targets (`~synthpack.artefacts.guard.guard_missed`): a
+#: narrower blur can bring a pack closer to its source where the fitted one moves a figure away.
+NARROWER_PSF = (0.5,)
 #: The steps of a calibration, in the order they apply (`Calibration.transforms`).
 STEPS = ("blur", "grain_noise", "grain_texture", "pore_noise", "pore_texture", "cupping", "rings")
 #: A step that is only applied with another: a phase's texture replaces its noise by the noise fitted with it.
@@ -381,6 +391,7 @@ def calibrate(
     target_semivariogram: dict[str, Sequence[float] | None] | None = None,
     target_steepness: Sequence[float] | None = None,
     target_bands: dict[int, Sequence[float] | None] | None = None,
+    target_patches: PatchReference | None = None,
     round_levels: bool = False,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
@@ -436,6 +447,9 @@ def calibrate(
         The source's histograms by band of distance from the boundary
         (`~synthpack.source.SourceStatistics.band_histograms`, keyed by band): what a band map is
         fitted to (step 5); None: none is.
+    target_patches : PatchReference, optional
+        The source's classifier patches (`~synthpack.source.SourceStatistics.patch_reference`): the
+        guard records the logistic AUC against them (step 4); None: it does not.
     round_levels : bool
         End the pipeline with `~synthpack.artefacts.RoundLevels` (the source holds whole numbers only).
     steps : int
@@ -540,8 +554,24 @@ def calibrate(
                 sigma = best
                 calibration = fit_at(sigma, *edge(sigma))
             calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
-    calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
-                               calibration_halo(target_sigma), target_bands)
+    def guarded(calibration: Calibration) -> Calibration:
+        calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
+                                   calibration_halo(target_sigma), target_bands, target_patches)
+        return calibration
+
+    calibration = guarded(calibration)
+    if "blur" in calibration.guard["dropped"]:
+        tried = [{"sigma": sigma, "missed": guard_missed(calibration.guard)}]
+        for factor in NARROWER_PSF:
+            narrower = guarded(fit_at(sigma * factor, *edge(sigma * factor)))
+            narrower.steepness_sigmas, narrower.steepness_distances = (calibration.steepness_sigmas,
+                                                                       calibration.steepness_distances)
+            tried.append({"sigma": sigma * factor, "missed": guard_missed(narrower.guard)})
+            if guard_missed(narrower.guard) < guard_missed(calibration.guard):
+                logger.info("the guard drops a PSF of %s vx; one of %s vx brings the pack closer to its source",
+                            sig(sigma, 3), sig(sigma * factor, 3))
+                calibration, sigma = narrower, sigma * factor
+        calibration.guard["psf_tried"] = tried
     calibration.band_map = calibration.guard.pop("band_map")
     calibration.noise_scale = calibration.guard.pop("noise_scale")
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
@@ -586,7 +616,7 @@ def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequenc
 
 def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
            histograms: dict[str, Sequence[float] | None], halo: int,
-           bands: dict[int, Sequence[float] | None] | None) -> dict:
+           bands: dict[int, Sequence[float] | None] | None, patches: PatchReference | None) -> dict:
     """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
     The slices of `clean` the region occupies (and `halo` more on each side, for the blur) are
@@ -600,6 +630,7 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         calibration.transforms, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
         np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
-        requires=REQUIRES, bands=bands, rescaled=lambda steps, scale: calibration.transforms(steps, scale)
+        requires=REQUIRES, bands=bands, patches=patches,
+        rescaled=lambda steps, scale: calibration.transforms(steps, scale)
         if any(step.endswith(("_noise", "_texture")) for step in steps) else None)
     return record

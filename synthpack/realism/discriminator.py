@@ -13,7 +13,8 @@ curve (AUC) of the held-out fold:
   bins on [0, 1]: grey levels and contrast), the histogram of the absolute
   differences between neighbouring pixels (16 bins on [0, 0.5]: noise level and
   edge sharpness) and the log of its radially averaged power spectrum (mean
-  removed: noise texture and blur);
+  removed: noise texture and blur; `synthpack.measure.patch_features`, which the
+  calibration's guard measures too);
 * **cnn**: a small convolutional network trained from scratch on the patches
   themselves (`synthpack.realism.cnn`), which learns its own features.
 
@@ -34,19 +35,14 @@ import numpy as np
 
 from .._shared.schema import non_negative, positive, setting
 from ..errors import SynthpackInputError
-from ..measure.lattice import patch_corners, take_patches
+from ..measure.patch_features import (DEFAULT_PATCH, FOLDS, MAX_PATCHES, balanced_folds, logistic_fold_auc,
+                                      patch_features, windowed_patches)
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["ClassifierTest", "CnnConfig", "DEFAULT_PATCH", "MAX_PATCHES", "check_patch", "classifier_test",
            "patch_features", "specimen_patches"]
-
-#: Default patch side, voxels.
-DEFAULT_PATCH = 16
-#: Default number of patches cut from a pack (an even subset of its bulk region's lattice).
-MAX_PATCHES = 600
-_BINS = 16
 
 
 def check_patch(patch: int, shape: tuple[int, ...] | None = None, what: str = "the volume") -> None:
@@ -104,48 +100,13 @@ def specimen_patches(
         If `size` is not a whole number >= 2, or no patch of it lies wholly in the bulk region.
     """
     check_patch(size, specimen.tomogram.shape, specimen.name)
-    corners = patch_corners(specimen.region, size, max(1, size // 2), max_patches)
+    patches, corners = windowed_patches(specimen.tomogram, specimen.region, window, size=size, max_patches=max_patches)
     if not len(corners):
         raise SynthpackInputError(
             f"no {size}x{size} classifier patch lies wholly inside the bulk region of {specimen.name}: "
             "give a smaller patch (--patch)"
         )
-    lo, hi = window
-    patches = (take_patches(specimen.tomogram, corners, size) - np.float32(lo)) / np.float32(hi - lo)
-    return np.clip(patches, 0.0, 1.0), corners
-
-
-def patch_features(patches: np.ndarray) -> np.ndarray:
-    """Appearance features of windowed patches (see the module docstring).
-
-    Parameters
-    ----------
-    patches : ndarray, shape (N, S, S)
-        Intensities in [0, 1].
-
-    Returns
-    -------
-    ndarray of float64, shape (N, 32 + S // 2 + 1)
-    """
-    patches = np.asarray(patches, dtype=np.float64)
-    n, size = patches.shape[0], patches.shape[1]
-
-    def histograms(values: np.ndarray, top: float) -> np.ndarray:
-        bins = np.clip((values / top * _BINS).astype(np.int64), 0, _BINS - 1)
-        offsets = np.arange(n)[:, None] * _BINS
-        counts = np.bincount((bins + offsets).ravel(), minlength=n * _BINS).reshape(n, _BINS)
-        return counts / values.shape[1]
-
-    differences = np.concatenate([np.abs(np.diff(patches, axis=1)).reshape(n, -1),
-                                  np.abs(np.diff(patches, axis=2)).reshape(n, -1)], axis=1)
-    centred = patches - patches.mean(axis=(1, 2), keepdims=True)
-    power = np.abs(np.fft.fft2(centred)) ** 2 / size**4
-    frequency = np.fft.fftfreq(size)
-    ring = np.rint(np.hypot(frequency[:, None], frequency[None, :]) * size).astype(np.int64).ravel()
-    keep = ring <= size // 2
-    spectrum = np.stack([np.bincount(ring[keep], weights=p.ravel()[keep], minlength=size // 2 + 1) for p in power])
-    return np.concatenate([histograms(patches.reshape(n, -1), 1.0), histograms(differences, 0.5),
-                           np.log10(spectrum + 1e-12)], axis=1)
+    return patches, corners
 
 
 @dataclass(frozen=True)
@@ -237,23 +198,11 @@ class ClassifierTest:
         return result
 
 
-def _logistic_fold_auc(patches: np.ndarray, target: np.ndarray,
-                       folds: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """Held-out AUC of each fold of a logistic regression on `patch_features`."""
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.model_selection import cross_val_score
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-
-    model = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=2000))
-    return cross_val_score(model, patch_features(patches), target, scoring="roc_auc", cv=folds)
-
-
 def classifier_test(
     first: np.ndarray,
     second: np.ndarray,
     *,
-    folds: int = 5,
+    folds: int = FOLDS,
     seed: int = 0,
     cnn: CnnConfig | None = None,
 ) -> ClassifierTest:
@@ -282,23 +231,13 @@ def classifier_test(
     SynthpackInputError
         If the patch sizes differ or a set has fewer than ``2 * folds`` patches.
     """
-    from sklearn.model_selection import StratifiedKFold
-
     if first.shape[1:] != second.shape[1:]:
         raise SynthpackInputError(f"patches differ in size: {first.shape[1:]} and {second.shape[1:]}")
-    n = min(len(first), len(second))
-    if n < 2 * folds:
-        raise SynthpackInputError(
-            f"only {n} patches per class for a {folds}-fold classifier test: "
-            "measure bigger volumes or use smaller patches"
-        )
-    take = [np.linspace(0, len(s) - 1, n).astype(np.int64) for s in (first, second)]
+    take, target, splits = balanced_folds(len(first), len(second), folds=folds, seed=seed)
     patches = np.concatenate([first[take[0]], second[take[1]]])
-    target = np.repeat([0, 1], n)
-    splits = list(StratifiedKFold(n_splits=folds, shuffle=True, random_state=seed).split(patches, target))
     test = ClassifierTest(patches, target, splits)
     start = time.perf_counter()
-    test.record("logistic", _logistic_fold_auc(patches, target, splits), time.perf_counter() - start)
+    test.record("logistic", logistic_fold_auc(patch_features(patches), target, splits), time.perf_counter() - start)
     if cnn is not None:
         from sklearn.metrics import roc_auc_score
 

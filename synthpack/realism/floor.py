@@ -28,12 +28,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SynthpackInputError
+from ..measure.patch_features import DEFAULT_SLAB, FOLDS, slab_parity
 from .discriminator import ClassifierTest, CnnConfig, classifier_test
 
 __all__ = ["DEFAULT_SLAB", "check_slab", "floor_test", "slab_parity"]
-
-#: Default slab thickness of the floor, slices along z.
-DEFAULT_SLAB = 10
 
 
 def check_slab(slab: int) -> None:
@@ -48,34 +46,12 @@ def check_slab(slab: int) -> None:
         raise SynthpackInputError(f"the floor's slab thickness must be a whole number of slices >= 1, not {slab!r}")
 
 
-def slab_parity(z: np.ndarray, slab: int) -> np.ndarray:
-    """0 for slices in the even slabs of `slab` slices (counted from slice 0), 1 for the odd ones.
-
-    Parameters
-    ----------
-    z : ndarray of int, shape (N,)
-        Slice indices.
-    slab : int
-        Slab thickness, slices (>= 1).
-
-    Returns
-    -------
-    ndarray of int64, shape (N,)
-
-    Examples
-    --------
-    >>> slab_parity(np.arange(7), 2).tolist()
-    [0, 0, 1, 1, 0, 0, 1]
-    """
-    return (np.asarray(z, dtype=np.int64) // slab) % 2
-
-
 def floor_test(
     patches: np.ndarray,
     corners: np.ndarray,
     *,
     slab: int = DEFAULT_SLAB,
-    folds: int = 5,
+    folds: int = FOLDS,
     seed: int = 0,
     cnn: CnnConfig | None = None,
 ) -> ClassifierTest:

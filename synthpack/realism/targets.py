@@ -35,12 +35,12 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from ..measure.patch_features import LOGISTIC_AUC_MARGIN
+
 __all__ = ["CNN_AUC_MARGIN", "COORDINATION_TOLERANCE", "LOGISTIC_AUC_MARGIN", "NOISE_STD_TOLERANCE",
            "NPS_RING_FACTOR", "SOLID_FRACTION_TOLERANCE", "TARGETS", "W_LIMIT", "WORSE_RESOLUTION", "Reading", "Target",
            "pour_key", "pack_targets", "worse_line", "worse_than_none"]
 
-#: Logistic AUC: at most this much above the floor (the source against itself).
-LOGISTIC_AUC_MARGIN = 0.05
 #: CNN AUC: at most this much above the floor.
 CNN_AUC_MARGIN = 0.15
 #: W of each phase (grains, pores, edges): at most this fraction of the source's grain-pore contrast.

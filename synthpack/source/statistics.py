@@ -18,6 +18,7 @@ from ..measure.edges import edge_profile, edge_width, interior_depth, signed_dis
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phases import estimate_phases
 from ..measure.psf import fit_edge_spread
+from ..measure.patch_features import PatchReference
 from ..measure.pore_histogram import measure_pore_quantiles
 from ..measure.pore_spectrum import measure_pore_spectrum
 from ..measure.scanner import measure_scanner
@@ -162,6 +163,18 @@ class SourceStatistics:
         (`~synthpack.measure.steepness.edge_steepness`), intensity units; ``postprocess:
         calibrated`` fits the pack's PSF to it. None in a specimen too small, or in a library of
         an older synthpack (the PSF is then fitted to the label-aligned edge alone).
+    patch_window : (float, float) or None
+        The intensity window of the scan's classifier patches (its 0.5 and 99.5 percentiles),
+        intensity units (`~synthpack.measure.patch_features.PatchReference`).
+    patch_features : tuple of (tuple of float) or None
+        `~synthpack.measure.patch_features.patch_features` of up to
+        `~synthpack.measure.patch_features.MAX_PATCHES` of the specimen's in-slice patches,
+        windowed (dimensionless): what ``postprocess: calibrated``'s guard measures a pack's
+        logistic AUC against (`~synthpack.artefacts.guard`).
+    logistic_floor : float or None
+        The logistic AUC of the specimen's even slabs against its odd ones (the realism
+        report's floor), dimensionless. These three are None where too few patches fit in the
+        specimen, or in a library of an older synthpack.
     """
 
     pore_mean: float
@@ -198,6 +211,9 @@ class SourceStatistics:
     edge_steepness: tuple[float, ...] | None = None
     air_intensity: float | None = None
     band_histograms: tuple[tuple[float, ...] | None, ...] | None = None
+    patch_window: tuple[float, float] | None = None
+    patch_features: tuple[tuple[float, ...], ...] | None = None
+    logistic_floor: float | None = None
 
     @property
     def contrast(self) -> float:
@@ -208,6 +224,13 @@ class SourceStatistics:
         use it signed.
         """
         return self.grain_mean - self.pore_mean
+
+    @property
+    def patch_reference(self) -> PatchReference | None:
+        """The scan's patches for a logistic AUC against it (`patch_features`), or None where not measured."""
+        if self.patch_features is None or self.patch_window is None or self.logistic_floor is None:
+            return None
+        return PatchReference(self.patch_window, np.asarray(self.patch_features, dtype=np.float64), self.logistic_floor)
 
     @property
     def interior_crop(self) -> bool:
@@ -336,6 +359,11 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     steepness = edge_steepness(scan.tomogram, specimen)
     if steepness is not None:
         spectra["edge_steepness"] = tuple(float(q) for q in steepness)
+    reference = PatchReference.measure(scan.tomogram, specimen)
+    if reference is not None:
+        # rounded: a record that reads the same on another CPU (a logistic fit differs in its last bits)
+        spectra.update(patch_window=reference.window, logistic_floor=round(reference.floor, 3),
+                       patch_features=tuple(tuple(round(float(v), 6) for v in row) for row in reference.features))
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
