@@ -40,6 +40,9 @@ def test_too_few_patches_give_no_figure(noisy):
     region = np.zeros(source.shape, dtype=bool)
     region[:2, :20, :20] = True  # one 16x16 patch per slice: 2 patches
     assert PatchReference.measure(source, region) is None
+    assert PatchReference.measure(source, np.zeros_like(region)) is None  # no patch at all
+    reference = PatchReference.measure(source, np.ones_like(region))
+    assert reference.auc(source, np.zeros((0, 3), dtype=np.int64)) is None
     features = patch_features(np.zeros((3, 16, 16)))
     with pytest.raises(SynthpackInputError, match="patches per class"):
         logistic_auc(features, features)

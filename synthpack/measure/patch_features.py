@@ -256,6 +256,8 @@ class PatchReference:
         """
         window = intensity_window([tomogram])
         patches, corners = windowed_patches(tomogram, region, window, max_patches=2 * MAX_PATCHES)
+        if len(patches) < 4 * FOLDS:  # each half of the floor needs 2 * FOLDS
+            return None
         features = patch_features(patches)
         odd = slab_parity(corners[:, 0], slab) == 1
         try:
@@ -275,6 +277,8 @@ class PatchReference:
         corners : ndarray of int64, shape (N, 3)
             Patch corners (`~synthpack.measure.lattice.patch_corners` of `DEFAULT_PATCH`).
         """
+        if len(corners) < 2 * FOLDS:
+            return None
         try:
             return logistic_auc(self.features, patch_features(_windowed(volume, corners, self.window, DEFAULT_PATCH)))
         except SynthpackInputError:
