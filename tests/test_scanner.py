@@ -18,6 +18,7 @@ from synthpack.measure.scanner import measure_scanner
 from synthpack.measure.specimen import specimen_mask
 
 CONCRETE = Path(__file__).resolve().parents[2] / "shared" / "data" / "concrete"
+SAND = Path(__file__).resolve().parents[2] / "shared" / "data" / "sand"
 PORE, GRAIN, NOISE = 0.2, 0.75, 0.03
 
 
@@ -125,3 +126,22 @@ def test_the_concrete_neutron_scan_shows_its_wall():
     assert statistics.wall_intensity > statistics.pore_mean + 0.25 * abs(statistics.contrast)
     assert 1.0 < statistics.wall_thickness < 8.0 and statistics.wall_gap > 0
     assert statistics.air_intensity < statistics.grain_mean < statistics.pore_mean  # air, aggregates, paste
+
+
+@pytest.mark.skipif(not SAND.is_dir(), reason="the sand scan (../shared/data/sand) is absent")
+def test_the_edge_of_a_real_specimen_in_a_container_is_no_ring():
+    """The real sand micro-CT as if scanned in a container: grains and labels cut at a radius of 86 voxels, a gap of
+    pore level, a wall and air. The step at the specimen's edge was read as 32 rings at its last radii (amplitudes of
+    1e11 grey levels, cancelling); a ring is looked for only where the profile holds it on both sides."""
+    tomogram = tifffile.imread(SAND / "sand.tif").astype(np.float32)
+    labels = tifffile.imread(SAND / "sand_labels_watershed.tif").astype(np.int32)
+    r = np.hypot(*np.meshgrid(np.arange(200) - 99.5, np.arange(200) - 99.5, indexing="ij"))[None]
+    pore, grain = float(np.median(tomogram[labels == 0])), float(np.median(tomogram[labels > 0]))
+    walled = np.where(r < 86, tomogram, np.where(r < 90, pore, np.where(r < 94, 1.3 * grain, 0.3 * pore)))
+    walled = ndimage.gaussian_filter(walled, 0.7) + np.random.default_rng(0).normal(0.0, 1.0, walled.shape)
+    labels = np.where(r < 86, labels, 0)
+    mask = specimen_mask(labels)
+    found = measure_scanner(walled.astype(np.float32), labels, mask, signed_distance(labels), pore_level=pore,
+                            grain_level=grain)
+    assert found.rings.radii == ()
+    assert found.wall.inner_radius == pytest.approx(90.0, abs=1.0)

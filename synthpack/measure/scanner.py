@@ -35,7 +35,8 @@ in radius bins of `RING_BIN` voxels. The standard error of each bin is the
 larger of ``sigma / sqrt(n)`` (``n`` samples in the bin; ``sigma^2`` the median
 over bins of the slabs' variance times their samples: the noise, correlations
 included) and the spread of the slabs' profiles at that bin. Rings are found one
-at a time (the most significant bin above `RING_SIGNIFICANCE` standard errors),
+at a time (the most significant bin above `RING_SIGNIFICANCE` standard errors, at least
+`RING_EDGE` voxels inside the ends of the profile; none again where one was fitted),
 and after each the rings found so far are fitted jointly (radii, one common width
 and signed amplitudes of the Gaussian ring profiles
 `~synthpack.artefacts.RingArtefacts` draws, less their 1D smoothing) and taken
@@ -104,6 +105,10 @@ RING_BIN = 0.5
 RING_HIGHPASS = 3.0
 #: At most this many rings are fitted.
 MAX_RINGS = 32
+#: Rings are looked for, and fitted, at least this many voxels inside the outer end of the profile (the
+#: specimen's edge: its own boundary makes a step there that the high-pass turns into a spike, no ring), and
+#: of its inner end where that is not the axis.
+RING_EDGE = 3.0
 #: A wall stands out from the pore level and from the air beyond it by this fraction of |contrast|.
 WALL_CONTRAST = 0.25
 #: The wall's centre is searched within this many voxels of the axis (`RING_BIN` steps).
@@ -424,8 +429,8 @@ def _ring_basis(radius: np.ndarray, radii: np.ndarray, width: float) -> np.ndarr
 
 
 def _fit_rings(profile: np.ndarray, radius: np.ndarray, error: np.ndarray, radii: np.ndarray,
-               width: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Joint fit of ring radii (within 1.5 voxels of `radii`), width and amplitudes to the profile.
+               width: float, span: tuple[float, float]) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """Joint fit of ring radii (within 1.5 voxels of `radii`, and within `span`), width and amplitudes to the profile.
 
     Returns radii, width, amplitudes (intensity units) and the amplitudes' standard errors.
     """
@@ -440,8 +445,8 @@ def _fit_rings(profile: np.ndarray, radius: np.ndarray, error: np.ndarray, radii
         coefficients, basis = amplitudes(params)
         return basis @ coefficients - target
 
-    lower = np.append(np.maximum(radii - 1.5, 0.0), _WIDTH_BOUNDS[0])
-    upper = np.append(radii + 1.5, _WIDTH_BOUNDS[1])
+    lower = np.append(np.maximum(radii - 1.5, span[0]), _WIDTH_BOUNDS[0])
+    upper = np.append(np.minimum(radii + 1.5, span[1]), _WIDTH_BOUNDS[1])
     start = np.clip(np.append(radii, width), lower, upper)
     fitted = optimize.least_squares(residual, start, bounds=(lower, upper)).x
     coefficients, basis = amplitudes(fitted)
@@ -499,14 +504,18 @@ def _rings(samples: dict[str, _Samples], n_slabs: int, interiors: dict[str, np.n
     error = np.maximum(sigma / np.sqrt(count[valid]), np.sqrt(spread / n_slabs))
     error = np.maximum(error, 1e-12 * max(1.0, float(np.abs(profile).max())))
     floor = RING_SIGNIFICANCE * float(np.median(error))
+    inner = centre[0] + RING_EDGE if centre[0] >= RING_EDGE else 0.0
+    span = (inner, centre[-1] - RING_EDGE)
+    resolvable = (centre >= span[0]) & (centre <= span[1])
     radii, width, amps, amp_errors = np.zeros(0), 1.5, np.zeros(0), np.zeros(0)
-    while len(radii) < MAX_RINGS:
+    while len(radii) < MAX_RINGS and resolvable.any():
         model = _ring_basis(centre, radii, width) @ amps if len(radii) else 0.0
-        z = (profile - model) / error
+        z = np.where(resolvable, (profile - model) / error, 0.0)
         peak = int(np.argmax(np.abs(z)))
-        if abs(z[peak]) < RING_SIGNIFICANCE:
-            break
-        radii, width, amps, amp_errors = _fit_rings(profile, centre, error, np.append(radii, centre[peak]), width)
+        if abs(z[peak]) < RING_SIGNIFICANCE or np.any(np.abs(radii - centre[peak]) < RING_BIN):
+            break  # nothing more, or what is left at a ring already fitted is not a ring's shape
+        radii, width, amps, amp_errors = _fit_rings(profile, centre, error, np.append(radii, centre[peak]), width,
+                                                    span)
     if len(radii):
         basis = _exact_basis(interiors, slices, radius_grid, np.flatnonzero(valid), radii, width) / error[:, None]
         amps, *_ = np.linalg.lstsq(basis, profile / error, rcond=None)
