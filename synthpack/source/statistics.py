@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from typing import Any
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -212,7 +212,7 @@ class SourceStatistics:
     air_intensity: float | None = None
     band_histograms: tuple[tuple[float, ...] | None, ...] | None = None
     patch_window: tuple[float, float] | None = None
-    patch_features: tuple[tuple[float, ...], ...] | None = None
+    patch_features: tuple[tuple[float, ...], ...] | None = field(default=None, repr=False)  # 600 x 41 numbers
     logistic_floor: float | None = None
 
     @property
