@@ -176,3 +176,13 @@ def test_the_guard_scales_the_noise_down_where_the_band_map_stretches_it(phantom
     assert plain["figures"]["applied"]["w_pores"] > TARGET["w_pores"]
     assert rescaled["band_map_status"] == "applied" and rescaled["noise_scale"]["pores"] < 0.9
     assert all(value <= TARGET[name] for name, value in rescaled["figures"]["band_mapped"].items())
+
+
+def test_a_map_of_one_side_keeps_the_other_sides_values():
+    both = BandMap(bands=(-2, -1, 1, 2), knots=(2.0, 1.0, 1.0, 2.0), pack=((0.0, 1.0),) * 4,
+                   source=((0.0, 2.0),) * 4)  # every shell stretched twice
+    values, distance = np.full(4, 0.5), np.array([-2.0, -1.0, 1.0, 2.0])
+    assert both.apply(values, distance).tolist() == [1.0, 1.0, 1.0, 1.0]
+    assert both.side(-1).bands == (-2, -1) and both.side(-1).apply(values, distance).tolist() == [1.0, 1.0, 0.5, 0.5]
+    assert both.side(1).apply(values, distance).tolist() == [0.5, 0.5, 1.0, 1.0]
+    assert BandMap(bands=(1,), knots=(1.0,), pack=((0.0, 1.0),), source=((0.0, 2.0),)).side(-1) is None

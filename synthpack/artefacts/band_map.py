@@ -120,6 +120,15 @@ class BandMap:
             out[selected] = result
         return out.astype(np.float32)
 
+    def side(self, sign: int) -> BandMap | None:
+        """The map of the bands on one side of the boundary only (``-1``: the pores', ``+1``: the grains'), or None
+        where it has none there; the other side's voxels then keep their values."""
+        keep = [i for i, band in enumerate(self.bands) if np.sign(band) == sign]
+        if not keep:
+            return None
+        return BandMap(tuple(self.bands[i] for i in keep), tuple(self.knots[i] for i in keep),
+                       tuple(self.pack[i] for i in keep), tuple(self.source[i] for i in keep))
+
     def to_dict(self) -> dict:
         """JSON-able dict of the fields (lists)."""
         return {"bands": list(self.bands), "knots": list(self.knots), "pack": [list(q) for q in self.pack],
