@@ -53,14 +53,15 @@ grains vary more from grain to grain also stretches the grains' noise, and a map
 pores alone may then be the one that leaves no figure worse (a central 60x56x56 block of the
 concrete neutron CT: every map of both sides left the grains' noise 36-160 % off the scan's,
 so the guard kept no step at all and the paste no noise; the pores' map alone keeps them
-all, the grains' noise within 2 %). Both sides win a tie. It is asked for only where a
+all, the grains' noise within 2 %). A side alone is tried only where no map of both sides is
+taken (so a pack that takes one costs what it did). It is asked for only where a
 histogram misses: a pack whose histograms meet their targets keeps its bytes.
 
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
 noise and replaces it), and subsets without it are not tried. Every drop is logged as a
 warning. The guard is deterministic, and its cost fixed (at most 72 subsets: the blur,
 cupping and rings each on or off, each phase's noise off, on or with its texture; each up to
-nine times more with a band map where one is tried; of the calibration's at most
+three times more with a band map where one is tried, nine where a side alone is; of the calibration's at most
 `~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS` voxels): each step draws from its own fixed stream
 (``calibration_guard``, keyed by the step's kind), so that the figures with and without
 a step compare the same noise realisation.
@@ -106,8 +107,9 @@ NOISE_SCALES = (0.25, 4.0)
 #: How much the logistic AUC of the steps applied may exceed the clean volume's without a warning: about the spread
 #: of its mean over the folds on a few hundred patches.
 LOGISTIC_TOLERANCE = 0.01
-#: The sides of the boundary a band map is tried on: both, then the pores' bands alone, then the grains' alone
-#: (`_band_mapped`): a map of one phase's shells can stretch the noise of the other beyond the source's.
+#: The sides of the boundary a band map is tried on, each only where no map before it is taken (`_band_mapped`):
+#: both, then the pores' bands alone, then the grains' alone (stretching one phase's shells can take its noise
+#: beyond the source's where a map of the other phase alone leaves every figure no worse).
 MAP_SIDES = (0, -1, 1)
 #: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
 MEASURED_MARGIN = 3
@@ -351,10 +353,10 @@ def _band_mapped(
     (`rescaled` says so), again with each phase's noise scaled by what the map made of it
     (``scale / (level / source's level)``, `RESCALE_ROUNDS` times, within `NOISE_SCALES`); all
     of it with the map of both sides of the boundary, then of the pores' shells alone, then of
-    the grains' alone (`MAP_SIDES`). Of these, the one that is admissible (no figure worse than
-    no post-processing beyond its tolerance, unless within target) and misses the fewest targets
-    (ties: the most steps, both sides, the lowest sum of the figures, unscaled first) is taken if
-    it misses fewer than `kept` does without one.
+    the grains' alone (`MAP_SIDES`), each only where none before it is taken. Of those fitted, the
+    one that is admissible (no figure worse than no post-processing beyond its tolerance, unless
+    within target) and misses the fewest targets (ties: the most steps, both sides, the lowest
+    sum of the figures, unscaled first) is taken if it misses fewer than `kept` does without one.
     """
     none = measured[()]
     fits: list[tuple[tuple[str, ...], dict[str, float] | None, BandMap, Figures, int]] = []
@@ -370,7 +372,7 @@ def _band_mapped(
         fits.append((subset, scale, band_map, mapped, side))
         return ratios
 
-    for side in MAP_SIDES:
+    for side in MAP_SIDES:  # one side alone only where no map of both sides is taken: a fixed cost otherwise
         for subset in subsets:
             levels = fit(subset, None, side)
             scale = {"grains": 1.0, "pores": 1.0}
@@ -382,8 +384,9 @@ def _band_mapped(
                     break
                 scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
                 levels = fit(subset, scale, side)
-    admissible = [f for f in fits if _admissible(f[3], none)]
-    if admissible:
+        admissible = [f for f in fits if _admissible(f[3], none)]
+        if not admissible:
+            continue
         subset, scale, band_map, mapped, _ = min(admissible, key=lambda f: (
             _missed(f[3]), -len(f[0]), f[4] != 0, sum(f[3].values()), f[1] is not None, subsets.index(f[0])))
         if _missed(mapped) < _missed(measured[kept]):
