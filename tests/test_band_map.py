@@ -186,3 +186,23 @@ def test_a_map_of_one_side_keeps_the_other_sides_values():
     assert both.side(-1).bands == (-2, -1) and both.side(-1).apply(values, distance).tolist() == [1.0, 1.0, 0.5, 0.5]
     assert both.side(1).apply(values, distance).tolist() == [0.5, 0.5, 1.0, 1.0]
     assert BandMap(bands=(1,), knots=(1.0,), pack=((0.0, 1.0),), source=((0.0, 2.0),)).side(-1) is None
+
+
+def test_the_guard_maps_the_pores_alone_where_a_map_of_both_sides_stretches_the_grains_noise(phantom, halo_source):
+    """The source's grains differ from grain to grain, its pores hold a bright shell: a map of both sides spreads
+    each of the pack's grains over all the source's grain levels (their noise with them, beyond no
+    post-processing's), so the pores' map alone is taken, and the grains keep their values."""
+    clean, labels = phantom
+    source, _, distance = halo_source
+    offsets = np.array([0.0, -0.12, 0.0, 0.12], dtype=np.float32)  # grain 1 at the level, 2 darker, 3 brighter
+    source = source + offsets[labels] * (distance > 0)
+    region, targets = _targets(source, labels)
+    steps = {"noise": GaussianNoise(std=0.02)}
+    kept, record = guard_steps(lambda kept: [steps[s] for s in kept], ("noise",), clean, labels, region, **targets)
+    assert kept == ("noise",) and record["band_map_status"] == "applied"
+    assert all(band < 0 for band in record["band_map"]["bands"])  # the pores' shells only
+    figures = record["figures"]
+    assert figures["band_mapped"]["w_edges"] < figures["applied"]["w_edges"]  # the shell is there
+    assert figures["band_mapped"]["noise_grains"] == figures["applied"]["noise_grains"]  # the grains untouched
+    both = fit_band_map(steps["noise"](clean, 0), distance, region, targets["bands"])
+    assert any(band > 0 for band in both.bands)  # a map of both sides was there to take

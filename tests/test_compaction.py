@@ -8,6 +8,8 @@ import sys
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
 
 from synthpack.artefacts.recipes import bulk_region
 from synthpack.pipeline.config import PackConfig
@@ -17,6 +19,8 @@ from synthpack.library.core import ParticleLibrary
 from synthpack.physics import PourConfig, Tube, get_engine, pour
 from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
                                           resolve_target)
+from synthpack.physics.checks import solid_fraction_of
+from synthpack.physics.container import crop_half_sides
 from synthpack.physics.shells import MAX_BARE, bare_fraction, bare_grains, resolve_coordination, shell_inflations
 from synthpack.scan.samples import sample_scan
 from synthpack.measure.contacts import centred_grains, coordination_numbers
@@ -295,6 +299,22 @@ def test_past_full_compaction_the_shells_shrink_only_once_the_layers_say_it_fall
     assert reached.next_batch().knob <= 1.0 and not reached.shrinking
 
 
+def test_the_bulk_of_an_interior_crop_is_measured_in_the_crop_s_footprint():
+    cube = trimesh.creation.box((2.0, 2.0, 2.0))  # one grain filling the box |x|, |y|, |z| < 1
+    vertices, faces = np.asarray(cube.vertices), np.asarray(cube.faces)
+    hull = ConvexHull(vertices).equations
+    grain = (vertices, faces, hull, np.zeros(3), Rotation.identity(), 1.0, vertices, 1.0)
+    rng = np.random.default_rng(0)
+    cylinder = solid_fraction_of([grain], 2.0, -1.0, 1.0, 20_000, rng)
+    assert cylinder == pytest.approx(4.0 / (np.pi * 4.0), abs=0.01)  # the square's share of the disc
+    assert solid_fraction_of([grain], 2.0, -1.0, 1.0, 2_000, rng, half_sides=(1.0, 1.0)) == 1.0
+    assert solid_fraction_of([grain], 2.0, -1.0, 1.0, 20_000, rng, half_sides=(1.0, 2.0)) == pytest.approx(0.5, abs=0.01)
+    # the crop's footprint: the box of the source's proportions inscribed in the bulk cylinder, at most the source
+    assert crop_half_sides(5.0, (6.0, 8.0)) == pytest.approx((3.0, 4.0))
+    assert crop_half_sides(2.5, (6.0, 8.0)) == pytest.approx((1.5, 2.0))
+    assert crop_half_sides(10.0, (6.0, 8.0)) == pytest.approx((3.0, 4.0))
+
+
 # the `large` sample's grains pack at about 0.60 under full compaction, below the scan's 0.617: in this
 # draw (seed 2) the layers of full compaction fall short and the shells shrink (seeds 4 and 6 reach it
 # without); this checks that the crop gets the source's fraction with shrunk shells, in a short pour
@@ -306,5 +326,7 @@ def test_the_source_fraction_is_reached_in_an_interior_crop_past_full_compaction
     target = large_library.statistics.solid_fraction
     assert checks.target_packing_fraction == pytest.approx(target) and checks.target_reached
     assert abs(float(np.mean(pack.labels > 0)) - target) <= TARGET_TOLERANCE  # in the crop, on the labels
+    lo, hi = (np.array(pack.manifest["view"]["crop"][k]) for k in ("lo", "hi"))
+    assert checks.packing_region["crop_half_sides"] == pytest.approx((hi[1:] - lo[1:]) / 2)  # measured where shown
     assert max(checks.compaction["knobs"]) > 1 and checks.compaction["max_shrink"] > 0  # shells shrunk
     assert checks.n_outside == 0 and checks.overlap_fraction < 0.005 and checks.max_grain_penetration_voxels < 2

@@ -14,7 +14,9 @@
   that lie inside two or more grains' meshes: a mesh-exact measure of overlap.
 * **Packing fraction of the bulk**: the solid volume fraction inside a sub-cylinder
   one median grain diameter away from the wall (two for the pour of an interior crop:
-  `wall_margin`) and the floor and two diameters below the pack's top (the highest grain point), estimated by sampling
+  `wall_margin`) and the floor and two diameters below the pack's top (the highest grain point), or in the
+  pour of an interior crop only the crop's footprint in it (`crop`: the box the pack will show, which lies
+  in the middle of the tube, denser than the cylinder's rim), estimated by sampling
   `n_samples` uniform random points in it and testing each against every nearby
   grain's convex hull (a cheap half-space test) and, if inside it, against the
   grain's mesh with the generalized winding number (robust for watertight
@@ -33,7 +35,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from scipy.spatial.transform import Rotation
 
 from .._shared.seeds import generator
-from .container import Tube
+from .container import Tube, crop_half_sides
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +74,9 @@ class PourChecks:
     packing_fraction : float
         Solid fraction of the bulk region (NaN if the pack is too shallow for one).
     packing_region : dict
-        ``radius``, ``z_min``, ``z_max`` of the bulk sub-cylinder, ``n_samples``.
+        ``radius``, ``z_min``, ``z_max`` of the bulk sub-cylinder, ``n_samples``; for the pour of
+        an interior crop also ``crop_half_sides``, the ``(Y, X)`` half sides of the crop's footprint
+        centred on the axis, measured instead of the whole cylinder.
     fill_height : float
         Highest point of any grain (the pack top).
     steps_per_batch : list of int
@@ -164,6 +168,7 @@ def compute_checks(
     n_samples: int = 20_000,
     seed: int = 0,
     wall_margin: float = 1.0,
+    crop: tuple[float, float] | None = None,
 ) -> PourChecks:
     """Check a pour's final state.
 
@@ -195,6 +200,11 @@ def compute_checks(
     wall_margin : float
         Distance of the bulk region from the wall, in `length_scale` (1; 2 for the pour of
         an interior crop, `~synthpack.physics.container.CROP_WALL_MARGIN`).
+    crop : (float, float), optional
+        For the pour of an interior crop: the ``(Y, X)`` extent the crop aims at
+        (`~synthpack.physics.container.crop_extent`), physical units; the packing fraction is
+        measured in its footprint (`~synthpack.physics.container.crop_half_sides`), where the
+        pack is shown. None: the whole bulk cylinder.
 
     Returns
     -------
@@ -214,7 +224,7 @@ def compute_checks(
     grain_pen = _max_hull_penetration(world, length_scale)
     packing, overlap, region = _packing(
         meshes, indices, positions, rotations, scales, world, tube, fill, length_scale,
-        n_samples, seed, wall_margin,
+        n_samples, seed, wall_margin, crop,
     )
     checks = PourChecks(
         n_outside=n_outside,
@@ -339,18 +349,22 @@ def _packing(
     n_samples: int,
     seed: int,
     wall_margin: float,
-) -> tuple[float, float, dict[str, float]]:
+    crop: tuple[float, float] | None,
+) -> tuple[float, float, dict]:
     """(packing fraction of the bulk, overlap fraction, region) by Monte-Carlo sampling."""
     radius = tube.inner_radius - wall_margin * margin
     z_min, z_max = BULK_FLOOR_MARGIN * margin, fill - BULK_TOP_MARGIN * margin
-    region = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
+    region: dict = {"radius": radius, "z_min": z_min, "z_max": z_max, "n_samples": n_samples}
+    half = None if crop is None or radius <= 0 else crop_half_sides(radius, crop)
+    if half is not None:
+        region["crop_half_sides"] = [float(v) for v in half]
     if radius <= 0 or z_max <= z_min:
         logger.debug("The pack is too shallow or narrow for a bulk region: no packing fraction.")
         return float("nan"), 0.0, region
     hulls = {i: ConvexHull(meshes[i][0]).equations for i in np.unique(indices)}
     grains = [(*meshes[i], hulls[i], positions[k], rotations[k], scales[k], world[k], 1.0)
               for k, i in enumerate(indices)]
-    hits = _hits(grains, radius, z_min, z_max, n_samples, generator(seed, "checks"), exact=True)
+    hits = _hits(grains, radius, z_min, z_max, n_samples, generator(seed, "checks"), exact=True, half_sides=half)
     solid = int(np.count_nonzero(hits))
     overlap = float(np.count_nonzero(hits > 1) / solid) if solid else 0.0
     return solid / n_samples, overlap, region
@@ -358,9 +372,10 @@ def _packing(
 
 def solid_fraction_of(
     grains: Sequence[tuple], radius: float, z_min: float, z_max: float, n_samples: int, rng: np.random.Generator,
-    *, exact: bool = True,
+    *, exact: bool = True, half_sides: Sequence[float] | None = None,
 ) -> float:
-    """Solid fraction of placed grains in the cylinder ``r < radius, z_min < z < z_max`` (Monte Carlo).
+    """Solid fraction of placed grains in the cylinder ``r < radius, z_min < z < z_max`` (Monte Carlo), or in
+    the box of `half_sides` within it.
 
     Parameters
     ----------
@@ -381,31 +396,39 @@ def solid_fraction_of(
         False: count a point inside a grain's hull as ``convexity`` of a hit, which
         estimates the same fraction as long as hulls do not overlap (as in a pour,
         where grains collide as their hulls) at a fraction of the cost.
+    half_sides : (float, float), optional
+        ``(Y, X)``: measure in the box ``|y| < half_sides[0], |x| < half_sides[1]``,
+        ``z_min < z < z_max`` instead (an interior crop's footprint, within `radius`).
 
     Returns
     -------
     float
         The fraction of the points inside a grain's mesh.
     """
-    hits = _hits(grains, radius, z_min, z_max, n_samples, rng, exact=exact)
+    hits = _hits(grains, radius, z_min, z_max, n_samples, rng, exact=exact, half_sides=half_sides)
     return float((np.count_nonzero(hits) if exact else hits.sum()) / n_samples)
 
 
 def _hits(
     grains: Sequence[tuple], radius: float, z_min: float, z_max: float, n_samples: int, rng: np.random.Generator,
-    *, exact: bool,
+    *, exact: bool, half_sides: Sequence[float] | None = None,
 ) -> np.ndarray:
-    """(n_samples,): how many grains' meshes hold each of `n_samples` uniform points of the cylinder.
+    """(n_samples,): how many grains' meshes hold each of `n_samples` uniform points of the cylinder (or of the
+    box of ``(Y, X)`` `half_sides` in it).
 
     Each point is tested against every nearby grain's convex hull (a cheap half-space
     test) and, if inside it and `exact`, against the grain's mesh with the generalized
     winding number (int32 counts); without `exact`, a point inside a hull counts as
     the grain's convexity (float64).
     """
-    rho = radius * np.sqrt(rng.uniform(0, 1, n_samples))
-    angle = rng.uniform(0, 2 * np.pi, n_samples)
-    points = np.column_stack([rho * np.cos(angle), rho * np.sin(angle),
-                              rng.uniform(z_min, z_max, n_samples)])
+    if half_sides is None:
+        rho = radius * np.sqrt(rng.uniform(0, 1, n_samples))
+        angle = rng.uniform(0, 2 * np.pi, n_samples)
+        lateral = (rho * np.cos(angle), rho * np.sin(angle))
+    else:
+        lateral = (rng.uniform(-half_sides[1], half_sides[1], n_samples),  # x, then y
+                   rng.uniform(-half_sides[0], half_sides[0], n_samples))
+    points = np.column_stack([*lateral, rng.uniform(z_min, z_max, n_samples)])
     tree = cKDTree(points)
     hits = np.zeros(n_samples, dtype=np.int32 if exact else np.float64)
     for vertices, faces, hull, position, rotation, scale, world, convexity in grains:

@@ -48,7 +48,8 @@ pour steers itself: :class:`PackingController` measures, after each batch is loc
 the solid fraction of the new bulk layer (the region the pour's checks measure:
 one median diameter from the wall and the floor, two below the pack top, and one
 below the median height of the pack's surface, so a layer is measured once the grains
-cover it and no later grain falls into it; by Monte Carlo against the grains' meshes,
+cover it and no later grain falls into it; for an interior crop, only the crop's footprint in it,
+the part the pack shows, ``crop``); by Monte Carlo against the grains' meshes,
 :func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
 (:func:`prior_fraction`; for ``u > 1``, the full compaction's fraction over the shrunk
@@ -76,6 +77,7 @@ from scipy.spatial.transform import Rotation
 from .._shared.seeds import generator
 from ..errors import SynthpackInputError
 from .checks import BULK_FLOOR_MARGIN, BULK_TOP_MARGIN, PourChecks, bulk_shortfall, solid_fraction_of
+from .container import crop_half_sides
 
 logger = logging.getLogger(__name__)
 
@@ -275,6 +277,11 @@ class PackingController:
         Whether the engine can shrink collision shells
         (:attr:`~synthpack.physics.engine.Engine.shrinks_shells`): then knobs above 1
         shrink them, by up to :attr:`max_shrink` (see the module docstring).
+    crop : (float, float), optional
+        For the pour of an interior crop: the ``(Y, X)`` extent the crop aims at, simulation
+        units; the layers are measured in the crop's footprint in the bulk cylinder
+        (`~synthpack.physics.container.crop_half_sides`), where the pack is shown (the middle of
+        the tube packs denser than the cylinder's rim). None: the whole cylinder.
     """
 
     target: float
@@ -286,6 +293,7 @@ class PackingController:
     seed: int = 0
     bare: np.ndarray | None = None
     shrinks: bool = False
+    crop: tuple[float, float] | None = None
     #: The knob of every batch so far.
     knobs: list[float] = field(default_factory=list)
     #: Measured bulk layers: (z0, z1, packing fraction, knob of its grains: the one whose prior fraction is
@@ -372,8 +380,10 @@ class PackingController:
         if z1 - z0 < _MIN_LAYER:
             return
         grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
-        n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * np.pi * radius**2 * (z1 - z0)))
-        fraction = solid_fraction_of(grains, radius, z0, z1, n_samples, self._rng, exact=False)
+        half = None if self.crop is None else crop_half_sides(radius, self.crop)
+        area = np.pi * radius**2 if half is None else 4.0 * float(half[0] * half[1])
+        n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * area * (z1 - z0)))
+        fraction = solid_fraction_of(grains, radius, z0, z1, n_samples, self._rng, exact=False, half_sides=half)
         knob = self._layer_knob(z0, z1)
         self.layers.append((z0, z1, fraction, knob))
         self._measured_to = z1

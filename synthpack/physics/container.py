@@ -23,7 +23,7 @@ from .scene import TubeSpec
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box",
+__all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box", "crop_half_sides",
            "crop_extent", "holds_crop", "interior_grains", "interior_radius"]
 
 #: Packing fraction assumed when sizing a tube for a number of grains: a loose
@@ -380,8 +380,27 @@ def crop_box(region: Mapping[str, float], lateral: tuple[float, float]) -> tuple
     """
     if region["radius"] <= 0 or region["z_max"] <= region["z_min"]:
         return None
-    y, x = (float(v) for v in lateral)
-    shrink = min(1.0, 2.0 * float(region["radius"]) / math.hypot(y, x))
-    half = np.array([y, x]) * shrink / 2.0
+    half = crop_half_sides(region["radius"], lateral)
     return (np.array([region["z_min"], -half[0], -half[1]], dtype=float),
             np.array([region["z_max"], half[0], half[1]], dtype=float))
+
+
+def crop_half_sides(radius: float, lateral: tuple[float, float]) -> np.ndarray:
+    """Half the sides of the interior crop in a bulk cylinder of `radius` (`crop_box`'s lateral extent).
+
+    Parameters
+    ----------
+    radius : float
+        The bulk cylinder's radius.
+    lateral : (float, float)
+        ``(Y, X)`` extent the crop aims at, in the unit of `radius`.
+
+    Returns
+    -------
+    (2,) ndarray of float
+        ``(Y, X)`` half sides: the largest box of `lateral`'s proportions within `radius` of the
+        axis, at most `lateral`.
+    """
+    y, x = (float(v) for v in lateral)
+    shrink = min(1.0, 2.0 * float(radius) / math.hypot(y, x))
+    return np.array([y, x]) * shrink / 2.0

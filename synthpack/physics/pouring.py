@@ -64,6 +64,7 @@ def pour(
     indices: Sequence[int] | None = None,
     progress: bool = True,
     wall_margin: float = 1.0,
+    crop: tuple[float, float] | None = None,
 ) -> Placements:
     """Pour ``config.n_particles`` grains of `library` into a tube, ``config.batch_size`` at a time.
 
@@ -103,6 +104,12 @@ def pour(
         tube wall, in median grain diameters: 1, or
         :data:`~synthpack.physics.container.CROP_WALL_MARGIN` for the pour of an interior
         crop (``reconstruct.view: interior``), whose crop lies in that region.
+    crop : (float, float), optional
+        For the pour of an interior crop: the ``(Y, X)`` extent it aims at
+        (`~synthpack.physics.container.crop_extent`), physical units. The compaction and the
+        checks then measure the crop's footprint in the bulk cylinder, the part of the pack that
+        will be shown (the middle of the tube, denser than the cylinder's rim), rather than the
+        whole cylinder. None: the cylinder.
 
     Returns
     -------
@@ -150,12 +157,13 @@ def pour(
     for attempt in range(1, CONTAINMENT_ATTEMPTS + 1):
         controller = None if target is None else PackingController(
             target, material.friction, [(b.vertices, b.faces) for b in bodies], spec.inner_radius,
-            wall_margin=wall_margin, seed=seed, bare=bare, shrinks=chosen.shrinks_shells)
+            wall_margin=wall_margin, seed=seed, bare=bare, shrinks=chosen.shrinks_shells,
+            crop=None if crop is None else (float(crop[0]) / length, float(crop[1]) / length))
         result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
                                controller)
         positions = np.asarray(result.positions, dtype=float) * length
-        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed, wall_margin),
-                               target, controller)
+        checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed, wall_margin,
+                                       crop), target, controller)
         if checks.n_outside == 0 or attempt == CONTAINMENT_ATTEMPTS:
             break
         logger.warning("%d grains ended outside the tube; pouring again with %d substeps per step.",
@@ -260,7 +268,7 @@ def _run(
 
 def _checks(
     library: Any, plan: PourPlan, positions: np.ndarray, result: EngineResult, tube: Tube,
-    length: float, seconds: float, seed: int, wall_margin: float,
+    length: float, seconds: float, seed: int, wall_margin: float, crop: tuple[float, float] | None,
 ) -> PourChecks:
     """The checks of the finished pour (:func:`~synthpack.physics.checks.compute_checks`)."""
     meshes = [(np.asarray(library[i].mesh.vertices, dtype=float), np.asarray(library[i].mesh.faces))
@@ -269,7 +277,7 @@ def _checks(
         meshes, plan.indices, positions, result.quaternions, plan.scales, tube,
         voxel_size=float(min(library.voxel_size)), length_scale=length,
         steps_per_batch=result.steps_per_batch, settled_per_batch=result.settled_per_batch,
-        seconds=seconds, seed=seed, wall_margin=wall_margin,
+        seconds=seconds, seed=seed, wall_margin=wall_margin, crop=crop,
     )
 
 

@@ -250,17 +250,25 @@ def _pour(
     With `grains`, placement ``k`` pours ``grains.particles[k]`` (a deformed grain, in its
     own frame); the placements name its library grain (``indices``) and record how it
     was made (``grains``). The tube is the library's either way. For an interior crop, the
-    tube is wide enough for one and the pour measures its bulk where the crop lies
-    (`~synthpack.physics.container.CROP_WALL_MARGIN` from the wall).
+    tube is wide enough for one and the pour measures its bulk where the crop lies: the crop's
+    footprint (`_crop_lateral`), `~synthpack.physics.container.CROP_WALL_MARGIN` or more from the wall.
     """
     interior = view == "interior"
     tube = config.pour.tube(library, interior=interior)
     wall_margin = CROP_WALL_MARGIN if interior else 1.0
+    crop = _crop_lateral(library, config) if interior else None
     if grains is None:
-        return pour(library, config.pour, seed, container=tube, progress=progress, wall_margin=wall_margin)
-    placements = pour(grains.particles, config.pour, seed, container=tube, wall_margin=wall_margin,
+        return pour(library, config.pour, seed, container=tube, progress=progress, wall_margin=wall_margin,
+                    crop=crop)
+    placements = pour(grains.particles, config.pour, seed, container=tube, wall_margin=wall_margin, crop=crop,
                       indices=np.arange(len(grains.particles)), progress=progress)
     return dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
+
+
+def _crop_lateral(library: ParticleLibrary, config: PackConfig) -> tuple[float, float]:
+    """The ``(Y, X)`` extent an interior crop aims at (`~synthpack.physics.container.crop_extent`), physical units."""
+    extent = crop_extent(library, parse_scale(config.pour.scale)[1])
+    return float(extent[1]), float(extent[2])
 
 
 def _render(
@@ -283,8 +291,7 @@ def _render(
     background = Background.from_source(library.statistics, config)
     wall, crop = None, None
     if view == "interior":
-        extent = crop_extent(library, parse_scale(pack.pour.scale)[1])
-        crop = crop_box(placements.checks.packing_region, (extent[1], extent[2]))
+        crop = crop_box(placements.checks.packing_region, _crop_lateral(library, pack))
         if crop is None:
             why = (f"the pour's bulk ({placements.checks.fill_height:g} high in a tube of radius "
                    f"{tube.inner_radius:g}) holds no interior crop: pour more grains (pour.n_particles), "
