@@ -19,6 +19,7 @@ from synthpack.realism.discriminator import classifier_test
 from synthpack.measure.lattice import patch_corners, take_patches
 from synthpack.measure.contacts import coordination_numbers
 from synthpack.realism.structure import grain_table, ks_distance
+from synthpack.measure.noise_estimate import MIN_SAMPLES
 from synthpack.measure.specimen import solid_fraction
 
 # A pack narrow and deep enough to have a bulk region (radius ~17, height ~130 voxels).
@@ -259,6 +260,9 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
     assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
     assert "median section roughness" in (out / "realism.md").read_text()
+    counts = [(f["figures"]["noise_grain_voxels"], f["figures"]["noise_pore_voxels"]) for f in (report["source"], *report["packs"])]
+    assert all(n >= MIN_SAMPLES for pair in counts for n in pair)  # each noise level says what it rests on
+    assert f"| {counts[0][0]} / {counts[0][1]} |" in (out / "realism.md").read_text()
     for specimen in (report["source"], *report["packs"]):
         assert specimen["figures"]["pore_width_median"] >= 1 and 0 <= specimen["figures"]["pore_narrow_share"] <= 1
     assert all(0 <= pack["distances"]["ks_pore_width"] <= 1 for pack in report["packs"])

@@ -15,7 +15,9 @@ the pack's and the
 source's distributions (0 = the same, 1 = disjoint). W is the Wasserstein distance
 between intensity histograms, as a fraction of the source's grain-pore contrast. Noise
 is the standard deviation of the white noise with the same high-frequency content
-(`synthpack.measure.estimate_noise`); the NPS centroid is the power-weighted mean
+(`synthpack.measure.estimate_noise`, on the voxels two or more from every boundary: the
+Appearance table gives how many; on a few hundred, as in small grains, it varies by about 10 %
+from one realisation to the next); the NPS centroid is the power-weighted mean
 frequency of the noise power spectrum in 8x8 in-slice patches of the noise alone (second
 differences across slices; cycles/voxel: lower = smoother noise). The edge width is the 10-90 % rise distance of the mean
 profile across grain-pore boundaries (voxels); its half height is the signed distance
@@ -318,6 +320,9 @@ def report_markdown(report: dict) -> str:
            for p in packs]],
         _row("noise std in grains", "noise_grain", source, packs, digits=4),
         _row("noise std in pores", "noise_pore", source, packs, digits=4),
+        ["voxels the noise is measured on, grains / pores",
+         *[f"{f['figures'].get('noise_grain_voxels', 'n/a')} / {f['figures'].get('noise_pore_voxels', 'n/a')}"
+           for f in (source, *packs)]],
         _row("NPS centroid in grains (cycles/voxel)", "nps_centroid_grain", source, packs),
         _row("NPS centroid in pores (cycles/voxel)", "nps_centroid_pore", source, packs),
         _row("edge width 10-90 (voxels)", "edge_width", source, packs),

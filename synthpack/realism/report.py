@@ -134,6 +134,8 @@ class Measurements:
             "grain_level": a.profile.grain_level,
             "noise_grain": a.noise.grain_std,
             "noise_pore": a.noise.pore_std,
+            "noise_grain_voxels": a.noise.n_grain,
+            "noise_pore_voxels": a.noise.n_pore,
             "nps_centroid_grain": spectra["grains"],
             "nps_centroid_pore": spectra["pores"],
             "edge_width": a.edge_width,
