@@ -39,10 +39,15 @@ from ..errors import SynthpackInputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["MIN_SAMPLES", "NoiseEstimate", "estimate_noise"]
+__all__ = ["MIN_SAMPLES", "NoiseEstimate", "RELATIVE_SPREAD", "estimate_noise", "estimate_spread"]
 
 #: A phase needs at least this many interior voxels for its noise estimate.
 MIN_SAMPLES = 200
+#: The estimate's standard deviation from one noise realisation to the next, relative, times the square root of
+#: the voxels it rests on: measured 1.9-2.1 over 24 draws of calibrated noise on packs of the concrete neutron CT
+#: (279 grain voxels), the sand micro-CT (68,054) and the `large` sample (153,565). Above the 1.17 of independent
+#: samples: the second difference makes neighbours' values alike.
+RELATIVE_SPREAD = 2.0
 
 _MAD_TO_STD = 1.482602218505602  # 1 / Phi^-1(3/4)
 
@@ -199,3 +204,19 @@ def estimate_noise(
     logger.debug("noise estimate: %s (grains %s, pores %s; %d + %d voxels)", sig(pooled), sig(stds["grain"]),
                  sig(stds["pore"]), counts["grain"], counts["pore"])
     return NoiseEstimate(pooled, stds["grain"], stds["pore"], counts["grain"], counts["pore"])
+
+
+def estimate_spread(n_voxels: int) -> float:
+    """How much `estimate_noise`'s level of a phase varies between noise realisations, relative to it.
+
+    Parameters
+    ----------
+    n_voxels : int
+        The voxels the level rests on (`NoiseEstimate.n_grain` or ``n_pore``), > 0.
+
+    Returns
+    -------
+    float
+        ``RELATIVE_SPREAD / sqrt(n_voxels)``: 0.12 on 279 voxels, 0.008 on 68,000.
+    """
+    return RELATIVE_SPREAD / math.sqrt(n_voxels)
