@@ -262,6 +262,9 @@ def test_a_noise_level_on_few_voxels_is_not_told_apart_from_none_s_by_its_spread
     assert not worse(216)  # 5 points apart, within 2 / sqrt(216) = 14 % of each estimate
     assert worse(100_000)  # on 100,000 voxels the estimates are 0.6 % apart in spread: told apart
     assert worse(None)  # a report without the counts: as before
+    cell = noise.read({"figures": {"noise_grain": 106.0, "noise_grain_voxels": 267}},
+                      {"figures": {"noise_grain": 150.0, "noise_grain_voxels": 216}}).cell
+    assert cell == "150 (source 106, +41.5% ± 25.9%)"  # both estimates' spreads, on the ratio 1.415
     assert estimate_spread(279) == pytest.approx(0.12, abs=0.001)
 
 

@@ -145,8 +145,10 @@ def _figure(value: float, digits: int | None) -> str:
 
 def _relative(key: str, tolerance: float, digits: int | None, voxels: str | None = None,
               ) -> Callable[[dict, dict], Reading | None]:
-    """Pack's figure `key` within `tolerance` (a fraction) of the source's (`digits`: see `_figure`); a noise
-    level's resolution is its estimate's spread on the pack's figure `voxels` (its count), where known."""
+    """Pack's figure `key` within `tolerance` (a fraction) of the source's (`digits`: see `_figure`). A noise level
+    with its count of voxels (the figure `voxels`) shows the spread of the ratio between noise realisations (of
+    the pack's estimate and the source's, `~synthpack.measure.noise_estimate.estimate_spread`), and is told
+    apart from another pack's only beyond its own estimate's spread (the reading's resolution)."""
     def read(source: dict, pack: dict) -> Reading | None:
         reference, value = source["figures"].get(key), pack["figures"].get(key)
         if reference is None or value is None or not (math.isfinite(reference) and math.isfinite(value)) \
@@ -154,9 +156,15 @@ def _relative(key: str, tolerance: float, digits: int | None, voxels: str | None
             return None
         change = value / reference - 1
         count = pack["figures"].get(voxels) if voxels else None
-        resolution = max(WORSE_RESOLUTION, estimate_spread(count) * value / abs(reference)) if count else WORSE_RESOLUTION
-        return Reading(abs(change), tolerance, f"{_figure(value, digits)} (source {_figure(reference, digits)}, {change:+.1%})",
-                       f"{abs(change):.1%} off", resolution)
+        if not count:
+            return Reading(abs(change), tolerance, f"{_figure(value, digits)} (source {_figure(reference, digits)}, "
+                           f"{change:+.1%})", f"{abs(change):.1%} off")
+        ratio = value / abs(reference)
+        resolution = max(WORSE_RESOLUTION, estimate_spread(count) * ratio)
+        counts = [count] + ([source["figures"][voxels]] if source["figures"].get(voxels) else [])
+        spread = math.hypot(*(estimate_spread(n) for n in counts)) * ratio  # of the ratio: both estimates vary
+        return Reading(abs(change), tolerance, f"{_figure(value, digits)} (source {_figure(reference, digits)}, "
+                       f"{change:+.1%} ± {spread:.1%})", f"{abs(change):.1%} off", resolution)
     return read
 
 
