@@ -17,6 +17,7 @@ from synthpack.source import SourceStatistics, measure_source
 from synthpack.measure.edges import edge_profile, signed_distance
 from synthpack.measure.specimen import specimen_mask
 from synthpack.measure.lattice import patch_corners, take_patches
+from synthpack.measure.noise_estimate import estimate_spread
 from synthpack.measure.pore_spectrum import measure_pore_spectrum
 from synthpack.measure.spectrum import phase_interiors, ring_of, white_ring_powers
 
@@ -43,6 +44,17 @@ def test_estimate_noise_recovers_added_noise(phantom, std):
     assert estimate.pore_std == pytest.approx(std, rel=0.1)
     assert estimate.n_grain > 1000 and estimate.n_pore > 1000
     assert estimate_noise(clean, labels).std < 0.1 * 0.01  # the smooth structure is ignored
+
+
+def test_the_noise_estimate_varies_between_realisations_as_estimate_spread_says():
+    for grain in ((slice(None), slice(0, 12), slice(24, 30)), (slice(None), slice(None), slice(24, None))):
+        labels = np.zeros((24, 48, 48), dtype=np.int32)
+        labels[grain] = 1  # a thin grain (a few hundred interior voxels), then a thick one (thousands)
+        estimates = [estimate_noise(GaussianNoise(std=1.0)(np.zeros(labels.shape, np.float32), seed), labels)
+                     for seed in range(40)]
+        levels = np.array([e.grain_std for e in estimates])
+        measured = levels.std() / levels.mean()
+        assert measured == pytest.approx(estimate_spread(estimates[0].n_grain), rel=0.35), estimates[0].n_grain
 
 
 def test_estimate_noise_leaves_out_negative_labels(phantom):
