@@ -260,7 +260,8 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
     assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()
     assert [row["figure"] for row in report["packs"][0]["targets"]][:2] == ["logistic AUC", "CNN AUC"]
     assert "median section roughness" in (out / "realism.md").read_text()
-    counts = [(f["figures"]["noise_grain_voxels"], f["figures"]["noise_pore_voxels"]) for f in (report["source"], *report["packs"])]
+    counts = [(f["figures"]["noise_grain_voxels"], f["figures"]["noise_pore_voxels"])
+              for f in (report["source"], *report["packs"])]
     assert all(n >= MIN_SAMPLES for pair in counts for n in pair)  # each noise level says what it rests on
     assert f"| {counts[0][0]} / {counts[0][1]} |" in (out / "realism.md").read_text()
     for specimen in (report["source"], *report["packs"]):

@@ -23,8 +23,8 @@ from .scene import TubeSpec
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box", "crop_half_sides",
-           "crop_extent", "holds_crop", "interior_grains", "interior_radius"]
+__all__ = ["Tube", "CROP_WALL_MARGIN", "DEFAULT_PACKING_FRACTION", "MAX_FILL_ASPECT", "MIN_CROP", "crop_box",
+           "crop_extent", "crop_half_sides", "holds_crop", "interior_grains", "interior_radius"]
 
 #: Packing fraction assumed when sizing a tube for a number of grains: a loose
 #: random packing of angular grains poured under gravity.
