@@ -125,6 +125,8 @@ def test_the_guard_fits_a_band_map_where_a_phase_histogram_misses_its_target(pha
     assert record["band_map_status"] == "applied"
     assert figures["band_mapped"]["w_edges"] < TARGET["w_edges"] < figures["applied"]["w_edges"]
     assert BandMap.from_dict(record["band_map"]).bands
+    noise = estimate_noise(clean, labels)  # the region is the whole phantom: the counts of its interiors
+    assert record["noise_voxels"] == {"grains": noise.n_grain, "pores": noise.n_pore}
 
 
 def test_the_guard_fits_no_band_map_where_the_histograms_meet_their_targets(phantom):

@@ -79,7 +79,7 @@ from .._shared.text import sig
 from ..errors import SynthpackInputError
 from ..measure.edges import signed_distance
 from ..measure.lattice import patch_corners
-from ..measure.noise_estimate import estimate_noise
+from ..measure.noise_estimate import estimate_noise, estimate_spread
 from ..measure.patch_features import DEFAULT_PATCH, MAX_PATCHES, PatchReference
 from ..measure.phase_histograms import phase_masks, phase_quantiles, quantile_distance
 from ._base import Transform
@@ -244,7 +244,8 @@ def guard_steps(
         None), ``band_map_status`` (``"applied"``, ``"dropped"``, ``"not needed"``: every phase
         histogram within target, ``"not measured"``: no source bands), ``noise_scale`` (the
         amplitude factor of each phase's noise applied with the map, or None), ``tolerance``,
-        ``target``, ``voxels``, and with `patches` ``logistic`` (the AUC of ``none``, ``fitted``
+        ``target``, ``voxels``, ``noise_voxels`` (the voxels each phase's noise level rests on,
+        ``"grains"``, ``"pores"``; None where none), and with `patches` ``logistic`` (the AUC of ``none``, ``fitted``
         and ``applied``, the last with the band map where one is applied; None where too few
         patches fit in `region`).
     """
@@ -305,7 +306,8 @@ def guard_steps(
     record = {"dropped": dropped, "figures": {"none": none, "fitted": fitted, "applied": measured[kept]},
               "band_map": None if band_map is None else band_map.to_dict(), "band_map_status": status,
               "noise_scale": scale,
-              "tolerance": dict(TOLERANCE), "target": dict(TARGET), "voxels": int(np.count_nonzero(region))}
+              "tolerance": dict(TOLERANCE), "target": dict(TARGET), "voxels": int(np.count_nonzero(region)),
+              "noise_voxels": _noise_voxels(volume[box], noise_labels)}
     if mapped is not None:
         record["figures"]["band_mapped"] = mapped
     if patches is not None:
@@ -314,6 +316,23 @@ def guard_steps(
                                                               "applied": packed})
     logger.info("calibration guard: %s (no post-processing: %s)", _text(mapped or measured[kept]), _text(none))
     return kept, record
+
+
+def _noise_voxels(volume: np.ndarray, noise_labels: np.ndarray) -> dict[str, int] | None:
+    """The voxels each phase's noise level rests on in the guard's region (`estimate_noise`), or None where it has
+    none; said (INFO) where so few that the level's spread between noise draws (`estimate_spread`) reaches its
+    target."""
+    try:
+        estimate = estimate_noise(volume, noise_labels)
+    except SynthpackInputError:
+        return None
+    counts = {"grains": estimate.n_grain, "pores": estimate.n_pore}
+    for phase, count in counts.items():
+        if count and estimate_spread(count) >= TARGET[f"noise_{phase}"]:
+            logger.info("calibration guard: the %s' noise level rests on %d voxels of its region, where it varies "
+                        "by %.0f %% between noise draws, as much as its %.0f %% target: its figure is that uncertain",
+                        phase, count, 100 * estimate_spread(count), 100 * TARGET[f"noise_{phase}"])
+    return counts
 
 
 def _logistic(patches: PatchReference, region: np.ndarray, volumes: Mapping[str, np.ndarray]) -> dict:
