@@ -156,15 +156,14 @@ def _relative(key: str, tolerance: float, digits: int | None, voxels: str | None
             return None
         change = value / reference - 1
         count = pack["figures"].get(voxels) if voxels else None
-        if not count:
-            return Reading(abs(change), tolerance, f"{_figure(value, digits)} (source {_figure(reference, digits)}, "
-                           f"{change:+.1%})", f"{abs(change):.1%} off")
-        ratio = value / abs(reference)
-        resolution = max(WORSE_RESOLUTION, estimate_spread(count) * ratio)
-        counts = [count] + ([source["figures"][voxels]] if source["figures"].get(voxels) else [])
-        spread = math.hypot(*(estimate_spread(n) for n in counts)) * ratio  # of the ratio: both estimates vary
+        resolution, spread = WORSE_RESOLUTION, ""
+        if count:
+            ratio = value / abs(reference)
+            resolution = max(WORSE_RESOLUTION, estimate_spread(count) * ratio)
+            counts = [count] + ([source["figures"][voxels]] if source["figures"].get(voxels) else [])
+            spread = f" ± {math.hypot(*(estimate_spread(n) for n in counts)) * ratio:.1%}"  # both estimates vary
         return Reading(abs(change), tolerance, f"{_figure(value, digits)} (source {_figure(reference, digits)}, "
-                       f"{change:+.1%} ± {spread:.1%})", f"{abs(change):.1%} off", resolution)
+                       f"{change:+.1%}{spread})", f"{abs(change):.1%} off", resolution)
     return read
 
 
