@@ -98,18 +98,18 @@ def test_truncated_metadata_is_reported_as_corrupt(large_library, tmp_path):
         ParticleLibrary.load(out)
 
 
-@pytest.mark.parametrize("version", [None, 0, 6, 8, "7"])
+@pytest.mark.parametrize("version", [None, 0, 7, 9, "8"])
 def test_library_of_another_format_version_says_to_rebuild(large_library, tmp_path, version):
     out = large_library[:3].save(tmp_path / "lib")
     meta = json.loads((out / "library.json").read_text())
-    assert meta["version"] == 7
+    assert meta["version"] == 8
     if version is None:
         del meta["version"]
     else:
         meta["version"] = version
     (out / "library.json").write_text(json.dumps(meta))
     with pytest.raises(SynthpackInputError, match=f"format version {version!r}, but this synthpack reads "
-                                                  "version 7: rebuild it with `synthpack library build`"):
+                                                  "version 8: rebuild it with `synthpack library build`"):
         ParticleLibrary.load(out)
 
 

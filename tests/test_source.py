@@ -57,6 +57,20 @@ def test_the_noise_estimate_varies_between_realisations_as_estimate_spread_says(
         assert measured == pytest.approx(estimate_spread(estimates[0].n_grain), rel=0.35), estimates[0].n_grain
 
 
+def test_the_noise_estimate_of_whole_numbers_reads_between_grey_levels():
+    # a scan stored as whole numbers with noise of a grey level or so: its second differences lie on a grid,
+    # and the level must follow the noise continuously (rounding adds a variance of 1/12), not in ~10 % steps
+    labels = np.zeros((40, 64, 64), dtype=np.int32)
+    labels[:, :, 32:] = 1
+    levels = []
+    for std in (0.9, 0.95, 1.0, 1.05, 1.1):
+        noisy = np.rint(50.0 + GaussianNoise(std=std)(np.zeros(labels.shape, np.float32), 0))
+        estimate = estimate_noise(noisy, labels)
+        assert estimate.std == pytest.approx(np.hypot(std, np.sqrt(1 / 12)), rel=0.02), std
+        levels.append(estimate.std)
+    assert np.all(np.diff(levels) > 0.02)
+
+
 def test_estimate_noise_leaves_out_negative_labels(phantom):
     clean, labels = phantom
     noisy = GaussianNoise(std=0.05)(clean, 0)
