@@ -564,3 +564,14 @@ def test_the_guard_measures_a_narrow_region_of_wide_slices_in_a_window_with_the_
     cut = (slice(None), *window)
     windowed = guard_steps(build, tuple(steps), clean[cut], labels[cut], region[cut], **targets)
     assert windowed == whole and whole[1]["figures"]["fitted"] != whole[1]["figures"]["none"]
+
+
+def test_a_rounded_pack_has_the_source_noise_after_its_rounding(rendered):
+    # noise of a grey level: the rounding's own variance (1/12) is a tenth of it, and part of the source's noise
+    clean, labels, grid = rendered
+    scaled = (clean * 200).astype(np.float32), labels, grid
+    statistics = dataclasses.replace(STATISTICS, pore_mean=40.0, grain_mean=160.0, noise_std=1.0, noise_grain_std=1.0,
+                                     noise_pore_std=1.0, nps_grains=tuple(white_ring_powers(1.0, 6)),
+                                     nps_pores=tuple(white_ring_powers(1.0, 6)), whole_levels=True)
+    resolved = _resolve("calibrated", scaled, statistics)
+    assert estimate_noise(resolved.pipeline(scaled[0], 1), labels).std == pytest.approx(1.0, rel=0.02)

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
     from .torch_blocks import DeviceVolume
 
-__all__ = ["ContrastGamma", "RoundLevels"]
+__all__ = ["ContrastGamma", "RoundLevels", "rounding_variance"]
 
 
 class ContrastGamma(Transform):
@@ -98,6 +98,28 @@ def _response(image: Any, sign: Callable[[Any], Any], *, contrast: float, gamma:
     middle = _f32(0.5 * (pore_level + grain_level))
     out = _f32(pore_level) + span * bent
     return middle + _f32(contrast) * (out - middle)
+
+
+def rounding_variance(step: float = 1.0) -> float:
+    """The variance `RoundLevels` adds to intensities that spread over many steps: ``step^2 / 12``.
+
+    The rounding error is then uniform over one step and independent from voxel to voxel:
+    white noise of this variance on top of the noise already there (measured on the sand
+    micro-CT's pack: noise level 1.035 before rounding, 1.069 after, ``hypot(1.035, 0.289)``
+    = 1.075). A pack's noise is fitted less this where it is rounded last
+    (`~synthpack.artefacts.calibrate`), as the source's own rounding is part of its noise.
+
+    Parameters
+    ----------
+    step : float
+        Grid spacing, intensity units (> 0).
+
+    Returns
+    -------
+    float
+        Intensity units squared.
+    """
+    return step * step / 12.0
 
 
 class RoundLevels(Transform):
