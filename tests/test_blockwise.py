@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import zarr
 from scipy import ndimage
 
 from synthpack._shared.seeds import generator
@@ -50,6 +51,18 @@ def test_chunked_blur_with_drawn_sigma_and_motion_blur_equal_the_whole_volume(vo
     np.testing.assert_array_equal(out, GaussianBlur(sigma=record[0]["sigma"])(volume, 0))
     out, record = _blockwise(MotionBlur(length=5, angle=(0, 180)), volume)
     np.testing.assert_array_equal(out, MotionBlur(length=5, angle=record[0]["angle"])(volume, 0))
+
+
+def test_a_stored_volume_read_a_row_of_blocks_at_a_time_gives_the_same_bytes(volume, tmp_path):
+    # a Zarr source is read with the halo as one strip per row of blocks (`_HaloReads`), a NumPy one block by block
+    stored = zarr.create_array(store=str(tmp_path / "v.zarr"), shape=volume.shape, dtype=volume.dtype,
+                               chunks=(1, *CHUNKS[1:]), shards=CHUNKS)
+    stored[...] = volume
+    pipeline = Compose([GaussianBlur(sigma=1.7), GaussianNoise(std=0.3), MotionBlur(length=5, angle=30.0)])
+    for threads in (1, 3):
+        out = np.empty_like(volume)
+        apply_blockwise(pipeline, stored, out, 5, CHUNKS, threads=threads, scratch=lambda: np.empty_like(volume))
+        np.testing.assert_array_equal(out, _blockwise(pipeline, volume)[0])
 
 
 def test_a_blur_after_noise_sees_the_finished_noisy_volume(volume):

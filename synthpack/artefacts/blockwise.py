@@ -47,7 +47,10 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -122,6 +125,48 @@ def _read_with_halo(source: Any, lo: np.ndarray, hi: np.ndarray, halo: np.ndarra
     return np.pad(block, pad, mode="symmetric") if any(a or b for a, b in pad) else block
 
 
+class _HaloReads:
+    """`_read_with_halo` of the blocks of a stored volume, a row of blocks at a time.
+
+    A stored volume (Zarr) decodes whole chunks: the pack's are single slices of a block,
+    so a block read with a halo across y and x decodes its eight neighbours' slices too (a
+    3.8x slower read than without halo on a pack's clean volume, measured). Each row of
+    blocks (the same z and y span) is read once, with its halo, as one strip across the
+    whole x range, and each block is cut from it: the same values, about half the decoding
+    (a 150-million-voxel pack: 3.8 s against 7.8 s). The last `KEEP` strips are kept, read
+    once by the first thread that asks (threads take blocks in order, so the blocks in
+    flight lie in one or two rows).
+    """
+
+    #: Strips kept (each ``chunk z + 2 halo`` by ``chunk y + 2 halo`` by the volume's x width).
+    KEEP = 2
+
+    def __init__(self, source: Any, halo: np.ndarray) -> None:
+        self._source, self._halo = source, halo
+        self._lock = threading.Lock()
+        self._strips: OrderedDict[tuple[int, ...], Future] = OrderedDict()
+
+    def __call__(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        key = (int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1]))
+        with self._lock:
+            strip = self._strips.get(key)
+            mine = strip is None
+            if mine:
+                strip = self._strips[key] = Future()
+                while len(self._strips) > self.KEEP:
+                    self._strips.popitem(last=False)
+            else:
+                self._strips.move_to_end(key)
+        if mine:
+            row_lo, row_hi = np.array([lo[0], lo[1], 0]), np.array([hi[0], hi[1], self._source.shape[2]])
+            try:
+                strip.set_result(_read_with_halo(self._source, row_lo, row_hi, self._halo))
+            except BaseException as error:  # the threads waiting on this strip raise it too
+                strip.set_exception(error)
+        width = int(hi[2] - lo[2]) + 2 * int(self._halo[2])
+        return strip.result()[:, :, int(lo[2]) : int(lo[2]) + width].copy()  # steps may work in place
+
+
 class _Where(Protocol):
     """Where the steps run: blocks put there, each transform's block step, blocks got back as NumPy."""
 
@@ -190,9 +235,12 @@ def _run_pass(
     halo = np.asarray(head.transform.halo(**head.params) if head else (0, 0, 0), dtype=np.int64)
     functions = [where.step(step.transform) for step in passed]
 
+    stored = halo[1:].any() and not isinstance(source, np.ndarray)
+    read = _HaloReads(source, halo) if stored else functools.partial(_read_with_halo, source, halo=halo)
+
     def block(box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         lo, hi = box
-        out = where.put(_read_with_halo(source, lo, hi, halo))
+        out = where.put(read(lo, hi))
         origin = tuple(int(v) for v in lo - halo)
         for step, function in zip(passed, functions):
             context = BlockContext(generator(seed, "transform_blocks", step.index, *lo),
