@@ -159,6 +159,8 @@ def test_an_interior_crop_is_full_of_grains_to_its_edges_with_no_wall_or_air(int
                    grains[:, :quarter[0], -quarter[1]:], grains[:, -quarter[0]:, :quarter[1]]):
         assert corner.mean() > 0.6 * bulk  # no empty corners: a tube's are air
     assert manifest["postprocess_mode"] == "calibrated"  # fitted in the crop, all of it bulk
+    in_view = np.unique(np.asarray(pack.labels[:]))  # counted as the render wrote the chunks: the grains cut away
+    assert manifest["n_labels"] == len(in_view) - 1 < manifest["n_particles"]  # by the crop are not
     specimen = Specimen.from_pack(interior_pack)
     assert specimen.region.all()
 
