@@ -22,7 +22,10 @@ from synthpack.errors import SynthpackInputError
 from synthpack.pipeline.generate import build_pack, generate_packs
 from synthpack.io import read_scan, read_volume
 from synthpack.store.pack import _file_records, open_pack, pack_format
-from synthpack.store.zarr_pack import create_volume, level_shapes, open_volumes, write_levels, write_volume
+from synthpack._shared.chunks import chunk_boxes
+import synthpack.store.zarr_pack as zarr_pack_module
+from synthpack.store.zarr_pack import (LevelledVolume, create_levelled_volume, create_volume, level_shapes,
+                                     open_volumes, write_levels, write_volume)
 
 CONFIG = PackConfig().replace(pour={"n_particles": 8, "batch_size": 8})
 
@@ -148,27 +151,42 @@ def test_downsampled_levels_have_their_scale_and_overlay_the_labels(packs, tmp_p
     _validated(store)  # ome-zarr-models also checks that the label levels match the image's
 
 
-@pytest.mark.parametrize("written", ["chunk by chunk", "whole"])
+@pytest.mark.parametrize("written", ["chunk by chunk", "whole", "levelled", "levelled, off the grid"])
 def test_levels_written_block_by_block_equal_those_of_the_whole_volume(tmp_path, written):
     rng = np.random.default_rng(0)
     shape = (37, 50, 45)  # odd sizes: the last voxel of an odd axis is averaged with itself
     tomogram = rng.random(shape, dtype=np.float32)
     labels = rng.integers(0, 9, shape).astype(np.int32)
     store = tmp_path / "pack.zarr"
+    level_one = []
     for name, volume in (("tomogram", tomogram), ("clean", tomogram), ("labels", labels)):
         if written == "whole":  # in memory, Zarr's own chunks: as StagedPack.write_volumes writes it
             write_volume(store, name, volume, (2.0, 1.0, 1.0), "mm")
-        else:
+        elif written == "chunk by chunk":
             array = create_volume(store, name, shape, volume.dtype, (2.0, 1.0, 1.0), "mm", chunks=(1, 16, 16),
                                   shards=(8, 16, 16))
             for z in range(0, shape[0], 8):
                 array[z:z + 8] = volume[z:z + 8]
+        else:  # level 1 made as the blocks are written (a pack's tomogram and labels), in any order
+            array = create_levelled_volume(store, name, shape, volume.dtype, (2.0, 1.0, 1.0), "mm",
+                                           chunks=(1, 16, 16), shards=(8, 16, 16), min_size=8)
+            assert isinstance(array, LevelledVolume) is (name != "clean")
+            boxes = list(chunk_boxes(shape, (8, 16, 16)))
+            for lo, hi in reversed(boxes):
+                array[tuple(slice(a, b) for a, b in zip(lo, hi))] = volume[tuple(slice(a, b) for a, b in zip(lo, hi))]
+            if written.endswith("grid"):  # a block written again off the even grid: level 1 is rebuilt
+                array[3:9, 5:20, :] = volume[3:9, 5:20, :]
+            if isinstance(array, LevelledVolume):
+                assert array.level_one is not written.endswith("grid")
+                level_one += [name] if array.level_one else []
     assert level_shapes(shape, 8) == [shape, (19, 25, 23), (10, 13, 12)]
-    assert write_levels(store, (2.0, 1.0, 1.0), "mm", min_size=8, threads=2) == 3
+    assert write_levels(store, (2.0, 1.0, 1.0), "mm", min_size=8, threads=2, level_one=level_one) == 3
     group = zarr.open_group(str(store), mode="r")
-    expected_image, expected_labels = tomogram, labels
+    expected_image, expected_labels, exact = tomogram, labels, tomogram
     for level in (1, 2):
         expected_image, expected_labels = _mean_2x(expected_image), expected_labels[::2, ::2, ::2]
+        exact = zarr_pack_module._mean_2x(exact)  # the same bytes, made block by block or from the whole
+        np.testing.assert_array_equal(group[str(level)][...], exact)
         np.testing.assert_allclose(group[str(level)][...], expected_image, rtol=1e-6)
         np.testing.assert_array_equal(group[f"labels/instances/{level}"][...], expected_labels)
         assert group[str(level)].attrs["voxel_size"] == [2.0 * 2**level, 2**level, 2**level]

@@ -23,8 +23,10 @@ codecs, chunking and ``voxel_size``/``unit``/``axes`` attributes of
 `synthpack.io.write_zarr`, so any level reads as a plain Zarr volume too.
 
 Full-resolution volumes are written first (whole, or chunk by chunk for packs
-larger than memory); :func:`write_levels` then builds each level from the previous
-one block by block, so memory stays bounded by a few blocks.
+larger than memory; a tomogram or labels written chunk by chunk through a
+`LevelledVolume` gets its level 1 as its chunks are written); :func:`write_levels` then
+builds each level from the previous one block by block, so memory stays bounded by a
+few blocks.
 
 Packs written before synthpack used OME-Zarr hold plain arrays ``tomogram``,
 ``clean`` and ``labels`` at the top of the store; :func:`volume_paths` and
@@ -34,7 +36,8 @@ Packs written before synthpack used OME-Zarr hold plain arrays ``tomogram``,
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+import shutil
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 import numpy as np
@@ -44,8 +47,8 @@ from .._shared.chunks import bounded_map, chunk_boxes, thread_count
 from ..io import create_zarr_volume, write_zarr
 from ..io.ngff import image_attributes, labels_attributes
 
-__all__ = ["STORE_NAME", "VOLUME_PATHS", "MIN_LEVEL_SIZE", "volume_paths", "create_volume", "write_volume",
-           "write_levels", "open_volumes", "level_shapes"]
+__all__ = ["STORE_NAME", "VOLUME_PATHS", "MIN_LEVEL_SIZE", "LevelledVolume", "volume_paths", "create_volume",
+           "create_levelled_volume", "write_volume", "write_levels", "open_volumes", "level_shapes"]
 
 logger = logging.getLogger(__name__)
 
@@ -123,8 +126,71 @@ def level_shapes(shape: tuple[int, int, int], min_size: int = MIN_LEVEL_SIZE) ->
     return shapes  # type: ignore[return-value]
 
 
+class LevelledVolume:
+    """A full-resolution volume (`create_volume`) written block by block, with its level 1 made as it is written.
+
+    Each block written at even offsets (and of even size, but at the volume's end) is
+    also reduced into level 1 as `write_levels` would (the tomogram's 2x2x2 means, the
+    labels' every second voxel), so `write_levels` builds the further levels from level 1
+    and need not read level 0 back (a 1,355-million-voxel pack's tomogram and labels took
+    most of its 36 s of levels). Reading, and anything else, goes to level 0. A block
+    written off that grid leaves level 1 to be rebuilt (`level_one` False); a block written
+    again (the band map's) is reduced again.
+
+    Parameters
+    ----------
+    full : zarr.Array
+        Level 0.
+    half : zarr.Array
+        Level 1, of ``ceil(shape / 2)``.
+    reduce : callable
+        ``reduce(block) -> block`` of half the size (rounded up).
+    """
+
+    def __init__(self, full: zarr.Array, half: zarr.Array, reduce: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.full, self.half, self._reduce = full, half, reduce
+        self.level_one = True
+
+    def __getattr__(self, name: str):
+        return getattr(self.full, name)
+
+    def __getitem__(self, key):
+        return self.full[key]
+
+    def __setitem__(self, key: tuple[slice, ...], block: np.ndarray) -> None:
+        self.full[key] = block
+        box = [s.indices(n)[:2] for s, n in zip(key, self.full.shape)] if isinstance(key, tuple) else None
+        if box is None or len(box) != 3 or any(a % 2 or (b % 2 and b != n) for (a, b), n in zip(box, self.full.shape)):
+            self.level_one = False
+            return
+        if self.level_one:
+            self.half[tuple(slice(a // 2, (b + 1) // 2) for a, b in box)] = self._reduce(np.asarray(block))
+
+
+def create_levelled_volume(
+    store: Path, name: str, shape: tuple[int, int, int], dtype: np.dtype | type,
+    voxel_size: tuple[float, float, float], unit: str, *,
+    chunks: tuple[int, int, int], shards: tuple[int, int, int], min_size: int = MIN_LEVEL_SIZE,
+) -> zarr.Array | LevelledVolume:
+    """`create_volume` of the ``tomogram`` or ``labels``, as a `LevelledVolume` where it will have a level 1.
+
+    That is where `level_shapes` gives it one and its `shards` are even along every
+    axis; level 1's shards are half of them (each block of level 0's shards writes one
+    whole shard of level 1), its chunks single slices of a shard. Otherwise the plain array.
+    """
+    full = create_volume(store, name, shape, dtype, voxel_size, unit, chunks=chunks, shards=shards)
+    shapes = level_shapes(shape, min_size)
+    if name not in _REDUCE or len(shapes) < 2 or any(n % 2 for n in shards):
+        return full
+    half_shards = tuple(min(n // 2, m) for n, m in zip(shards, shapes[1]))
+    half = create_zarr_volume((store / VOLUME_PATHS[name]).parent / "1", shapes[1], dtype,
+                              tuple(v * 2 for v in voxel_size), unit, chunks=(1, *half_shards[1:]), shards=half_shards)
+    return LevelledVolume(full, half, _REDUCE[name])
+
+
 def write_levels(store: Path, voxel_size: tuple[float, float, float], unit: str, *,
-                 min_size: int = MIN_LEVEL_SIZE, threads: int | None = None) -> int:
+                 min_size: int = MIN_LEVEL_SIZE, threads: int | None = None,
+                 level_one: Collection[str] = ()) -> int:
     """Write the downsampled levels and the OME-Zarr metadata of a store whose full-resolution volumes are written.
 
     Level ``k + 1`` of the tomogram is the mean of each 2x2x2 block of level ``k``
@@ -144,6 +210,9 @@ def write_levels(store: Path, voxel_size: tuple[float, float, float], unit: str,
         See :func:`level_shapes`.
     threads : int, optional
         Threads for the blocks; default: the number of CPU cores.
+    level_one : collection of str
+        The volumes whose level 1 is written already (`LevelledVolume.level_one`): their
+        levels are built from it.
 
     Returns
     -------
@@ -152,10 +221,12 @@ def write_levels(store: Path, voxel_size: tuple[float, float, float], unit: str,
     """
     workers = thread_count(threads)
     shapes = level_shapes(zarr.open_array(str(store / VOLUME_PATHS["tomogram"]), mode="r").shape, min_size)
-    for name, reduce in (("tomogram", _mean_2x), ("labels", _every_second)):  # the same shape (open_pack checks)
-        level = zarr.open_array(str(store / VOLUME_PATHS[name]), mode="r")
+    for name, reduce in _REDUCE.items():  # the same shape (open_pack checks)
         image = (store / VOLUME_PATHS[name]).parent
-        for index, shape in enumerate(shapes[1:], 1):
+        first = 2 if name in level_one and len(shapes) > 1 else 1
+        level = zarr.open_array(str(image / str(first - 1)), mode="r")
+        for index, shape in enumerate(shapes[first:], first):
+            shutil.rmtree(image / str(index), ignore_errors=True)  # a level 1 left stale by a `LevelledVolume`
             level = _write_level(level, image / str(index), shape, reduce,
                                  [v * 2**index for v in voxel_size], unit, workers)
     sizes = [[v * 2**k for v in voxel_size] for k in range(len(shapes))]
@@ -201,12 +272,24 @@ def _write_level(source: zarr.Array, path: Path, shape: tuple[int, int, int],
 
 
 def _mean_2x(block: np.ndarray) -> np.ndarray:
-    """Mean of each 2x2x2 block of voxels, float32; an odd axis has its last voxel repeated."""
-    padded = np.pad(block, [(0, n % 2) for n in block.shape], mode="edge")
+    """Mean of each 2x2x2 block of voxels, float32; an odd axis has its last voxel repeated.
+
+    The pairs are added in a fixed order, axis by axis, so a voxel's mean is the same bytes
+    whichever block it is computed in (`LevelledVolume`'s blocks or `write_levels`').
+    """
+    padded = np.pad(block, [(0, n % 2) for n in block.shape], mode="edge").astype(np.float32, copy=False)
     z, y, x = (n // 2 for n in padded.shape)
-    return padded.reshape(z, 2, y, 2, x, 2).mean(axis=(1, 3, 5), dtype=np.float32)
+    pairs = padded.reshape(z, 2, y, 2, x, 2)
+    total = pairs[:, 0] + pairs[:, 1]
+    total = total[:, :, 0] + total[:, :, 1]
+    total = total[..., 0] + total[..., 1]
+    return total * np.float32(0.125)
 
 
 def _every_second(block: np.ndarray) -> np.ndarray:
     """Every second voxel along each axis, starting at the first (labels stay labels)."""
     return block[::2, ::2, ::2]
+
+
+#: How each volume with levels makes its next level from the previous one (``clean`` has level 0 only).
+_REDUCE: dict[str, Callable[[np.ndarray], np.ndarray]] = {"tomogram": _mean_2x, "labels": _every_second}
