@@ -255,8 +255,9 @@ class _LabelWrites:
         self.present = np.zeros(n_placed + 1, dtype=bool)
 
     def __setitem__(self, window: tuple[slice, ...], block: np.ndarray) -> None:
-        self.array[window] = block  # a count of every label: 4x faster than np.unique's sort on a 64x256x256 chunk
-        self.present[np.flatnonzero(np.bincount(block.ravel(), minlength=len(self.present)))] = True
+        self.array[window] = block
+        for part in block:  # a slice at a time, a count of every label (4x faster than np.unique's sort)
+            self.present[np.flatnonzero(np.bincount(part.ravel(), minlength=len(self.present)))] = True
 
 
 def _pour(

@@ -277,7 +277,9 @@ def _mean_2x(block: np.ndarray) -> np.ndarray:
     The pairs are added in a fixed order, axis by axis, so a voxel's mean is the same bytes
     whichever block it is computed in (`LevelledVolume`'s blocks or `write_levels`').
     """
-    padded = np.pad(block, [(0, n % 2) for n in block.shape], mode="edge").astype(np.float32, copy=False)
+    odd = [(0, n % 2) for n in block.shape]
+    padded = np.pad(block, odd, mode="edge") if any(b for _, b in odd) else block  # a copy only where needed
+    padded = padded.astype(np.float32, copy=False)
     z, y, x = (n // 2 for n in padded.shape)
     pairs = padded.reshape(z, 2, y, 2, x, 2)
     total = pairs[:, 0] + pairs[:, 1]
