@@ -134,7 +134,8 @@ def main() -> None:
     for name, values in times.items():
         print(f"| {name} | {min(values):.2f} |")
     pairs = (("halo reads, a row at a time", "halo reads, block by block"),
-             ("post-process pass, Zarr -> memory, a row at a time", "post-process pass, Zarr -> memory, block by block"),
+             ("post-process pass, Zarr -> memory, a row at a time",
+              "post-process pass, Zarr -> memory, block by block"),
              ("tomogram + labels written, then levels (level 1 as written)",
               "tomogram + labels written, then levels (after)"))
     print()

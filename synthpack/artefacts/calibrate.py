@@ -635,8 +635,8 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
     window = (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
     rounds = [RoundLevels()] if calibration.round_levels else []  # measured as the pack will be: rounded last
     _, record = guard_steps(
-        lambda steps: calibration.transforms(steps) + rounds, calibration.fitted_steps(), np.asarray(clean[window], dtype=np.float32),
-        np.asarray(labels[window]), region[window], histograms=histograms,
+        lambda steps: calibration.transforms(steps) + rounds, calibration.fitted_steps(),
+        np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
         requires=REQUIRES, bands=bands, patches=patches,
         rescaled=lambda steps, scale: calibration.transforms(steps, scale) + rounds
