@@ -79,17 +79,19 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
     rows = list(csv.DictReader((smoke / "results.csv").open()))
     arms = {row["arm"] for row in rows}
     assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn",
-                    "large:syn", "large:syn-rand", "large@5", "large@5+syn", "unet_large", "unet_large+syn"}
+                    "large:syn", "large:syn-rand", "large@5", "large@5+syn", "unet_large", "unet_large+syn",
+                    "unet3d_large", "unet3d_large+syn"}
     assert {(row["arm"], row["test_set"]) for row in rows} == {(a, t) for a in arms for t in ("large", "small")}
     for row in rows:
         assert 0.0 <= float(row["dice"]) <= 1.0 and 0.0 <= float(row["instance_f1"]) <= 1.0
         assert int(row["n_slices"]) == 26  # central 20% of 128 slices
-        assert row["family"] == ("unet" if row["arm"].startswith("unet_") else "yolo")
-        assert (row["mask_map50"] == "") == (row["family"] == "unet")  # Ultralytics' mAP50: YOLO only
+        assert row["family"] == (row["arm"].split("_")[0] if "_" in row["arm"] else "yolo")  # unet_, unet3d_
+        assert (row["mask_map50"] == "") == (row["family"] != "yolo")  # Ultralytics' mAP50: YOLO only
     report = (smoke / "report.md").read_text()
     for heading in ("Table 1", "Table 2", "(94.5%)", "(90.9%)", "Synthetic packs alone", "Label efficiency",
                     "large+syn − large |", "large:syn-rand − large:syn |", "large@5+syn − large@5 |",
-                    "unet_large+syn − unet_large |", "unet_large − large |", "test: large, F1@0.5", "U-Net arms"):
+                    "unet_large+syn − unet_large |", "unet_large − large |", "test: large, F1@0.5", "U-Net arms",
+                    "unet3d_large+syn − unet3d_large |", "unet3d_large − unet_large |", "3D U-Net arms"):
         assert heading in report
     assert (smoke / "label_efficiency.png").stat().st_size > 0
     comparisons = json.loads((smoke / "results.json").read_text())["comparisons"]
@@ -100,14 +102,19 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
 
 
 @pytest.mark.slow
-def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictions_and_scores(smoke):
+@pytest.mark.parametrize("family", ["unet", "unet3d"])
+def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictions_and_scores(smoke, family):
     plans = json.loads((smoke / "results.json").read_text())["compute"]
     steps = {}
-    for arm in ("unet_large", "unet_large+syn"):
+    batch = {"unet": 16, "unet3d": 2}[family]  # the smoke config's train.batch and unet3d.batch
+    for arm in (f"{family}_large", f"{family}_large+syn"):
         plan = plans[arm]
-        assert plan == plans[arm.removeprefix("unet_")]  # the YOLO arm's plan of the same dataset
+        # the 2D U-Net: the YOLO arm's plan of the same dataset; the 3D U-Net: every arm the largest arm's
+        # plan (its epochs are random patches), in its batches
+        yolo = plans[arm.removeprefix(f"{family}_") if family == "unet" else "large+syn"]
+        assert plan == {**yolo, "batch": batch, "steps": yolo["images_seen"] / batch}
         record = json.loads((smoke / "runs" / arm / "seed0" / "train.json").read_text())
-        assert record["family"] == "unet" and record["plan"] == plan and record["images_seen"] == plan["images_seen"]
+        assert record["family"] == family and record["plan"] == plan and record["images_seen"] == plan["images_seen"]
         assert record["steps_taken"] == math.ceil(plan["images_seen"] / plan["batch"])
         steps[arm] = record["steps_taken"]
         assert (smoke / "runs" / arm / "seed0" / "weights" / "best.pt").is_file()
@@ -120,8 +127,8 @@ def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictio
             assert scores["mask_map50"] is None
             assert (scores["dice"], scores["instance_f1"]) == (again["dice"], again["instance_f1"])
     # 45 and 82 training images (half of 90 and of 163): the same steps
-    assert plans["unet_large"]["images"] != plans["unet_large+syn"]["images"]
-    assert steps["unet_large"] == steps["unet_large+syn"]
+    assert (plans[f"{family}_large"]["images"] != plans[f"{family}_large+syn"]["images"]) == (family == "unet")
+    assert steps[f"{family}_large"] == steps[f"{family}_large+syn"]
 
 
 @pytest.mark.slow

@@ -51,6 +51,8 @@ ARM_KINDS = {
 MODEL_FAMILIES = {
     "yolo": ("", "YOLOv8-seg (Ultralytics), instances from its masks"),
     "unet": ("unet_", "2D U-Net (MONAI) on the border-core target, instances by watershed from interior seeds"),
+    "unet3d": ("unet3d_", "3D U-Net (MONAI) on PatchDataset patches of the border-core target, instances by 3D "
+                          "watershed from interior seeds"),
 }
 #: Export of each pack variant, by its suffix: calibrated packs, their clean tomograms, randomised packs.
 EXPORT_SUFFIXES = {"real": "", "syn": "+syn", "syn-nopp": "+syn-nopp", "syn-rand": "+syn-rand"}

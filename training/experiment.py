@@ -49,12 +49,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import io
 import json
 import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -67,6 +69,7 @@ from synthpack.export.yolo import export_yolo
 from synthpack.pipeline.generate import generate_packs
 from synthpack.io import atomic_file, read_scan
 from synthpack.library.core import ParticleLibrary
+from synthpack.store.pack import find_packs
 from synthpack.scan.samples import SAMPLE_NAMES, sample_scan
 from synthpack.scan.core import Scan
 from synthpack.scan.split import central_block
@@ -79,6 +82,7 @@ from .offline import offline_ultralytics
 from .report import compare_arms, report_markdown, save_chart, save_label_efficiency, save_learning_curves
 from .train import TrainSettings, resolve_device, train
 from .unet import UNetSettings, evaluate_unet, train_unet
+from .unet3d import KIND_VOLUMES, UNet3DSettings, arm_volumes, evaluate_unet3d, train_unet3d, window_of
 
 logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
 
@@ -133,6 +137,11 @@ class ExperimentConfig:
     unet_kinds : dict
         The U-Net family's arms, as `kinds` (config ``unet.arms``; default `kinds`); run
         when ``train.model_family`` names ``unet``.
+    unet3d : training.unet3d.UNet3DSettings
+        The 3D U-Net family's network, patches and optimizer (config ``unet3d:``).
+    unet3d_kinds : dict
+        Its arms, as `kinds` (config ``unet3d.arms``; default `kinds` less ``budget``); run
+        when ``train.model_family`` names ``unet3d``.
     imgsz_by_scan : dict
         Scan name -> YOLO's image size for the arms trained on that scan (config
         ``train.imgsz_by_scan``; their slices upscaled so that small grains span enough
@@ -152,6 +161,8 @@ class ExperimentConfig:
     budgets: list = field(default_factory=list)
     unet: UNetSettings = field(default_factory=UNetSettings)
     unet_kinds: dict = field(default_factory=dict)
+    unet3d: UNet3DSettings = field(default_factory=UNet3DSettings)
+    unet3d_kinds: dict = field(default_factory=dict)
     imgsz_by_scan: dict = field(default_factory=dict)
 
     @classmethod
@@ -174,6 +185,14 @@ class ExperimentConfig:
         real = {name: spec for name, spec in listed.items() if _present(name, spec)}
         unet = dict(data.get("unet") or {})
         unet_arms = unet.pop("arms", data.get("arms"))
+        unet3d = dict(data.get("unet3d") or {})
+        unet3d_kinds = _kinds(unet3d.pop("arms", data.get("arms")), list(listed), list(real))
+        if "arms" not in (data.get("unet3d") or {}):
+            unet3d_kinds.pop("budget", None)  # label budgets of spread slices have no 3D form
+        unknown_kinds = sorted(set(unet3d_kinds) - set(KIND_VOLUMES))
+        if unknown_kinds:
+            raise SynthpackInputError(f"unet3d.arms names {unknown_kinds}, which have no 3D form (label budgets are "
+                                      f"slices spread over the volume): use {', '.join(KIND_VOLUMES)}")
         train = dict(data.get("train") or {})
         imgsz_by_scan = _imgsz_by_scan(train.pop("imgsz_by_scan", None) or {}, list(listed))
         return cls(
@@ -187,6 +206,7 @@ class ExperimentConfig:
             budgets=_budgets(data.get("budgets", [])),
             unet=UNetSettings.from_dict(unet),
             unet_kinds=_kinds(unet_arms, list(listed), list(real)),
+            unet3d=UNet3DSettings.from_dict(unet3d), unet3d_kinds=unet3d_kinds,
             imgsz_by_scan={name: size for name, size in imgsz_by_scan.items() if name in real},
         )
 
@@ -197,7 +217,7 @@ class ExperimentConfig:
     @property
     def arm_list(self) -> list[Arm]:
         """Every arm: those of each model family of ``train.model_family``, scan by scan (`training.arms.make_arms`)."""
-        kinds = {"yolo": self.kinds, "unet": self.unet_kinds}
+        kinds = {"yolo": self.kinds, "unet": self.unet_kinds, "unet3d": self.unet3d_kinds}
         return [arm for family in self.train.families for arm in make_arms(kinds[family], self.budgets, family)]
 
     @property
@@ -336,12 +356,16 @@ def _done(path: Path) -> dict | None:
 
 
 def _scores(folder: Path, arm: Arm, weights: Path, test_data: Path, config: ExperimentConfig,
-            config_dir: Path) -> dict:
+            config_dir: Path, test_scan: Callable[[], Scan]) -> dict:
     """The scores of `arm`'s `weights` on a test set: evaluated once, then read back.
 
-    Scores of an earlier run without the instance F1 or per-slice counts get them from its predictions.
+    `test_scan()` is the test set's real scan (the 3D U-Net predicts its volume). Scores of an
+    earlier run without the instance F1 or per-slice counts get them from its predictions.
     """
     scores = _done(folder / "scores.json")
+    if scores is None and arm.family == "unet3d":
+        return evaluate_unet3d(weights, test_scan(), test_data.parent, folder, patch=config.unet3d.patch,
+                               device=config.train.device)
     if scores is None and arm.family == "unet":
         return evaluate_unet(weights, test_data.parent, folder, imgsz=config.train.imgsz, device=config.train.device)
     if scores is None:
@@ -358,15 +382,22 @@ def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
     """Every arm's epochs, images seen and steps (`training.compute.plan_compute`) from its dataset in `out`.
 
     Each model family is planned on its own: its arms take equal steps among themselves, the
-    U-Net's budget ``unet.images_seen`` where given (`training.unet.UNetSettings`).
+    U-Net's budget ``unet.images_seen`` where given (`training.unet.UNetSettings`). The 3D
+    U-Net's arms all take the plan of the largest one, in patches of ``unet3d.batch`` a step:
+    its epochs are random patches, as many as that arm's training slices (`training.unet3d`).
     """
     plans: dict[str, ArmPlan] = {}
     for family in config.train.families:
         sizes = {arm.name: dataset_images(out / "data", arm.dataset)["train"]
                  for arm in config.arm_list if arm.family == family}
+        if family == "unet3d":  # random patches: every arm's epoch is the largest arm's training slices
+            sizes = dict.fromkeys(sizes, max(sizes.values()))
         settings = config.train
-        if family == "unet" and config.unet.images_seen is not None:
-            settings = replace(settings, images_seen=config.unet.images_seen)
+        own = {"unet": config.unet, "unet3d": config.unet3d}.get(family)
+        if own is not None and own.images_seen is not None:
+            settings = replace(settings, images_seen=own.images_seen)
+        if family == "unet3d":
+            settings = replace(settings, batch=config.unet3d.batch)
         plans.update(plan_compute(settings, sizes))
     return {arm.name: plans[arm.name] for arm in config.arm_list}
 
@@ -410,6 +441,7 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
     rows, slices, curves = [], {}, {}
     config_dir = out / "ultralytics"
     device = resolve_device(config.train.device)
+    scans = functools.cache(lambda name: read_real_scan(config.real[name]))  # for the 3D U-Net
     for arm in config.arm_list:
         plan = plans[arm.name]
         for seed in config.seeds:
@@ -422,6 +454,11 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                 settings = TrainSettings(**{**vars(config.train), "seed": seed, "imgsz": config.imgsz(arm)})
                 if arm.family == "unet":
                     train_unet(data[arm.name], run, settings, config.unet, plan)
+                elif arm.family == "unet3d":
+                    export = data[arm.scan].parent
+                    packs = find_packs(out / ("packs-randomised" if arm.kind == "syn-rand" else "packs") / arm.scan)
+                    volumes = arm_volumes(arm.kind, scans(arm.scan), packs, window_of(export))
+                    train_unet3d(volumes, export, scans(arm.scan), run, settings, config.unet3d, plan)
                 else:
                     recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch,
                                              imgsz=config.imgsz(arm), conf=config.conf, device=device)
@@ -432,7 +469,8 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
             curves.setdefault(arm.name, {})[seed] = read_curve(run)
             for test_set in config.real:
                 scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, arm,
-                                 run / "weights" / "best.pt", data[test_set], config, config_dir)
+                                 run / "weights" / "best.pt", data[test_set], config, config_dir,
+                                 functools.partial(scans, test_set))
                 slices[(arm.name, seed, test_set)] = np.array(
                     [[s[key] for key in SLICE_COUNTS] for s in scores["slices"]], dtype=np.int64)
                 rows.append({"arm": arm.name, "family": arm.family, "train_scan": arm.scan, "kind": arm.description,

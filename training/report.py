@@ -45,12 +45,10 @@ COMPARISONS = (
     ("label budget", "{s}@{k}+syn", "{s}@{k}"),
     ("label budget", "{s}@{k}+syn", "{s}"),
 )
-#: The U-Net family against YOLO on the same training set: ``{u}`` the U-Net arms' prefix.
-FAMILY_COMPARISONS = (
-    ("model family", "{u}{s}", "{s}"),
-    ("model family", "{u}{s}+syn", "{s}+syn"),
-    ("model family", "{u}{s}:syn", "{s}:syn"),
-)
+#: The model families against each other on the same training set: ``{u}`` the 2D U-Net arms' prefix, ``{v}``
+#: the 3D U-Net's (YOLO's is empty).
+FAMILY_COMPARISONS = tuple(("model family", a + suffix, b + suffix)
+                           for a, b in (("{u}{s}", "{s}"), ("{v}{s}", "{u}{s}")) for suffix in ("", "+syn", ":syn"))
 #: Score names in the tables' headers.
 SCORE_NAMES = {"dice": "Dice", "instance_f1": "F1@0.5", "instance_dice": "instance Dice", "mask_map50": "mAP50"}
 
@@ -77,8 +75,9 @@ def _pairs(config, scan: str) -> list[tuple[str, str, str]]:
     pairs = [(group, prefix + a.format(s=scan, k=k), prefix + b.format(s=scan, k=k))
              for group, a, b in COMPARISONS for prefix, _ in MODEL_FAMILIES.values()
              for k in (config.budgets if "{k}" in a else [None])]
-    unet = MODEL_FAMILIES["unet"][0]
-    return pairs + [(group, a.format(s=scan, u=unet), b.format(s=scan, u=unet)) for group, a, b in FAMILY_COMPARISONS]
+    prefixes = {"u": MODEL_FAMILIES["unet"][0], "v": MODEL_FAMILIES["unet3d"][0]}
+    return pairs + [(group, a.format(s=scan, **prefixes), b.format(s=scan, **prefixes))
+                    for group, a, b in FAMILY_COMPARISONS]
 
 
 def compare_arms(config, slices: dict) -> list[Comparison]:
@@ -257,10 +256,25 @@ def _budgeted(config) -> list[tuple[str, str]]:
                               if arm.kind == "budget"))
 
 
+def _unet_lines(config) -> list[str]:
+    """The U-Net families' settings, of those with arms."""
+    families = {arm.family for arm in config.arm_list}
+    return [*(_unet_line(config) if "unet" in families else []),
+            *(_unet3d_line(config) if "unet3d" in families else [])]
+
+
+def _unet3d_line(config) -> list[str]:
+    v = config.unet3d
+    return [f"3D U-Net arms (`unet3d_*`): MONAI `UNet` (3D, channels {list(v.channels)}, strides {list(v.strides)}, "
+            f"{v.num_res_units} residual units) from scratch on the border-core target (6-neighbour boundary), "
+            f"`DiceCELoss`, AdamW (lr {v.lr}, polynomial decay), random {' x '.join(map(str, v.patch))} voxel "
+            f"patches (`PatchDataset`) of the real scan's training slices and the packs, batch {v.batch}; each test "
+            "or val block predicted in 3D with half a patch of neighbouring slices as context, instances by 3D "
+            "watershed, each slice then cut into its instances' 4-connected parts and scored as the other "
+            "families' slices.", ""]
+
+
 def _unet_line(config) -> list[str]:
-    """The U-Net family's settings, when it has arms."""
-    if not any(arm.family == "unet" for arm in config.arm_list):
-        return []
     u, t = config.unet, config.train
     return [f"U-Net arms (`unet_*`): MONAI `UNet` (2D, channels {list(u.channels)}, strides {list(u.strides)}, "
             f"{u.num_res_units} residual units) from scratch on the border-core target (background / interior / "
@@ -296,7 +310,7 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         f"{', '.join(map(str, config.seeds))}; {config.n_packs} synthetic pack(s) per real scan, built from "
         f"its training slices only; slices along axis {config.axis}; total {seconds / 60:.1f} min.",
         "",
-        *_unet_line(config),
+        *_unet_lines(config),
         "Cells: foreground Dice on the test set (central 20% of the slices of that real scan), pooled over its "
         "slices, and the matched-instance F1 at IoU 0.5 (instances matched one to one per slice, counts pooled "
         "over the slices)" + (", mean ± sample standard deviation over the seeds" if len(config.seeds) > 1 else "")
@@ -346,8 +360,8 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
                   "`label_efficiency.png`.", "", *_budget_lines(config, summary),
                   *_differences(comparisons, "label budget", tests)]
     if any(c.group == "model family" for c in comparisons):
-        lines += ["", "## Model families: the U-Net against YOLO on the same training set", "",
-                  *_table(summary, pick("", "+syn", ":syn"), tests, both),
+        lines += ["", "## Model families on the same training set: the 2D U-Net against YOLO, the 3D U-Net against "
+                  "the 2D", "", *_table(summary, pick("", "+syn", ":syn"), tests, both),
                   *_differences(comparisons, "model family", tests)]
     lines += [
         "",

@@ -50,6 +50,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -235,27 +236,30 @@ def _torch_device(device: str) -> str:
     return f"cuda:{device}" if device.isdigit() else device
 
 
-def build_model(settings: UNetSettings):
-    """A freshly initialised ``monai.networks.nets.UNet``: 2D, 1 input channel, `N_CLASSES` outputs (logits)."""
+def build_model(settings: UNetSettings, spatial_dims: int = 2):
+    """A freshly initialised ``monai.networks.nets.UNet``: `spatial_dims` (2 or 3), 1 input channel, `N_CLASSES`
+    outputs (logits)."""
     from monai.networks.nets import UNet
 
-    return UNet(spatial_dims=2, in_channels=1, out_channels=N_CLASSES, channels=settings.channels,
+    return UNet(spatial_dims=spatial_dims, in_channels=1, out_channels=N_CLASSES, channels=settings.channels,
                 strides=settings.strides, num_res_units=settings.num_res_units)
 
 
-def _save(model, settings: UNetSettings, path: Path) -> None:
+def _save(model, settings: UNetSettings, spatial_dims: int, path: Path) -> None:
     import torch
 
     with atomic_file(path) as staging:
-        torch.save({"state_dict": model.state_dict(), "unet": dataclasses.asdict(settings)}, staging)
+        torch.save({"state_dict": model.state_dict(), "unet": dataclasses.asdict(settings),
+                    "spatial_dims": spatial_dims}, staging)
 
 
 def load_model(weights: str | os.PathLike, device: str = "cpu"):
-    """The U-Net saved in `weights` (`train_unet`'s ``best.pt``), on `device`, in eval mode."""
+    """The U-Net saved in `weights` (`fit`'s ``best.pt``, 2D or 3D), on `device`, in eval mode."""
     import torch
 
     saved = torch.load(weights, map_location=_torch_device(device), weights_only=True)
-    model = build_model(UNetSettings.from_dict(saved["unet"]))
+    network = {key: value for key, value in saved["unet"].items() if key in UNetSettings.__dataclass_fields__}
+    model = build_model(UNetSettings.from_dict(network), saved.get("spatial_dims", 2))
     model.load_state_dict(saved["state_dict"])
     return model.to(_torch_device(device)).eval()
 
@@ -332,9 +336,6 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
     Path
         ``out/weights/best.pt``.
     """
-    import torch
-    from monai.losses import DiceCELoss
-
     data, out = Path(data), Path(out).resolve()
     data = data / "data.yaml" if data.is_dir() else data
     unet.check_crop(settings.imgsz)
@@ -347,23 +348,70 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
     if val_truth is None or not val_truth.is_dir():
         raise FileNotFoundError(f"{data} has no val slices with truth images: the U-Net selects its model on them")
     device = _torch_device(settings.device)
+
+    def validate(model) -> float:
+        predict_label_images(model, val_images[0].parent, out / "curve_pred", imgsz=settings.imgsz, device=device)
+        return score(out / "curve_pred", val_truth)["dice"]
+
+    return fit(out, settings, unet, plan, spatial_dims=2, validate=validate, data=str(data),
+               batch_of=lambda indices, epochs, generator: _batch(pictures, targets, indices, settings.imgsz,
+                                                                  generator))
+
+
+def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *, spatial_dims: int,
+        batch_of: Callable, validate: Callable, data: str) -> Path:
+    """The U-Net families' training loop: `plan`'s images seen in batches, validations, the best weights.
+
+    Parameters
+    ----------
+    out : Path
+        Run folder (see `train_unet`).
+    settings : TrainSettings
+        ``device``, ``seed`` and ``options["val"]`` are read (and recorded).
+    unet : UNetSettings
+        The network (`build_model`), AdamW's learning rate and weight decay.
+    plan : training.compute.ArmPlan
+        ``plan.epochs`` epochs of ``plan.images`` training items (slices or patches), each
+        epoch a fresh random order, cut into batches of ``plan.batch`` across the epochs' ends.
+    spatial_dims : {2, 3}
+    batch_of : callable
+        ``batch_of(indices, epochs, generator) -> (x, y)``: the items `indices` (int64 tensor)
+        of the epochs `epochs` (0-based, int64 tensor of the same length) as a float32 input
+        batch (B, 1, ...) and an int64 border-core target (B, 1, ...), drawn with the torch
+        `generator` of the training's data stream.
+    validate : callable
+        ``validate(model) -> float``: the real val slices' foreground Dice.
+    data : str
+        What it trained on, for ``train.json``.
+
+    Returns
+    -------
+    Path
+        ``out/weights/best.pt``.
+    """
+    import torch
+    from monai.losses import DiceCELoss
+
+    device = _torch_device(settings.device)
     init_seed, data_seed = (int(s.generate_state(1)[0]) for s in np.random.SeedSequence(settings.seed).spawn(2))
     torch.manual_seed(init_seed)
-    model = build_model(unet).to(device)
+    model = build_model(unet, spatial_dims).to(device)
     generator = torch.Generator().manual_seed(data_seed)
     loss_function = DiceCELoss(to_onehot_y=True, softmax=True)
     optimizer = torch.optim.AdamW(model.parameters(), lr=unet.lr, weight_decay=unet.weight_decay)
     n_steps = _steps(plan)
     schedule = torch.optim.lr_scheduler.PolynomialLR(optimizer, total_iters=n_steps, power=0.9)
     order = torch.cat([torch.randperm(plan.images, generator=generator) for _ in range(plan.epochs)])
+    epoch_of = torch.arange(plan.epochs).repeat_interleave(plan.images)
     due = plan.validation_epochs if settings.options.get("val", True) else [plan.epochs]
     (out / "weights").mkdir(parents=True, exist_ok=True)
     points, best, seen = [], None, 0
     start = time.perf_counter()
     for step in range(n_steps):
         model.train()
-        indices = order[step * plan.batch:(step + 1) * plan.batch]
-        x, y = _batch(pictures, targets, indices, settings.imgsz, generator)
+        batch = slice(step * plan.batch, (step + 1) * plan.batch)
+        indices = order[batch]
+        x, y = batch_of(indices, epoch_of[batch], generator)
         optimizer.zero_grad()
         loss = loss_function(model(x.to(device)), y.to(device))
         loss.backward()
@@ -375,24 +423,26 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
         if not passed:
             continue
         due = due[len(passed):]
-        predict_label_images(model, val_images[0].parent, out / "curve_pred", imgsz=settings.imgsz, device=device)
-        dice = score(out / "curve_pred", val_truth)["dice"]
+        model.eval()
+        dice = validate(model)
         points.append({"epoch": passed[-1], "images_seen": seen, "steps": seen / plan.batch, "val_dice": dice,
                        "loss": loss})
         with atomic_file(out / "curve.json") as staging:
             staging.write_text(json.dumps(points, indent=1))
         if best is None or dice > best:
             best = dice
-            _save(model, unet, out / "weights" / "best.pt")
+            _save(model, unet, spatial_dims, out / "weights" / "best.pt")
         logger.info("step %d/%d: loss %.3f, val Dice %.3f", step + 1, n_steps, loss, dice)
-    _save(model, unet, out / "weights" / "last.pt")
+    _save(model, unet, spatial_dims, out / "weights" / "last.pt")
     seconds = time.perf_counter() - start
-    record = {"data": str(data), "device": device, "seconds": seconds, "family": "unet",
+    family = "unet" if spatial_dims == 2 else "unet3d"
+    record = {"data": data, "device": device, "seconds": seconds, "family": family,
               **dataclasses.asdict(settings), "unet": dataclasses.asdict(unet), "epochs": plan.epochs,
               "plan": plan.to_dict(), "steps_taken": n_steps, "images_seen": seen}
     with atomic_file(out / "train.json") as staging:  # the experiment takes it as "this run is done"
         staging.write_text(json.dumps(record, indent=1))
-    logger.info("trained a U-Net on %s in %.0f s (%d steps, best val Dice %.3f)", data, seconds, n_steps, best)
+    logger.info("trained a %dD U-Net on %s in %.0f s (%d steps, best val Dice %.3f)", spatial_dims, data, seconds,
+                n_steps, best)
     return out / "weights" / "best.pt"
 
 
