@@ -97,6 +97,8 @@ def test_training_patches_hold_only_training_slices_and_each_volume_its_share(pa
     assert [v.split for v in alone] == ["all"]
     clean = arm_volumes("syn-nopp", pack_scan, [export_pack_dir], window)[1].scan.tomogram
     assert not np.array_equal(clean, alone[0].scan.tomogram)  # the clean volume, not the post-processed one
+    with pytest.raises(FileNotFoundError, match="trains on packs"):
+        arm_volumes("syn", pack_scan, [], window)
     with pytest.raises(SynthpackInputError, match="no 'budget' arms"):
         arm_volumes("budget", pack_scan, [], window)
     with pytest.raises(SynthpackInputError, match="does not fit"):

@@ -456,7 +456,8 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                     train_unet(data[arm.name], run, settings, config.unet, plan)
                 elif arm.family == "unet3d":
                     export = data[arm.scan].parent
-                    packs = find_packs(out / ("packs-randomised" if arm.kind == "syn-rand" else "packs") / arm.scan)
+                    folder = out / ("packs-randomised" if arm.kind == "syn-rand" else "packs") / arm.scan
+                    packs = find_packs(folder) if folder.is_dir() else []
                     volumes = arm_volumes(arm.kind, scans(arm.scan), packs, window_of(export))
                     train_unet3d(volumes, export, scans(arm.scan), run, settings, config.unet3d, plan)
                 else:

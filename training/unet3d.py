@@ -145,6 +145,8 @@ def arm_volumes(kind: str, scan: Scan, packs: list[str | os.PathLike], window: t
         raise SynthpackInputError(f"the 3D U-Net has no {kind!r} arms (label budgets of spread slices have no 3D "
                                   f"form): give unet3d.arms of {', '.join(KIND_VOLUMES)}")
     real, volume = KIND_VOLUMES[kind]
+    if volume and not packs:
+        raise FileNotFoundError(f"a 3D {kind!r} arm trains on packs, and none were given")
     volumes = [Volume(Scan(_scaled(scan.tomogram, window), scan.labels, source=scan.source), "train")] if real else []
     for folder in packs if volume else []:
         pack = open_pack(folder)
