@@ -236,6 +236,8 @@ def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_wh
     assert {sizes[name] for name in names if name.startswith("large")} == {config.train.imgsz}
     if present:
         assert sizes["concrete"] == sizes["concrete+syn"] == 192 != config.train.imgsz == sizes["unet_concrete"]
+        # the 3D U-Net on the real scan, where the 2D one has room to gain
+        assert {"unet3d_concrete", "unet3d_concrete+syn", "unet3d_concrete:syn"} <= names
 
 
 def test_image_sizes_by_scan_name_scans_of_the_config_and_whole_sizes(tmp_path):
@@ -401,10 +403,14 @@ def test_each_model_family_is_planned_on_its_own_with_the_unet_budget_where_give
     for arm in config.arm_list:  # the datasets' training images, as the experiment's exports record them
         folder = tmp_path / "data" / arm.dataset
         folder.mkdir(parents=True, exist_ok=True)
-        size = CPU_SIZES.get(arm.dataset, 100)
+        size = {**CPU_SIZES, "concrete": 70, "concrete+syn": 180, "concrete:syn": 110}.get(arm.dataset, 100)
         (folder / "export.json").write_text(json.dumps({"images": {"train": size, "val": 10, "test": 20}}))
     plans = plan_arms(config, tmp_path)
     assert list(plans) == config.arms
+    # the 3D U-Net's arms: all the largest one's plan (epochs of 180 random patches), 2 patches a step
+    for arm in (arm for arm in config.arm_list if arm.family == "unet3d"):
+        plan = plans[arm.name]
+        assert (plan.images, plan.batch, plan.epochs, plan.steps) == (180, 2, 12, 1080.0), arm.name
     families = {family: {arm.name: plans[arm.name] for arm in config.arm_list if arm.family == family}
                 for family in ("yolo", "unet")}
     budgets = {"yolo": 205 * config.train.epochs, "unet": config.unet.images_seen}
