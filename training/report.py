@@ -373,10 +373,11 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
         "",
         *_table(summary, config.arms, tests, ("instance_dice",)),
         "",
-        "## Ultralytics mask mAP50 (YOLO arms)",
-        "",
-        *_table(summary, [arm.name for arm in config.arm_list if arm.family == "yolo"], tests, ("mask_map50",)),
-        "",
+    ]
+    yolo = [arm.name for arm in config.arm_list if arm.family == "yolo"]
+    if yolo:
+        lines += ["## Ultralytics mask mAP50 (YOLO arms)", "", *_table(summary, yolo, tests, ("mask_map50",)), ""]
+    lines += [
         "Every row (arm, seed, test set) is in `results.csv`, every comparison in `results.json`; the chart "
         "is `dice.png`.",
     ]

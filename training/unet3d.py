@@ -60,7 +60,8 @@ from .unet import WINDOW_OVERLAP, UNetSettings, _torch_device, fit, load_model
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["UNet3DSettings", "Volume", "arm_volumes", "evaluate_unet3d", "predict_block", "train_unet3d"]
+__all__ = ["KIND_VOLUMES", "UNet3DSettings", "Volume", "arm_volumes", "evaluate_unet3d", "predict_block", "predict_split",
+           "train_unet3d", "window_of"]
 
 #: Arm kinds of the 3D family and which volumes they train on: (real training slices, pack volumes' kind).
 KIND_VOLUMES = {"real": (True, None), "syn": (True, "tomogram"), "syn-nopp": (True, "clean"),
