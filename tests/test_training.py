@@ -410,7 +410,7 @@ def test_each_model_family_is_planned_on_its_own_with_the_unet_budget_where_give
     # the 3D U-Net's arms: all the largest one's plan (epochs of 180 random patches), 2 patches a step
     for arm in (arm for arm in config.arm_list if arm.family == "unet3d"):
         plan = plans[arm.name]
-        assert (plan.images, plan.batch, plan.epochs, plan.steps) == (180, 2, 12, 1080.0), arm.name
+        assert (plan.images, plan.batch, plan.epochs, plan.steps) == (180, 2, 34, 3060.0), arm.name
     families = {family: {arm.name: plans[arm.name] for arm in config.arm_list if arm.family == family}
                 for family in ("yolo", "unet")}
     budgets = {"yolo": 205 * config.train.epochs, "unet": config.unet.images_seen}
