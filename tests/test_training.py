@@ -125,6 +125,9 @@ def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictio
             assert read_label_image(folder / "pred" / names[0]).shape == read_label_image(truth / names[0]).shape
             scores, again = json.loads((folder / "scores.json").read_text()), score(folder / "pred", truth)
             assert scores["mask_map50"] is None
+            if family == "unet3d":  # its seed erosion, chosen once on its own scan's val slices
+                chosen = json.loads((folder.parent / "seed_erosion.json").read_text())
+                assert scores["seed_erosion"] == chosen["erosion"] in (0, 1, 2, 3) and len(chosen["val_f1"]) == 4
             assert (scores["dice"], scores["instance_f1"]) == (again["dice"], again["instance_f1"])
     # 45 and 82 training images (half of 90 and of 163): the same steps
     assert (plans[f"{family}_large"]["images"] != plans[f"{family}_large+syn"]["images"]) == (family == "unet")

@@ -16,7 +16,7 @@ from synthpack.scan.core import Scan
 from synthpack.scan.split import slice_splits
 from synthpack.store.pack import open_pack
 from training.evaluate import score
-from training.unet3d import UNet3DSettings, _Patches, arm_volumes, predict_split, window_of
+from training.unet3d import UNet3DSettings, _Patches, arm_volumes, predict_split, recover_instances, window_of
 
 
 @pytest.fixture(scope="module")
@@ -115,3 +115,19 @@ def test_3d_unet_settings_are_checked():
         UNet3DSettings.from_dict({"batch": 0})
     with pytest.raises(SynthpackInputError, match="unknown unet setting"):
         UNet3DSettings.from_dict({"depth": 3})
+
+
+def test_eroded_seeds_keep_apart_two_grains_whose_predicted_boundary_has_a_hole():
+    labels = np.zeros((12, 12, 24), np.int32)
+    labels[1:11, 1:11, 1:12], labels[1:11, 1:11, 12:23] = 1, 2  # two boxes sharing a 10 x 10 face
+    target = semantic_target(labels)
+    assert np.array_equal(recover_instances(target, 0), instances_from_target(target))
+    holed = target.copy()
+    holed[5:7, 5:7, 11:13] = 1  # a 2 x 2 hole in the boundary on both sides of the face
+    assert recover_instances(holed, 0).max() == 1  # the interiors meet through it: one grain
+    for erosion in (1, 2):
+        recovered = recover_instances(holed, erosion)
+        assert recovered.max() == 2
+        for grain in (1, 2):  # each box comes back as one instance, all but the hole's voxels
+            ids, counts = np.unique(recovered[labels == grain], return_counts=True)
+            assert counts.max() >= (labels == grain).sum() - 8

@@ -82,7 +82,8 @@ from .offline import offline_ultralytics
 from .report import compare_arms, report_markdown, save_chart, save_label_efficiency, save_learning_curves
 from .train import TrainSettings, resolve_device, train
 from .unet import UNetSettings, evaluate_unet, train_unet
-from .unet3d import KIND_VOLUMES, UNet3DSettings, arm_volumes, evaluate_unet3d, train_unet3d, window_of
+from .unet3d import (KIND_VOLUMES, UNet3DSettings, arm_volumes, choose_seed_erosion, evaluate_unet3d, train_unet3d,
+                     window_of)
 
 logger = logging.getLogger("training.experiment")  # not __name__: "__main__" under python -m
 
@@ -356,16 +357,17 @@ def _done(path: Path) -> dict | None:
 
 
 def _scores(folder: Path, arm: Arm, weights: Path, test_data: Path, config: ExperimentConfig,
-            config_dir: Path, test_scan: Callable[[], Scan]) -> dict:
+            config_dir: Path, test_scan: Callable[[], Scan], erosion: Callable[[], int]) -> dict:
     """The scores of `arm`'s `weights` on a test set: evaluated once, then read back.
 
-    `test_scan()` is the test set's real scan (the 3D U-Net predicts its volume). Scores of an
-    earlier run without the instance F1 or per-slice counts get them from its predictions.
+    `test_scan()` is the test set's real scan (the 3D U-Net predicts its volume), `erosion()`
+    the 3D U-Net's seed erosion chosen on its own val slices. Scores of an earlier run without
+    the instance F1 or per-slice counts get them from its predictions.
     """
     scores = _done(folder / "scores.json")
     if scores is None and arm.family == "unet3d":
         return evaluate_unet3d(weights, test_scan(), test_data.parent, folder, patch=config.unet3d.patch,
-                               device=config.train.device)
+                               erosion=erosion(), device=config.train.device)
     if scores is None and arm.family == "unet":
         return evaluate_unet(weights, test_data.parent, folder, imgsz=config.train.imgsz, device=config.train.device)
     if scores is None:
@@ -468,10 +470,13 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                 record = _done(run / "train.json")
                 logger.info("trained %s in %.0f s", arm.name, time.perf_counter() - start)
             curves.setdefault(arm.name, {})[seed] = read_curve(run)
+            erosion = functools.cache(lambda: choose_seed_erosion(  # noqa: B023 (called within this iteration)
+                run / "weights" / "best.pt", scans(arm.scan), data[arm.scan].parent, out / "eval" / arm.name /
+                f"seed{seed}", patch=config.unet3d.patch, device=config.train.device))
             for test_set in config.real:
                 scores = _scores(out / "eval" / arm.name / f"seed{seed}" / test_set, arm,
                                  run / "weights" / "best.pt", data[test_set], config, config_dir,
-                                 functools.partial(scans, test_set))
+                                 functools.partial(scans, test_set), erosion)
                 slices[(arm.name, seed, test_set)] = np.array(
                     [[s[key] for key in SLICE_COUNTS] for s in scores["slices"]], dtype=np.int64)
                 rows.append({"arm": arm.name, "family": arm.family, "train_scan": arm.scan, "kind": arm.description,
