@@ -187,8 +187,9 @@ class ExperimentConfig:
         unet = dict(data.get("unet") or {})
         unet_arms = unet.pop("arms", data.get("arms"))
         unet3d = dict(data.get("unet3d") or {})
+        explicit = "arms" in unet3d
         unet3d_kinds = _kinds(unet3d.pop("arms", data.get("arms")), list(listed), list(real))
-        if "arms" not in (data.get("unet3d") or {}):
+        if not explicit:
             unet3d_kinds.pop("budget", None)  # label budgets of spread slices have no 3D form
         unknown_kinds = sorted(set(unet3d_kinds) - set(KIND_VOLUMES))
         if unknown_kinds:
@@ -392,13 +393,12 @@ def plan_arms(config: ExperimentConfig, out: Path) -> dict[str, ArmPlan]:
     for family in config.train.families:
         sizes = {arm.name: dataset_images(out / "data", arm.dataset)["train"]
                  for arm in config.arm_list if arm.family == family}
-        if family == "unet3d":  # random patches: every arm's epoch is the largest arm's training slices
-            sizes = dict.fromkeys(sizes, max(sizes.values()))
         settings = config.train
         own = {"unet": config.unet, "unet3d": config.unet3d}.get(family)
         if own is not None and own.images_seen is not None:
             settings = replace(settings, images_seen=own.images_seen)
-        if family == "unet3d":
+        if family == "unet3d":  # random patches: every arm's epoch is the largest arm's training slices
+            sizes = dict.fromkeys(sizes, max(sizes.values()))
             settings = replace(settings, batch=config.unet3d.batch)
         plans.update(plan_compute(settings, sizes))
     return {arm.name: plans[arm.name] for arm in config.arm_list}
