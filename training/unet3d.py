@@ -292,7 +292,8 @@ def predict_split(model, image: np.ndarray, truth: Path, out: Path, *, patch: tu
     by_index = dict(zip(indices.tolist(), names))
     out.mkdir(parents=True, exist_ok=True)
     total = 0
-    runs = np.split(np.sort(indices), np.flatnonzero(np.diff(np.sort(indices)) != 1) + 1)
+    ordered = np.sort(indices)
+    runs = np.split(ordered, np.flatnonzero(np.diff(ordered) != 1) + 1)
     for run in runs:
         block = predict_block(model, image, (int(run[0]), int(run[-1]) + 1), patch=patch, axis=axis, device=device,
                               erosion=erosion)
