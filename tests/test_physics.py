@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from synthpack.pipeline import generate
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
-from synthpack.physics import ENGINES, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
+from synthpack.physics import ENGINES, LockedGrains, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, driver, hulls, pybullet_engine
 from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.container import MAX_FILL_ASPECT
@@ -37,12 +37,28 @@ def narrow_tube(large_library) -> Tube:
 
 
 @pytest.fixture(scope="module")
-def poured(large_library, narrow_tube) -> Placements:
+def poured_locked(large_library, narrow_tube) -> tuple[Placements, list[LockedGrains]]:
     """45 real grains in 3 batches, with per-batch snapshots, poured freely: the contacts are the engine's own
-    (packed to the source's 0.62, this narrow pour falls short and shrinks the shells: tests/test_compaction.py)."""
+    (packed to the source's 0.62, this narrow pour falls short and shrinks the shells: tests/test_compaction.py);
+    and the batches the pour handed over as it locked them."""
     config = PourConfig(n_particles=45, batch_size=15, target_solid_fraction=None,
                         engine_options={"record_snapshots": True})
-    return pour(large_library, config, 3, container=narrow_tube, progress=False)
+    locked: list[LockedGrains] = []
+    return pour(large_library, config, 3, container=narrow_tube, progress=False, on_lock=locked.append), locked
+
+
+@pytest.fixture(scope="module")
+def poured(poured_locked) -> Placements:
+    return poured_locked[0]
+
+
+def test_each_batch_is_handed_over_as_it_is_locked_with_the_placements_final_poses(poured_locked):
+    placements, locked = poured_locked
+    assert [batch.batch for batch in locked] == [0, 1, 2]
+    np.testing.assert_array_equal(np.concatenate([batch.members for batch in locked]), np.arange(45))
+    for name in ("indices", "positions", "quaternions", "scales"):
+        np.testing.assert_array_equal(np.concatenate([getattr(batch, name) for batch in locked]),
+                                      getattr(placements, name), err_msg=name)
 
 
 def _world_vertices(library, placements: Placements) -> list[np.ndarray]:

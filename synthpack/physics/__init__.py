@@ -26,11 +26,11 @@ from .config import PourConfig
 from .container import Tube
 from .scene import Material, SettleCriteria
 from .placements import Placements
-from .pouring import CONTAINMENT_ATTEMPTS, check_pour_size, pour
+from .pouring import CONTAINMENT_ATTEMPTS, LockedGrains, check_pour_size, pour
 from .checks import PourChecks
 from .registry import ENGINES, get_engine
 
 __all__ = [
-    "CONTAINMENT_ATTEMPTS", "ENGINES", "Material", "PackingController", "Placements", "PourChecks", "PourConfig",
-    "SettleCriteria", "Tube", "check_pour_size", "get_engine", "pour",
+    "CONTAINMENT_ATTEMPTS", "ENGINES", "LockedGrains", "Material", "PackingController", "Placements", "PourChecks",
+    "PourConfig", "SettleCriteria", "Tube", "check_pour_size", "get_engine", "pour",
 ]

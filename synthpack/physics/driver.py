@@ -45,10 +45,14 @@ from .shells import shell_inflations
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["World", "LockedBatch", "EngineResult", "ProgressCallback", "drive"]
+__all__ = ["World", "LockedBatch", "EngineResult", "ProgressCallback", "LockCallback", "drive"]
 
 ProgressCallback = Callable[[int, int], None]
 """``progress(batch_index, n_batches)``, called after each batch has settled and been locked."""
+
+LockCallback = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
+"""``locked(batch_index, members, positions, quaternions)``, called as each batch is locked: the body indices
+of the batch and their final poses (simulation units, as the result's); a batch locked never moves again."""
 
 
 @dataclass(frozen=True)
@@ -179,6 +183,7 @@ def drive(
     scene: Scene,
     progress: ProgressCallback | None = None,
     compaction: PackingController | None = None,
+    locked_batch: LockCallback | None = None,
 ) -> EngineResult:
     """Pour `scene` in `world`, batch by batch (see the module docstring).
 
@@ -192,6 +197,9 @@ def drive(
         ``progress(batch_index, n_batches)`` after each batch is locked.
     compaction : PackingController, optional
         Packs each batch toward a target solid fraction; None: a free pour.
+    locked_batch : callable, optional
+        ``locked_batch(batch_index, members, positions, quaternions)`` as each batch is locked
+        (`LockCallback`), e.g. to render it while the pour goes on.
 
     Returns
     -------
@@ -227,6 +235,8 @@ def drive(
         _retire_buried(world, locked, scene.tube.inner_radius, largest)
         if compaction is not None:
             compaction.observe(members, positions[members], quaternions[members])
+        if locked_batch is not None:
+            locked_batch(number, members, positions[members], quaternions[members])
         steps_per_batch.append(steps)
         settled_per_batch.append(settled)
         if not settled:

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 from .._shared.schema import build
 from ..errors import SynthpackInputError
 from .compaction import PackingController
-from .driver import EngineResult, ProgressCallback, World, drive
+from .driver import EngineResult, LockCallback, ProgressCallback, World, drive
 from .scene import (
     EngineConfig,
     Material,
@@ -121,6 +121,7 @@ class Engine(abc.ABC):
         scene: Scene,
         progress: ProgressCallback | None = None,
         compaction: PackingController | None = None,
+        locked_batch: LockCallback | None = None,
     ) -> EngineResult:
         """Pour `scene` batch by batch, locking each batch once it has settled (:func:`~.driver.drive`).
 
@@ -135,6 +136,9 @@ class Engine(abc.ABC):
             Packs each batch toward a target solid fraction before it is locked
             (:mod:`synthpack.physics.compaction`); None: a free pour. Only for an
             engine that :attr:`supports_compaction`.
+        locked_batch : callable, optional
+            ``locked_batch(batch_index, members, positions, quaternions)`` as each batch
+            is locked (:data:`~.driver.LockCallback`).
 
         Returns
         -------
@@ -158,7 +162,7 @@ class Engine(abc.ABC):
             )
         self.check_available()
         with self.open(scene) as world:
-            return drive(world, scene, progress, compaction)
+            return drive(world, scene, progress, compaction, locked_batch)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r})"

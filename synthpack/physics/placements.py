@@ -20,7 +20,7 @@ from .container import Tube
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Placements", "FORMAT_VERSION"]
+__all__ = ["Placements", "FORMAT_VERSION", "rotation_matrices"]
 
 #: Version of the JSON layout written by :meth:`Placements.save`: 2 adds ``grains`` (deformed grains).
 #: Placements without it are written as version 1, byte for byte as before, and both are read.
@@ -38,6 +38,11 @@ def _is_placements_file(path: Path) -> bool:
 
 #: A placements file: an earlier one is replaced, any other file is refused.
 PLACEMENTS_OUTPUT = Output("placements file", folder=False, is_ours=_is_placements_file)
+
+
+def rotation_matrices(quaternions: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) float64 rotation matrices (local -> world) of (N, 4) quaternions ``(w, x, y, z)``."""
+    return Rotation.from_quat(quaternions, scalar_first=True).as_matrix()
 
 
 @dataclass
@@ -132,7 +137,7 @@ class Placements:
 
     def rotation_matrices(self) -> np.ndarray:
         """(N, 3, 3) float64 rotation matrices R (local -> world: ``x_world = R @ x_local``)."""
-        return self.rotations().as_matrix()
+        return rotation_matrices(self.quaternions)
 
     def euler_angles(self) -> np.ndarray:
         """(N, 3) float64 angles ``(theta, phi, psi)`` in radians (paper eq. 2-4).

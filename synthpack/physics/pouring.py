@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from .checks import PourChecks, compute_checks
 from .compaction import PackingController, report_target, resolve_target
 from .config import PourConfig
 from .container import Tube
-from .driver import EngineResult
+from .driver import EngineResult, LockCallback
 from .engine import Engine
 from .scene import Body, EngineConfig, Material, Scene, SettleCriteria, TubeSpec
 from .placements import Placements
@@ -65,6 +65,7 @@ def pour(
     progress: bool = True,
     wall_margin: float = 1.0,
     crop: tuple[float, float] | None = None,
+    on_lock: Callable[[LockedGrains], None] | None = None,
 ) -> Placements:
     """Pour ``config.n_particles`` grains of `library` into a tube, ``config.batch_size`` at a time.
 
@@ -110,6 +111,10 @@ def pour(
         checks then measure the crop's footprint in the bulk cylinder, the part of the pack that
         will be shown (the middle of the tube, denser than the cylinder's rim), rather than the
         whole cylinder. None: the cylinder.
+    on_lock : callable, optional
+        ``on_lock(grains)`` with the `LockedGrains` of each batch as it is locked (physical
+        units, as the placements will hold them), e.g. to render them while the pour goes
+        on. A pour run again for containment locks its batches again, from batch 0.
 
     Returns
     -------
@@ -160,7 +165,7 @@ def pour(
             wall_margin=wall_margin, seed=seed, bare=bare, shrinks=chosen.shrinks_shells,
             crop=None if crop is None else (float(crop[0]) / length, float(crop[1]) / length))
         result, seconds = _run(chosen, bodies, spec, material, settle, options, plan.n_batches, progress,
-                               controller)
+                               controller, None if on_lock is None else _locked_grains(on_lock, plan, length))
         positions = np.asarray(result.positions, dtype=float) * length
         checks = report_target(_checks(library, plan, positions, result, tube, length, seconds, seed, wall_margin,
                                        crop), target, controller)
@@ -251,16 +256,55 @@ def _count(value: Any, name: str) -> int:
     return int(value)
 
 
+class LockedGrains(NamedTuple):
+    """The grains of one batch as it is locked (``pour``'s `on_lock`): what their placements will hold.
+
+    Attributes
+    ----------
+    batch : int
+        The batch's number (0 for the first batch of a pour, or of its run again for containment).
+    members : ndarray of int, shape (B,)
+        The placements (pouring order).
+    indices : ndarray of int, shape (B,)
+        Their library grains (``Placements.indices``).
+    positions : ndarray of float, shape (B, 3)
+        World ``(x, y, z)`` of their local origins, physical units.
+    quaternions : ndarray of float, shape (B, 4)
+        Their rotations, ``(w, x, y, z)``.
+    scales : ndarray of float, shape (B,)
+        Their scale factors.
+    """
+
+    batch: int
+    members: np.ndarray
+    indices: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+    scales: np.ndarray
+
+
+def _locked_grains(on_lock: Callable[[LockedGrains], None], plan: PourPlan, length: float) -> LockCallback:
+    """The engine's `~.driver.LockCallback` that hands `on_lock` each locked batch in physical units."""
+    def locked(batch: int, members: np.ndarray, positions: np.ndarray, quaternions: np.ndarray) -> None:
+        members = np.asarray(members)
+        on_lock(LockedGrains(batch, members, np.asarray(plan.indices)[members],
+                             np.asarray(positions, dtype=float) * length, np.asarray(quaternions),
+                             np.asarray(plan.scales)[members]))
+    return locked
+
+
 def _run(
     engine: Engine, bodies: list[Body], tube: TubeSpec, material: Material, settle: SettleCriteria,
     options: EngineConfig, n_batches: int, progress: bool, compaction: PackingController | None,
+    locked: LockCallback | None = None,
 ) -> tuple[EngineResult, float]:
     """The engine's result and its wall-clock time in seconds, with a progress bar over batches."""
     bar = progress_bar(total=n_batches, desc="pouring", unit="batch", disable=not progress)
     start = time.perf_counter()
     try:
         result = engine.simulate(Scene(bodies, tube, material, settle, options),
-                                 progress=lambda done, total: bar.update(1), compaction=compaction)
+                                 progress=lambda done, total: bar.update(1), compaction=compaction,
+                                 locked_batch=locked)
     finally:
         bar.close()
     return result, time.perf_counter() - start
