@@ -14,7 +14,7 @@ drawn by the compiled kernel or with SciPy: `~synthpack.render.kernel.resolve_ke
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from .partial_volume import PartialVolume
 from .poses import PoseMaps
 from .surface import Surface
 
-__all__ = ["reconstruct"]
+__all__ = ["crop_thresholds", "reconstruct"]
 
 
 def reconstruct(
@@ -48,6 +48,7 @@ def reconstruct(
     renderer: Callable[..., tuple[np.ndarray, np.ndarray, int]] | None = None,
     surface: Surface = Surface(),
     kernel: str = "auto",
+    done: Collection[tuple[int, int, int]] = (),
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Render the whole grid chunk by chunk (see `~synthpack.render.numpy_render.render_chunk`).
 
@@ -76,13 +77,15 @@ def reconstruct(
     kernel : str
         How the default renderer draws each grain: ``"numba"``, ``"scipy"`` or ``"auto"``
         (`~synthpack.render.kernel.resolve_kernel`); the result does not depend on it.
+    done : collection of (int, int, int)
+        The first corners of chunks already rendered into `out` (`synthpack.render.streamed`): skipped.
 
     Returns
     -------
     tomogram : float32 array, shape grid.shape
     labels : int32 array, shape grid.shape
     contested : int
-        Voxels claimed by more than one particle.
+        Voxels claimed by more than one particle, in the chunks rendered here.
     """
     if order not in (0, 1, 3):
         raise SynthpackInputError(f"interpolation order must be 0, 1 or 3, got {order}")
@@ -94,11 +97,7 @@ def reconstruct(
     tomogram, labels = out
     contested = 0
 
-    thresholds = None
-    if partial_volume is not None and len(maps.library_index):
-        scales = np.abs(np.linalg.det(maps.matrix)) ** (-1.0 / 3.0)  # output voxels per crop voxel
-        lowest = partial_volume.threshold(scales)
-        thresholds = {int(k): float(lowest[maps.library_index == k].min()) for k in np.unique(maps.library_index)}
+    thresholds = crop_thresholds(maps, partial_volume)
     prepared = prepare_crops(crops, partial_volume, np.unique(maps.library_index), workers, thresholds, surface)
 
     renderer = renderer or functools.partial(render_chunk, kernel=resolve_kernel(kernel))
@@ -108,11 +107,28 @@ def reconstruct(
         return renderer(prepared, maps, grid, lo, hi, background, tube=tube, order=order, seed=seed,
                         partial_volume=partial_volume)
 
-    for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(
-        render, chunk_boxes(grid.shape, chunks), workers
-    ):
+    done = set(done)
+    boxes = (box for box in chunk_boxes(grid.shape, chunks) if tuple(int(v) for v in box[0]) not in done)
+    for (lo, hi), (chunk_tomogram, chunk_labels, chunk_contested) in bounded_map(render, boxes, workers):
         window = tuple(slice(a, b) for a, b in zip(lo, hi))
         tomogram[window] = chunk_tomogram
         labels[window] = chunk_labels
         contested += chunk_contested
     return tomogram, labels, contested
+
+
+def crop_thresholds(maps: PoseMaps, partial_volume: PartialVolume | None,
+                    placements: np.ndarray | None = None) -> dict[int, float] | None:
+    """Per library crop placed, the lowest signed distance (crop voxels) at which one of its placements fills a voxel.
+
+    ``prepare_crops``'s `thresholds` for the `placements` of `maps` (default: all of them):
+    `~synthpack.render.partial_volume.PartialVolume.threshold` of each placement's scale (output
+    voxels per crop voxel), the lowest per crop. None without a partial volume or placements.
+    """
+    chosen = np.arange(len(maps.library_index)) if placements is None else np.asarray(placements, dtype=np.int64)
+    if partial_volume is None or not len(chosen):
+        return None
+    scales = np.abs(np.linalg.det(maps.matrix[chosen])) ** (-1.0 / 3.0)  # output voxels per crop voxel
+    lowest = partial_volume.threshold(scales)
+    index = maps.library_index[chosen]
+    return {int(k): float(lowest[index == k].min()) for k in np.unique(index)}

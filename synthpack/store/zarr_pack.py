@@ -135,21 +135,42 @@ class LevelledVolume:
     and need not read level 0 back (a 1,355-million-voxel pack's tomogram and labels took
     most of its 36 s of levels). Reading, and anything else, goes to level 0. A block
     written off that grid leaves level 1 to be rebuilt (`level_one` False); a block written
-    again (the band map's) is reduced again.
+    again (the band map's) is reduced again. A volume made before its depth is known
+    (the render while the pour goes on) is made deep enough and then `resize`-d.
 
     Parameters
     ----------
     full : zarr.Array
         Level 0.
     half : zarr.Array
-        Level 1, of ``ceil(shape / 2)``.
+        Level 1, of ``ceil(shape / 2)``, stored at `half_path`.
     reduce : callable
         ``reduce(block) -> block`` of half the size (rounded up).
+    half_path : Path
+        Where `half` is stored.
+    min_size : int
+        See :func:`level_shapes`.
     """
 
-    def __init__(self, full: zarr.Array, half: zarr.Array, reduce: Callable[[np.ndarray], np.ndarray]) -> None:
+    def __init__(self, full: zarr.Array, half: zarr.Array, reduce: Callable[[np.ndarray], np.ndarray],
+                 half_path: Path, min_size: int = MIN_LEVEL_SIZE) -> None:
         self.full, self.half, self._reduce = full, half, reduce
+        self._half_path, self._min_size = half_path, min_size
         self.level_one = True
+
+    def resize(self, shape: tuple[int, int, int]) -> None:
+        """Cut level 0 to `shape` and level 1 to match; the blocks written within `shape` keep their values.
+
+        Where `create_levelled_volume` would lay level 1 out otherwise for `shape` (none, or other
+        shards), it is dropped and left to `write_levels` to build from level 0 (`level_one` False).
+        """
+        self.full.resize(tuple(int(n) for n in shape))
+        shapes = level_shapes(self.full.shape, self._min_size)
+        if len(shapes) > 1 and self.half.shards == _half_shards(self.full.shards, shapes[1]):
+            self.half.resize(shapes[1])
+            return
+        self.level_one = False
+        shutil.rmtree(self._half_path, ignore_errors=True)
 
     def __getattr__(self, name: str):
         return getattr(self.full, name)
@@ -182,10 +203,16 @@ def create_levelled_volume(
     shapes = level_shapes(shape, min_size)
     if name not in _REDUCE or len(shapes) < 2 or any(n % 2 for n in shards):
         return full
-    half_shards = tuple(min(n // 2, m) for n, m in zip(shards, shapes[1]))
-    half = create_zarr_volume((store / VOLUME_PATHS[name]).parent / "1", shapes[1], dtype,
-                              tuple(v * 2 for v in voxel_size), unit, chunks=(1, *half_shards[1:]), shards=half_shards)
-    return LevelledVolume(full, half, _REDUCE[name])
+    half_shards = _half_shards(shards, shapes[1])
+    half_path = (store / VOLUME_PATHS[name]).parent / "1"
+    half = create_zarr_volume(half_path, shapes[1], dtype, tuple(v * 2 for v in voxel_size), unit,
+                              chunks=(1, *half_shards[1:]), shards=half_shards)
+    return LevelledVolume(full, half, _REDUCE[name], half_path, min_size)
+
+
+def _half_shards(shards: tuple[int, ...], half_shape: tuple[int, ...]) -> tuple[int, ...]:
+    """Level 1's shards: half of level 0's (each block of level 0's shards writes one whole shard), within its shape."""
+    return tuple(min(n // 2, m) for n, m in zip(shards, half_shape))
 
 
 def write_levels(store: Path, voxel_size: tuple[float, float, float], unit: str, *,
