@@ -39,7 +39,7 @@ from typing import Any
 
 import yaml
 
-from .._shared.schema import build, default_of, non_negative, positive, setting
+from .._shared.schema import build, default_of, non_negative, one_of, positive, setting
 from ..artefacts import from_config
 from ..library.deform import DeformConfig
 from ..errors import SynthpackInputError
@@ -95,13 +95,18 @@ def _device(value: str) -> bool:
 _MOVED_TO_RUN = ("chunks", "device")
 
 
+#: ``run.overlap: auto`` renders while pouring from this many grains (a pour of about 40 s, a render of 10 s).
+OVERLAP_MIN_GRAINS = 1000
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """How a pack is computed: the ``run`` section (the render, the post-processing and the store read it).
 
     The chunk shape is part of the result (post-processing noise is drawn per chunk, and a Zarr
     pack's shards are its chunks); the device and the threads are not: a pack is the same
-    voxel for voxel on the CPU with any number of threads, and within float rounding on a GPU.
+    voxel for voxel on the CPU with any number of threads, with or without `overlap`, and within
+    float rounding on a GPU.
     """
 
     chunks: list = setting([64, 256, 256], _chunk_shape,
@@ -111,6 +116,11 @@ class RunConfig:
                           "GPU torch sees, else the CPU), cpu, or cuda / cuda:N; only order 1 renders on a GPU")
     threads: int | None = setting(None, positive, "threads of one pack's chunked stages (default: the CPUs "
                                   "this process may use)")
+    overlap: str = setting("auto", one_of(("auto", "on", "off")),
+                           "render the tube's chunks that the locked batches bury while the pour goes on (the pour "
+                           "in a second process; the same pack voxel for voxel), with 2 threads or more, on the CPU, "
+                           f"for reconstruct.view tube: on; auto: for pours of {OVERLAP_MIN_GRAINS} grains or more "
+                           "(the second process takes about a second to start); off")
 
 
 @dataclass(frozen=True)

@@ -23,19 +23,23 @@ from .._shared.seeds import derived_seed, record as random_streams
 from ..artefacts.band_map import apply_band_map
 from ..artefacts.blockwise import apply_blockwise, device_for
 from .._shared.budget import check_pack_grid
-from .config import PackConfig
+from .config import OVERLAP_MIN_GRAINS, PackConfig
 from ..library.deform import PackGrains, pack_grains
 from ..errors import PackBuildError, SynthpackInputError
 from ..library.core import ParticleLibrary
 from ..store.pack import PACKS_OUTPUT, is_complete_pack, pack_format, stage_pack
 from ..render.partial_volume import PartialVolume
-from ..physics import Placements, check_pour_size, pour
+from ..physics import LockedGrains, Placements, Tube, check_pour_size, pour
+from ..physics.placements import rotation_matrices
 from ..physics.container import CROP_WALL_MARGIN, crop_box, crop_extent
 from ..physics.plan import parse_scale
 from ..physics.registry import get_engine
 from ..artefacts.recipes import Postprocessing, check_postprocess, resolve_postprocessing
 from ..render import Background, Grid, pose_maps, reconstruct, resolve_kernel
+from ..render.streamed import LockedRender
 from ..render.torch_render import TorchRenderer, resolve_device
+from .._shared.chunks import thread_count
+from .pour_process import can_start_pour_process, pour_in_process
 from .runner import run_packs
 
 logger = logging.getLogger(__name__)
@@ -182,11 +186,15 @@ def build_pack(
     if config.grains.deform.strength > 0:
         with _timed(timings, "deform"):
             grains = pack_grains(library, config.pour.n_particles, config.grains.deform, seed)
-    with _timed(timings, "pour"):
-        placements = _pour(library, config, seed, progress, grains, view)
+    if _overlaps(library, config, view, device, threads):
+        placements, render = _pour_rendering(library, config, seed, progress, grains, chunks, threads, allocate,
+                                             timings)
+    else:
+        with _timed(timings, "pour"):
+            placements = _pour(library, config, seed, progress, grains, view)
+        with _timed(timings, "reconstruct"):
+            render = _render(library, placements, config, view, seed, chunks, threads, allocate, grains, device)
     timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
-    with _timed(timings, "reconstruct"):
-        render = _render(library, placements, config, view, seed, chunks, threads, allocate, grains, device)
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
@@ -211,6 +219,7 @@ def build_pack(
         postprocessing=applied, timings=timings, **postprocessing.record,
         devices=dict(render=device or "cpu", render_kernel=render.kernel,  # "cpu": NumPy
                      postprocess=postprocess_device or "cpu"),
+        overlap=render.overlap,
     )
     return SyntheticPack(tomogram, render.clean, render.labels, placements, grid, manifest)
 
@@ -227,8 +236,9 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
 class _Render:
     """What the render made: clean volume and labels on their grid, the background drawn, contested voxels,
     the partial volume (None: whole voxels), the wall's inner and outer radius (physical units; None: no wall
-    in view), the interior crop's world corners ``(lo, hi)`` (physical units; None: the tube), and the kernel
-    that drew the grains on the CPU (``"numba"`` or ``"scipy"``, `synthpack.render.kernel`; None on a torch device)."""
+    in view), the interior crop's world corners ``(lo, hi)`` (physical units; None: the tube), the kernel
+    that drew the grains on the CPU (``"numba"`` or ``"scipy"``, `synthpack.render.kernel`; None on a torch device),
+    the labels in view (`_LabelWrites.present`) and, for a render while pouring, the manifest's ``overlap``."""
 
     grid: Grid
     clean: Any
@@ -240,28 +250,49 @@ class _Render:
     crop: tuple[np.ndarray, np.ndarray] | None
     kernel: str | None
     present: np.ndarray
+    overlap: dict | None = None
 
 
 class _LabelWrites:
     """The label volume the render writes, chunk by chunk, noting the labels each chunk holds.
 
-    ``present[k]``: label ``k`` has a voxel in a chunk written so far (bool, one per label
-    ``0..n_placed``). Counted as the chunks are written, so the count of the grains in view
-    reads no volume back (a 1,355-million-voxel pack's labels take about 10 s to decode).
+    ``present[k]``: label ``k`` has a voxel in a chunk written (bool, one per label
+    ``0..n_placed``; a chunk written again counts as written last). Counted as the chunks are
+    written, so the count of the grains in view reads no volume back (a 1,355-million-voxel
+    pack's labels take about 10 s to decode).
     """
 
     def __init__(self, array: Any, n_placed: int) -> None:
         self.array = array
-        self.present = np.zeros(n_placed + 1, dtype=bool)
+        self._labels = n_placed + 1
+        self._present: dict[tuple[int | None, ...], np.ndarray] = {}  # chunk corner -> labels it holds
 
     def __setitem__(self, window: tuple[slice, ...], block: np.ndarray) -> None:
         self.array[window] = block
+        present = np.zeros(self._labels, dtype=bool)
         for part in block:  # a slice at a time, a count of every label (4x faster than np.unique's sort)
-            self.present[np.flatnonzero(np.bincount(part.ravel(), minlength=len(self.present)))] = True
+            present[np.flatnonzero(np.bincount(part.ravel(), minlength=self._labels))] = True
+        self._present[tuple(s.start for s in window)] = present
+
+    @property
+    def present(self) -> np.ndarray:
+        if not self._present:
+            return np.zeros(self._labels, dtype=bool)
+        return np.any(np.stack(list(self._present.values())), axis=0)
+
+
+def _trimmed(array: Any, shape: tuple[int, int, int]) -> Any:
+    """`array` (made deeper than needed, `_pour_rendering`) cut to `shape` along z: a view of a NumPy array, a
+    Zarr array (or `~synthpack.store.zarr_pack.LevelledVolume`) resized in place."""
+    if isinstance(array, np.ndarray):
+        return array[:shape[0]]
+    array.resize(shape)
+    return array
 
 
 def _pour(
     library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None, view: str,
+    on_lock: Callable[[LockedGrains], None] | None = None,
 ) -> Placements:
     """The pour (paper 3.3) of ``config.pour`` with `seed`, into the tube of `view`.
 
@@ -270,6 +301,7 @@ def _pour(
     was made (``grains``). The tube is the library's either way. For an interior crop, the
     tube is wide enough for one and the pour measures its bulk where the crop lies: the crop's
     footprint (`_crop_lateral`), `~synthpack.physics.container.CROP_WALL_MARGIN` or more from the wall.
+    `on_lock` is `~synthpack.physics.pour`'s (its grains are ``grains.particles``' with `grains`).
     """
     interior = view == "interior"
     tube = config.pour.tube(library, interior=interior)
@@ -277,10 +309,85 @@ def _pour(
     crop = _crop_lateral(library, config) if interior else None
     if grains is None:
         return pour(library, config.pour, seed, container=tube, progress=progress, wall_margin=wall_margin,
-                    crop=crop)
+                    crop=crop, on_lock=on_lock)
     placements = pour(grains.particles, config.pour, seed, container=tube, wall_margin=wall_margin, crop=crop,
-                      indices=np.arange(len(grains.particles)), progress=progress)
+                      indices=np.arange(len(grains.particles)), progress=progress, on_lock=on_lock)
     return dataclasses.replace(placements, indices=grains.sources, grains=grains.record)
+
+
+def _overlaps(library: ParticleLibrary, config: PackConfig, view: str, device: str | None,
+              threads: int | None) -> bool:
+    """Whether the pack is rendered while it is poured (`_pour_rendering`): ``run.overlap`` (from
+    `OVERLAP_MIN_GRAINS` grains for ``auto``), the tube in view (an interior crop's grid waits for the
+    pour's bulk), on the CPU with two threads or more, and a pore texture whose period the pack's height
+    cannot change (`~synthpack.render.pore_texture.PoreTextureConfig.period`)."""
+    wanted = config.run.overlap == "on" or (config.run.overlap == "auto"
+                                            and config.pour.n_particles >= OVERLAP_MIN_GRAINS)
+    if not (wanted and view == "tube" and device is None and thread_count(threads) > 1 and can_start_pour_process()):
+        return False
+    tube = config.pour.tube(library, interior=False)
+    background = Background.from_source(library.statistics, config.reconstruct)
+    low, high = (_tube_grid(background, library, config, tube, top)[1].shape for top in (0.0, tube.height))
+    return background.texture.period(low) == background.texture.period(high)
+
+
+def _tube_grid(background: Background, library: ParticleLibrary, config: PackConfig, tube: Tube,
+               top: float) -> tuple[tuple[float, float], Grid]:
+    """The wall's inner and outer radius (physical units) and the grid that shows the tube up to height `top`."""
+    wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
+    grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, top, library.voxel_size,
+                         margin=config.reconstruct.margin)
+    return wall, grid
+
+
+@dataclass(frozen=True)
+class _Early:
+    """The chunks rendered while pouring (`_pour_rendering`): their render and the volumes they went into."""
+
+    render: LockedRender
+    clean: Any
+    labels: _LabelWrites
+
+
+def _pour_rendering(
+    library: ParticleLibrary, config: PackConfig, seed: int, progress: bool, grains: PackGrains | None,
+    chunks: tuple[int, int, int], threads: int | None, allocate: Allocate, timings: dict[str, float],
+) -> tuple[Placements, _Render]:
+    """The pour in a second process (`synthpack.pipeline.pour_process`) and the render of the tube meanwhile.
+
+    The chunks the locked batches bury are rendered as the pour goes on, on the threads the pour
+    leaves (`~synthpack.render.streamed.LockedRender`); the volumes are made as deep as the tube and
+    cut to the pack's grid after the pour, when `_render` draws the rest. The same voxels as a render
+    after the pour. ``timings``: ``pour`` (its wall time), ``render_while_pouring`` (thread seconds of the
+    chunks rendered meanwhile) and ``reconstruct`` (the render after the pour).
+    """
+    pack = config.reconstruct
+    tube = config.pour.tube(library, interior=False)
+    background = Background.from_source(library.statistics, pack)
+    wall, deepest = _tube_grid(background, library, config, tube, tube.height)
+    particles = library if grains is None else grains.particles
+    n_placed = config.pour.n_particles
+    early_labels = _LabelWrites(allocate("labels", deepest.shape, np.int32, chunks), n_placed)
+    early_clean = allocate("clean", deepest.shape, np.float32, chunks)
+    partial_volume = pack.partial_volume_of(library.statistics)
+    with LockedRender(
+        [(p.tomogram, p.mask) for p in particles], deepest, dataclasses.replace(background, extent=deepest.shape),
+        (early_clean, early_labels), n_placed=n_placed, tube=(wall[0], wall[1], -tube.base_thickness),
+        order=pack.order, seed=seed, chunks=chunks, partial_volume=partial_volume, surface=pack.surface,
+        kernel=pack.kernel, reach=pack.surface.reach(partial_volume), workers=thread_count(threads) - 1,
+    ) as early:
+        def locked(batch: LockedGrains) -> None:
+            early.add(batch.batch, batch.members, batch.indices, rotation_matrices(batch.quaternions),
+                      batch.positions, batch.scales)
+
+        with _timed(timings, "pour"):
+            placements = pour_in_process(_pour, locked, library=library, config=config, seed=seed,
+                                         progress=progress, grains=grains, view="tube")
+        timings["render_while_pouring"] = early.seconds
+        with _timed(timings, "reconstruct"):
+            render = _render(library, placements, config, "tube", seed, chunks, threads, allocate, grains, None,
+                             _Early(early, early_clean, early_labels))
+    return placements, render
 
 
 def _crop_lateral(library: ParticleLibrary, config: PackConfig) -> tuple[float, float]:
@@ -292,7 +399,7 @@ def _crop_lateral(library: ParticleLibrary, config: PackConfig) -> tuple[float, 
 def _render(
     library: ParticleLibrary, placements: Placements, pack: PackConfig, view: str, seed: int,
     chunks: tuple[int, int, int], threads: int | None, allocate: Allocate, grains: PackGrains | None,
-    device: str | None,
+    device: str | None, early: _Early | None = None,
 ) -> _Render:
     """Clean tomogram and labels of the placed grains (paper 3.4), chunk by chunk into `allocate`'s arrays.
 
@@ -301,6 +408,8 @@ def _render(
     covers the tube and its wall (`view` ``"tube"``), or only the interior crop
     (`~synthpack.physics.container.crop_box`), with no wall. A pour whose bulk holds no crop is
     refused for ``reconstruct.view: interior`` and shown as the tube, with a warning, for ``auto``.
+    With `early` (the tube only), the chunks rendered while pouring that the placements reach as they
+    were drawn are kept, its volumes cut to the grid, and only the other chunks drawn.
     """
     config = pack.reconstruct
     particles, placed = (library, placements.indices) if grains is None else (
@@ -320,9 +429,7 @@ def _render(
     if crop is not None:
         grid = Grid.box(*crop, library.voxel_size)
     else:
-        wall = background.wall_radii(tube.inner_radius, tube.outer_radius, min(library.voxel_size[1:]))
-        grid = Grid.covering(max(wall[1], tube.outer_radius), -tube.base_thickness, placements.checks.fill_height,
-                             library.voxel_size, margin=config.margin)
+        wall, grid = _tube_grid(background, library, pack, tube, placements.checks.fill_height)
     background = dataclasses.replace(background, extent=grid.shape)  # the pore texture's period covers the pack
     partial_volume = config.partial_volume_of(library.statistics)
     maps = pose_maps([p.mask for p in particles], placed,
@@ -330,19 +437,30 @@ def _render(
                      reach=config.surface.reach(partial_volume))
     renderer = None if device is None else TorchRenderer(device)
     kernel = None if renderer is not None else resolve_kernel(config.kernel)
-    labels = _LabelWrites(allocate("labels", grid.shape, np.int32, chunks), len(placements))
+    done, early_contested, overlap = (), 0, None
+    if early is None:
+        labels = _LabelWrites(allocate("labels", grid.shape, np.int32, chunks), len(placements))
+        clean = allocate("clean", grid.shape, np.float32, chunks)
+    else:
+        done, early_contested, redrawn = early.render.finish(maps, grid.shape)
+        labels, clean = early.labels, _trimmed(early.clean, grid.shape)
+        labels.array = _trimmed(labels.array, grid.shape)
+        overlap = {"chunks_while_pouring": len(done) + redrawn, "drawn_again": redrawn,
+                   "thread_seconds_while_pouring": round(early.render.seconds, 3)}
+        logger.info("rendered %d of the pack's chunks while pouring; %d of them drawn again", len(done) + redrawn,
+                    redrawn)
     clean, _, contested = reconstruct(
         [(p.tomogram, p.mask) for p in particles], maps, grid, background,
         tube=None if wall is None else (wall[0], wall[1], -tube.base_thickness),
         order=config.order, seed=seed, chunks=chunks, workers=threads if renderer is None else 1,
-        out=(allocate("clean", grid.shape, np.float32, chunks), labels),
-        partial_volume=partial_volume, renderer=renderer, surface=config.surface, kernel=config.kernel,
+        out=(clean, labels), partial_volume=partial_volume, renderer=renderer, surface=config.surface,
+        kernel=config.kernel, done=done,
     )
     if renderer is not None:
         logger.info("rendered on %s: %d voxels within float rounding of a grain's surface", device,
                     renderer.near_threshold)
-    return _Render(grid, clean, labels.array, background, contested, partial_volume, wall, crop, kernel,
-                   labels.present)
+    return _Render(grid, clean, labels.array, background, contested + early_contested, partial_volume, wall, crop,
+                   kernel, labels.present, overlap)
 
 
 def _view_record(view: str, requested: str, placements: Placements, crop: tuple[np.ndarray, np.ndarray] | None) -> dict:
