@@ -381,13 +381,23 @@ def _pour_rendering(
                       batch.positions, batch.scales)
 
         with _timed(timings, "pour"):
-            placements = pour_in_process(_pour, locked, library=library, config=config, seed=seed,
-                                         progress=progress, grains=grains, view="tube")
+            placements = pour_in_process(
+                _pour, locked, library=_without_intensities(library), config=config, seed=seed, progress=progress,
+                grains=None if grains is None else dataclasses.replace(
+                    grains, particles=_without_intensities(grains.particles)),
+                view="tube")
         timings["render_while_pouring"] = early.seconds
         with _timed(timings, "reconstruct"):
             render = _render(library, placements, config, "tube", seed, chunks, threads, allocate, grains, None,
                              _Early(early, early_clean, early_labels))
     return placements, render
+
+
+def _without_intensities(library: ParticleLibrary) -> ParticleLibrary:
+    """`library` with its particles' intensity crops emptied: what the pour's process is sent (a pour reads the
+    meshes, masks and masses, never the intensities, which are most of a library's bytes)."""
+    empty = np.zeros((0, 0, 0), dtype=np.float32)
+    return library.with_particles([dataclasses.replace(particle, tomogram=empty) for particle in library])
 
 
 def _crop_lateral(library: ParticleLibrary, config: PackConfig) -> tuple[float, float]:
