@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from .._shared.seeds import generator
@@ -51,6 +51,8 @@ BULK_TOP_MARGIN = 2.0
 # from the reported depth. Bullet's EPA is wrong with a zero margin (measured: two
 # cubes overlapping by 0.3 gave 0.173 = 0.3 / sqrt(3)), exact with a small one.
 _QUERY_MARGIN = 1e-3
+# Growth of a grain's box (a share of its largest side) when picking the Monte-Carlo points to test.
+_BOX_PAD = 1e-9
 
 
 @dataclass
@@ -320,6 +322,20 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) 
     return out
 
 
+def _in_box(points: np.ndarray, by_x: np.ndarray, sorted_x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Indices (ascending, int64) of the `points` (n, 3) in the box ``[lo, hi]`` grown by `_BOX_PAD` of its size.
+
+    `by_x` orders the points by x and `sorted_x` holds their x in that order, so only the slab of the
+    box's x range is read. A grain's convex hull lies in the box of its vertices: every point
+    inside it is among these (the pad keeps the points the rounding of the hull test could count).
+    """
+    pad = _BOX_PAD * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    slab = by_x[np.searchsorted(sorted_x, lo[0], side="left"):np.searchsorted(sorted_x, hi[0], side="right")]
+    y, z = points[slab, 1], points[slab, 2]
+    return np.sort(slab[(y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])])
+
+
 def _max_hull_penetration(world: list[np.ndarray], length_scale: float) -> float:
     """Largest penetration depth between the convex hulls of the placed grains."""
     from ._bullet import Client
@@ -429,13 +445,14 @@ def _hits(
         lateral = (rng.uniform(-half_sides[1], half_sides[1], n_samples),  # x, then y
                    rng.uniform(-half_sides[0], half_sides[0], n_samples))
     points = np.column_stack([*lateral, rng.uniform(z_min, z_max, n_samples)])
-    tree = cKDTree(points)
+    by_x = np.argsort(points[:, 0], kind="stable")
+    sorted_x = points[by_x, 0]
     hits = np.zeros(n_samples, dtype=np.int32 if exact else np.float64)
     for vertices, faces, hull, position, rotation, scale, world, convexity in grains:
         lo, hi = world.min(axis=0), world.max(axis=0)
         if hi[2] < z_min or lo[2] > z_max:
             continue
-        near = np.asarray(tree.query_ball_point((lo + hi) / 2, np.linalg.norm(hi - lo) / 2), dtype=np.int64)
+        near = _in_box(points, by_x, sorted_x, lo, hi)
         if near.size == 0:
             continue
         local = rotation.inv().apply(points[near] - position) / scale

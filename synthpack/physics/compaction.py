@@ -305,13 +305,27 @@ class PackingController:
     shrinking: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
     _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
+    # the figures of each distinct mesh (bytes of its vertices and faces): a pour repeats its library's grains
+    _figures_of: dict[tuple[bytes, bytes], _MeshFigures] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         self._measured_to = BULK_FLOOR_MARGIN * float(self.margin)  # the bulk region's floor
         self._rng = generator(self.seed, "compaction")
         #: The shells' shrink at knob MAX_KNOB: ``1 - c^(1/3)``, ``c`` the grains' mean mesh over hull volume.
-        self.max_shrink = 1.0 - float(np.mean([_convexity(v, f) for v, f in self.meshes])) ** (1 / 3) \
+        self.max_shrink = 1.0 - float(np.mean([self._figures(v, f).convexity for v, f in self.meshes])) ** (1 / 3) \
             if self.shrinks else 0.0
+        # the grains observed so far, in observing order: their keys and lowest, highest and mean z
+        self._observed: list[int] = []
+        self._z = np.empty((len(self.meshes), 3))  # rows 0 .. len(self._observed) - 1 in use
+        self._top = -math.inf
+        self._surface: np.ndarray | None = None  # highest grain point over each column (`_surface_height`)
+
+    def _figures(self, vertices: np.ndarray, faces: np.ndarray) -> _MeshFigures:
+        """`_MeshFigures` of a mesh, computed once for each distinct one."""
+        key = (np.ascontiguousarray(vertices).tobytes(), np.ascontiguousarray(faces).tobytes())
+        if key not in self._figures_of:
+            self._figures_of[key] = _MeshFigures.of(vertices, faces)
+        return self._figures_of[key]
 
     def next_batch(self) -> BatchCompaction:
         """The knob of the next batch, from the target, the layers measured so far and the prior.
@@ -362,24 +376,31 @@ class PackingController:
         positions, quaternions : numpy.ndarray
             (M, 3) local-origin positions and (M, 4) (w, x, y, z) orientations.
         """
+        radius = self.inner_radius - self.wall_margin
         for k, position, quaternion in zip(members, positions, quaternions):
             vertices, faces = self.meshes[k]
+            figures = self._figures(vertices, faces)
             rotation = Rotation.from_quat(quaternion, scalar_first=True)
             world = rotation.apply(vertices) + position
-            hull = ConvexHull(vertices)
-            volume = float(trimesh.Trimesh(vertices, faces, process=False).volume)
-            self._grains[int(k)] = (vertices, faces, hull.equations, np.asarray(position, dtype=float),
-                                    rotation, 1.0, world, volume / hull.volume)
-            self._knob_of[int(k)] = (self.knobs[-1], volume)
-        top = max(float(g[6][:, 2].max()) for g in self._grains.values())
-        radius = self.inner_radius - self.wall_margin
+            if int(k) in self._grains:
+                raise ValueError(f"body {int(k)} was observed before")
+            self._grains[int(k)] = (vertices, faces, figures.equations, np.asarray(position, dtype=float),
+                                    rotation, 1.0, world, figures.convexity)
+            self._knob_of[int(k)] = (self.knobs[-1], figures.volume)
+            heights = world[:, 2]
+            self._z[len(self._observed)] = heights.min(), heights.max(), heights.mean()
+            self._observed.append(int(k))
+            self._top = max(self._top, float(heights.max()))
+            if radius > 0:
+                self._raise_surface(world, radius)
         if radius <= 0:
             return
         z0 = self._measured_to
-        z1 = min(top - BULK_TOP_MARGIN * self.margin, self._surface_height(radius) - self.margin)
+        z1 = min(self._top - BULK_TOP_MARGIN * self.margin, self._surface_height(radius) - self.margin)
         if z1 - z0 < _MIN_LAYER:
             return
-        grains = [g for g in self._grains.values() if g[6][:, 2].max() >= z0 and g[6][:, 2].min() <= z1]
+        low, high = self._z[:len(self._observed), 0], self._z[:len(self._observed), 1]
+        grains = [self._grains[self._observed[i]] for i in np.flatnonzero((high >= z0) & (low <= z1))]
         half = None if self.crop is None else crop_half_sides(radius, self.crop)
         area = np.pi * radius**2 if half is None else 4.0 * float(half[0] * half[1])
         n_samples = max(500, int(_SAMPLES_PER_UNIT_VOLUME * area * (z1 - z0)))
@@ -395,7 +416,9 @@ class PackingController:
         The knob whose prior fraction is the volume-weighted mean of theirs, so the measured
         ratio to the prior compares like with like; the last batch's where none is centred there.
         """
-        placed = [self._knob_of[k] for k, g in self._grains.items() if z0 <= float(g[6][:, 2].mean()) < z1]
+        middle = self._z[:len(self._observed), 2]
+        centred = (middle >= z0) & (middle < z1)
+        placed = [self._knob_of[self._observed[i]] for i in np.flatnonzero(centred)]
         if not placed:
             return self.knobs[-1]
         knobs, volumes = (np.array(column) for column in zip(*placed))
@@ -410,16 +433,22 @@ class PackingController:
         The surface is the highest grain point over each column of :data:`_SURFACE_CELL`
         margins across (the grains' true mesh vertices), 0 in a column no grain covers.
         """
-        cell = _SURFACE_CELL * self.margin
-        n = max(1, int(np.ceil(radius / cell)))
-        heights = np.zeros((2 * n, 2 * n))
-        for grain in self._grains.values():
-            world = grain[6]
-            columns = np.clip(np.floor(world[:, :2] / cell).astype(np.int64) + n, 0, 2 * n - 1)
-            np.maximum.at(heights, (columns[:, 0], columns[:, 1]), world[:, 2])
+        if self._surface is None:
+            return 0.0
+        n, cell = len(self._surface) // 2, _SURFACE_CELL * self.margin
         centres = (np.arange(2 * n) - n + 0.5) * cell
         inside = np.hypot(centres[:, None], centres[None, :]) <= radius
-        return float(np.median(heights[inside])) if inside.any() else 0.0
+        return float(np.median(self._surface[inside])) if inside.any() else 0.0
+
+    def _raise_surface(self, world: np.ndarray, radius: float) -> None:
+        """Raise the columns of `_surface_height`'s surface (``(2n, 2n)``, 0 where no grain is) that the
+        world vertices (V, 3) of one more grain reach above it."""
+        cell = _SURFACE_CELL * self.margin
+        n = max(1, int(np.ceil(radius / cell)))
+        if self._surface is None:
+            self._surface = np.zeros((2 * n, 2 * n))
+        columns = np.clip(np.floor(world[:, :2] / cell).astype(np.int64) + n, 0, 2 * n - 1)
+        np.maximum.at(self._surface, (columns[:, 0], columns[:, 1]), world[:, 2])
 
     def record(self) -> dict[str, Any]:
         """The knob of every batch, the measured bulk layers and the number of bare grains, JSON-able; the
@@ -436,9 +465,20 @@ class PackingController:
         return record
 
 
-def _convexity(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """A mesh's volume over its convex hull's (1 for a convex grain)."""
-    return float(trimesh.Trimesh(vertices, faces, process=False).volume / ConvexHull(vertices).volume)
+@dataclass(frozen=True)
+class _MeshFigures:
+    """What the controller measures with of one mesh: its convex hull's half-spaces ``(H, 4)``
+    (`scipy.spatial.ConvexHull.equations`), its volume, and that over its hull's (1 for a convex grain)."""
+
+    equations: np.ndarray
+    volume: float
+    convexity: float
+
+    @classmethod
+    def of(cls, vertices: np.ndarray, faces: np.ndarray) -> _MeshFigures:
+        hull = ConvexHull(vertices)
+        volume = float(trimesh.Trimesh(vertices, faces, process=False).volume)
+        return cls(hull.equations, volume, volume / hull.volume)
 
 
 def resolve_target(target: Any, library: Any, engine: Any) -> float | None:
