@@ -15,6 +15,7 @@ from synthpack.pipeline.config import PackConfig
 from synthpack.errors import SynthpackInputError
 from synthpack.physics import ENGINES, LockedGrains, Placements, PourConfig, SettleCriteria, Tube, get_engine, pour
 from synthpack.physics import blender_engine, burial, driver, hulls, pybullet_engine
+from synthpack.physics import checks as pour_checks
 from synthpack.physics.checks import compute_checks, winding_number
 from synthpack.physics.container import MAX_FILL_ASPECT
 from synthpack.physics.engine import Engine
@@ -359,6 +360,22 @@ def test_winding_number_separates_inside_from_outside():
     points = np.array([[0, 0, 0], [0.5, 0.3, 0.1], [1.2, 0, 0], [0, 0, -1.5]])
     w = winding_number(points, np.asarray(sphere.vertices), np.asarray(sphere.faces))
     np.testing.assert_allclose(w, [1, 1, 0, 0], atol=1e-6)
+
+
+def test_the_points_tested_against_a_grain_are_every_point_in_its_box():
+    """The Monte-Carlo packing fraction tests a grain's hull only on the points `_in_box` picks: it must miss
+    none of the points in the grain's box (brute force), boxes at the edges of the points' range included."""
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-5, 5, (20_000, 3))
+    by_x = np.argsort(points[:, 0], kind="stable")
+    for _ in range(50):
+        lo = rng.uniform(-6, 5, 3)
+        hi = lo + rng.uniform(0.01, 3, 3)
+        picked = pour_checks._in_box(points, by_x, points[by_x, 0], lo, hi)
+        inside = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+        assert np.all(np.diff(picked) > 0)
+        assert set(inside) <= set(picked)  # the pad may add points within 1e-9 of the box, never drop one
+        assert len(picked) - len(inside) <= 1
 
 
 def test_convex_decomposition_pours_a_concave_aware_pack(large_library):
