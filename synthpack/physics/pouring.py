@@ -273,9 +273,6 @@ class LockedGrains(NamedTuple):
         Their rotations, ``(w, x, y, z)``.
     scales : ndarray of float, shape (B,)
         Their scale factors.
-    last : bool
-        Whether it is the pour's last batch: every grain then lies where its placement will, unless
-        the pour is run again for containment (which starts again from batch 0).
     """
 
     batch: int
@@ -284,7 +281,6 @@ class LockedGrains(NamedTuple):
     positions: np.ndarray
     quaternions: np.ndarray
     scales: np.ndarray
-    last: bool
 
 
 def _locked_grains(on_lock: Callable[[LockedGrains], None], plan: PourPlan, length: float) -> LockCallback:
@@ -293,7 +289,7 @@ def _locked_grains(on_lock: Callable[[LockedGrains], None], plan: PourPlan, leng
         members = np.asarray(members)
         on_lock(LockedGrains(batch, members, np.asarray(plan.indices)[members],
                              np.asarray(positions, dtype=float) * length, np.asarray(quaternions),
-                             np.asarray(plan.scales)[members], batch == plan.n_batches - 1))
+                             np.asarray(plan.scales)[members]))
     return locked
 
 

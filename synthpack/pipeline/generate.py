@@ -274,12 +274,6 @@ class _LabelWrites:
             present[np.flatnonzero(np.bincount(part.ravel(), minlength=self._labels))] = True
         self._present[tuple(s.start for s in window)] = present
 
-    def trim(self, shape: tuple[int, int, int]) -> None:
-        """Cut the array to `shape` (`_trimmed`), forgetting the chunks written beyond it."""
-        self.array = _trimmed(self.array, shape)
-        self._present = {corner: labels for corner, labels in self._present.items()
-                         if all(start is None or start < n for start, n in zip(corner, shape))}
-
     @property
     def present(self) -> np.ndarray:
         if not self._present:
@@ -384,7 +378,7 @@ def _pour_rendering(
     ) as early:
         def locked(batch: LockedGrains) -> None:
             early.add(batch.batch, batch.members, batch.indices, rotation_matrices(batch.quaternions),
-                      batch.positions, batch.scales, last=batch.last)
+                      batch.positions, batch.scales)
 
         with _timed(timings, "pour"):
             placements = pour_in_process(
@@ -460,7 +454,7 @@ def _render(
     else:
         done, early_contested, redrawn = early.render.finish(maps, grid.shape)
         labels, clean = early.labels, _trimmed(early.clean, grid.shape)
-        labels.trim(grid.shape)
+        labels.array = _trimmed(labels.array, grid.shape)
         overlap = {"chunks_while_pouring": len(done) + redrawn, "drawn_again": redrawn,
                    "thread_seconds_while_pouring": round(early.render.seconds, 3)}
         logger.info("rendered %d of the pack's chunks while pouring; %d of them drawn again", len(done) + redrawn,

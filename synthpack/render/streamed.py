@@ -5,13 +5,11 @@ chunks below the grains still to come can be rendered before the pour ends, on t
 the pour leaves idle. `LockedRender` takes the grains of each batch as it is locked and
 renders, on a pool of threads, every row of chunks (``chunks[0]`` slices of the grid) that
 ends one grain height below the batch's lowest grain: later grains fall from above onto
-the grains already there; after the pour's last batch, every row its grains reach, while the
-pour checks the placements (those of these chunks not started when the pour ends are dropped).
-That rule is a guess; what makes the result exact is
+the grains already there. That rule is a guess; what makes the result exact is
 `LockedRender.finish`: once the pour is done, a chunk rendered early is kept only where the
 final placements reach it with exactly the grains, maps and boxes it was drawn with. The
 caller (`synthpack.pipeline.generate`) then renders the other chunks with
-`~synthpack.render.chunked.reconstruct` (its ``done``) on every thread, so the volumes are byte for byte
+`~synthpack.render.chunked.reconstruct` (its ``done``), so the volumes are byte for byte
 those of a render after the pour: a chunk's voxels depend only on the grains that reach it,
 the background at its position and crops whose support holds every voxel a grain can change
 (a larger support changes nothing, `~synthpack.render.crops.RenderCrop`).
@@ -119,7 +117,6 @@ class LockedRender:
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="synthpack-render")
         self._futures: list[Future] = []
-        self._droppable: list[Future] = []  # the chunks handed over after the last batch: dropped if not started
         self.seconds = 0.0  # summed over the chunks rendered (thread seconds)
 
     def __enter__(self) -> LockedRender:
@@ -130,8 +127,8 @@ class LockedRender:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
     def add(self, batch: int, members: np.ndarray, library_index: np.ndarray, rotations: np.ndarray,
-            positions: np.ndarray, scales: np.ndarray, *, last: bool = False) -> None:
-        """Take one locked batch and hand the pool the rows of chunks it buries (all its grains reach, if `last`).
+            positions: np.ndarray, scales: np.ndarray) -> None:
+        """Take one locked batch and hand the pool the rows of chunks it buries.
 
         Parameters
         ----------
@@ -147,8 +144,6 @@ class LockedRender:
             World ``(x, y, z)`` of their local origins, physical units.
         scales : ndarray of float, shape (B,)
             Their scale factors.
-        last : bool
-            The pour's last batch: the grains placed so far are all there will be.
         """
         if batch == 0 and self._rows:
             self._drain()  # a pour run again: the chunks drawn so far are checked by `finish` like any other
@@ -162,12 +157,8 @@ class LockedRender:
         for name in ("library_index", "matrix", "offset", "box_lo", "box_hi"):
             getattr(self._maps, name)[members] = getattr(maps, name)
         self._prepare(maps)
-        if last:  # the rows up to the highest grain: only the top one can be cut by the pack's grid
-            rows = range(0, min(int(self._maps.box_hi[:, 0].max()), self._grid.shape[0]), self._chunks[0])
-        else:
-            lowest = int(maps.box_lo[:, 0].min()) - int((maps.box_hi[:, 0] - maps.box_lo[:, 0]).max())
-            rows = range(0, lowest - self._chunks[0] + 1, self._chunks[0])
-        rows = [z for z in rows if z not in self._rows]
+        lowest = int(maps.box_lo[:, 0].min()) - int((maps.box_hi[:, 0] - maps.box_lo[:, 0]).max())
+        rows = [z for z in range(0, lowest - self._chunks[0] + 1, self._chunks[0]) if z not in self._rows]
         if not rows:
             return
         snapshot = PoseMaps(*(getattr(self._maps, name).copy()
@@ -179,10 +170,7 @@ class LockedRender:
                 for x in range(0, self._grid.shape[2], self._chunks[2]):
                     lo = np.array([z, y, x])
                     hi = np.minimum(lo + np.asarray(self._chunks), self._grid.shape)
-                    future = self._pool.submit(self._draw, crops, snapshot, lo, hi)
-                    self._futures.append(future)
-                    if last:
-                        self._droppable.append(future)
+                    self._futures.append(self._pool.submit(self._draw, crops, snapshot, lo, hi))
 
     def _prepare(self, maps: PoseMaps) -> None:
         """Prepare the crops of `maps`' placements not yet prepared, or prepared for a higher threshold."""
@@ -209,15 +197,13 @@ class LockedRender:
             self.seconds += time.perf_counter() - start
 
     def _drain(self) -> None:
-        """Wait for every chunk handed to the pool and not cancelled; raise the first error of one."""
+        """Wait for every chunk handed to the pool; raise the first error of one."""
         futures, self._futures = self._futures, []
         for future in futures:
-            if not future.cancelled():
-                future.result()
+            future.result()
 
     def finish(self, maps: PoseMaps, shape: tuple[int, int, int]) -> tuple[set[tuple[int, int, int]], int, int]:
-        """Wait for the chunks in flight (dropping those of the last batch not started) and keep those the final
-        placements reach as they were drawn.
+        """Wait for the chunks in flight and keep those the final placements reach as they were drawn.
 
         Parameters
         ----------
@@ -233,23 +219,17 @@ class LockedRender:
         contested : int
             Voxels claimed by more than one particle in those chunks.
         redrawn : int
-            Chunks of the final grid rendered here that the final placements reach otherwise, or that the
-            grid's top cuts (to draw again).
+            Chunks rendered here that the final placements reach otherwise (to draw again).
         """
-        for future in self._droppable:
-            future.cancel()  # not started: drawn after the pour, on every thread
-        self._droppable = []
         self._drain()
-        done, contested, redrawn = set(), 0, 0
+        done, contested = set(), 0
         for lo, drawn in self._drawn.items():
             corner = np.array(lo)
-            if np.any(corner >= shape):
-                continue  # beyond the pack's grid
-            if drawn.same(_Drawn.of(maps, corner, np.minimum(corner + np.asarray(self._chunks), shape), 0)):
+            hi = np.minimum(corner + np.asarray(self._chunks), shape)
+            if np.all(corner < shape) and drawn.same(_Drawn.of(maps, corner, hi, 0)):
                 done.add(lo)
                 contested += drawn.contested
-            else:
-                redrawn += 1
+        redrawn = len(self._drawn) - len(done)
         logger.debug("rendered %d chunks while pouring (%.1f thread seconds); %d to draw again",
                      len(self._drawn), self.seconds, redrawn)
         return done, contested, redrawn
