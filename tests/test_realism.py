@@ -5,6 +5,7 @@ import logging
 import numpy as np
 import pytest
 import yaml
+from scipy import ndimage
 
 from synthpack.artefacts import recipes as postprocess
 from synthpack.artefacts import calibrate
@@ -132,6 +133,19 @@ def test_classifier_auc_near_half_for_one_distribution_and_near_one_for_two():
         classifier_test(patches(4, 0.05), patches(300, 0.05))
 
 
+def test_the_feature_groups_alone_say_which_statistic_tells_two_sets_apart():
+    rng = np.random.default_rng(3)
+    smooth = ndimage.gaussian_filter(rng.normal(size=(300, 16, 16)), (0, 2, 2)).reshape(300, -1)
+    # every patch holds the same 256 values: smooth in one set, the same values shuffled (white) in the other
+    ranked = np.linspace(0.2, 0.8, 256)[np.argsort(np.argsort(smooth, axis=1), axis=1)]
+    shuffled = rng.permuted(ranked, axis=1)
+    test = classifier_test(ranked.reshape(300, 16, 16), shuffled.reshape(300, 16, 16), seed=0)
+    groups = test.feature_auc
+    assert list(groups) == ["intensities", "differences", "spectrum"]
+    assert abs(groups["intensities"] - 0.5) < 0.1 and groups["differences"] > 0.95 and groups["spectrum"] > 0.95
+    assert test.summary()["logistic_features"] == groups and test.auc("logistic") > 0.95
+
+
 @pytest.fixture(scope="module")
 def packs(large_library, tmp_path_factory):
     """A generic and a default (calibrated) pack of the same pour, the latter by `generate` without options."""
@@ -253,8 +267,12 @@ def test_compare_command_writes_the_report(packs, tmp_path, capsys):
         assert 1.0 < pack["figures"]["roughness_median"] < pack["figures"]["roughness_p90"] < 1.5
     assert report["floor"]["slab"] == 10 and "cnn" not in report["floor"] and report["settings"]["cnn"] is None
     assert report["settings"]["ablation"] is False and all("ablation" not in p["distances"] for p in report["packs"])
-    assert "Where the classifiers see" not in (out / "realism.md").read_text()
-    assert "logistic AUC" in (out / "realism.md").read_text()
+    markdown = (out / "realism.md").read_text()  # no ablation table; the logistic's feature groups still shown
+    assert "| labels only |" not in markdown and "logistic AUC on one feature group alone" in markdown
+    for name, group in (("intensity histogram", "intensities"), ("power spectrum", "spectrum")):
+        auc = report["packs"][1]["distances"]["classifier"]["logistic_features"][group]
+        assert 0.0 <= auc <= 1.0 and f"| {name} | " in markdown
+    assert "logistic AUC" in markdown
     # the two packs are of one pour (the same seed and config but the post-processing); no none pack: no flag
     assert report["settings"]["packs"][0]["pour"] == report["settings"]["packs"][1]["pour"]
     assert report["worse_than_none"] == [] and "worse than none" not in (out / "realism.md").read_text()

@@ -6,9 +6,9 @@ in-slice patches of `DEFAULT_PATCH` voxels on a lattice of half a patch
 (`~synthpack.measure.lattice.patch_corners`), mapped through the source's intensity window
 to [0, 1], and described by `patch_features`: the histogram of their intensities, the
 histogram of the absolute differences between neighbouring pixels, and the log of their
-radially averaged power spectrum. `logistic_auc` is the cross-validated area under the ROC
-curve of a logistic regression on those features: 0.5 when the sets look alike to it, 1
-when it tells every patch apart.
+radially averaged power spectrum (`FEATURE_GROUPS`: the columns of each). `logistic_auc` is the
+cross-validated area under the ROC curve of a logistic regression on those features: 0.5 when
+the sets look alike to it, 1 when it tells every patch apart.
 
 `PatchReference` is what a source scan keeps of this (`~synthpack.source.SourceStatistics`):
 its window, the features of up to `MAX_PATCHES` of its patches, and its *floor*, the AUC of
@@ -27,7 +27,8 @@ from .._shared.windows import intensity_window
 from ..errors import SynthpackInputError
 from .lattice import patch_corners, take_patches
 
-__all__ = ["DEFAULT_PATCH", "DEFAULT_SLAB", "FOLDS", "LOGISTIC_AUC_MARGIN", "MAX_PATCHES", "PatchReference",
+__all__ = ["DEFAULT_PATCH", "DEFAULT_SLAB", "FEATURE_GROUPS", "FOLDS", "LOGISTIC_AUC_MARGIN", "MAX_PATCHES",
+           "PatchReference",
            "balanced_folds", "logistic_auc", "logistic_fold_auc", "patch_features", "slab_parity",
            "windowed_patches"]
 
@@ -42,6 +43,11 @@ FOLDS = 5
 #: The realism target of the logistic AUC: at most the source's floor plus this.
 LOGISTIC_AUC_MARGIN = 0.05
 _BINS = 16
+#: The columns of `patch_features` by what they describe: the intensity histogram (grey levels and
+#: contrast), the histogram of neighbour differences (noise level, edge steepness) and the log power
+#: spectrum's rings (texture, blur).
+FEATURE_GROUPS = {"intensities": slice(0, _BINS), "differences": slice(_BINS, 2 * _BINS),
+                  "spectrum": slice(2 * _BINS, None)}
 
 
 def windowed_patches(volume: np.ndarray, region: np.ndarray, window: tuple[float, float], *,

@@ -14,7 +14,9 @@ curve (AUC) of the held-out fold:
   differences between neighbouring pixels (16 bins on [0, 0.5]: noise level and
   edge sharpness) and the log of its radially averaged power spectrum (mean
   removed: noise texture and blur; `synthpack.measure.patch_features`, which the
-  calibration's guard measures too);
+  calibration's guard measures too); the same regression on each of those three feature
+  groups alone (`~synthpack.measure.patch_features.FEATURE_GROUPS`) says which of them tells
+  the sets apart;
 * **cnn**: a small convolutional network trained from scratch on the patches
   themselves (`synthpack.realism.cnn`), which learns its own features.
 
@@ -35,8 +37,8 @@ import numpy as np
 
 from .._shared.schema import non_negative, positive, setting
 from ..errors import SynthpackInputError
-from ..measure.patch_features import (DEFAULT_PATCH, FOLDS, MAX_PATCHES, balanced_folds, logistic_fold_auc,
-                                      patch_features, windowed_patches)
+from ..measure.patch_features import (DEFAULT_PATCH, FEATURE_GROUPS, FOLDS, MAX_PATCHES, balanced_folds,
+                                      logistic_fold_auc, patch_features, windowed_patches)
 from .region import Specimen
 
 logger = logging.getLogger(__name__)
@@ -154,6 +156,9 @@ class ClassifierTest:
         Per classifier, the wall time of its cross-validation.
     cnn_scores : ndarray of float64, shape (2n,), or None
         The CNN's out-of-fold logit of "second set" for every patch; None without the CNN.
+    feature_auc : dict of str to float
+        Per feature group (`~synthpack.measure.patch_features.FEATURE_GROUPS`), the mean
+        held-out AUC of the logistic regression on that group alone, on the same folds.
     """
 
     patches: np.ndarray
@@ -162,6 +167,7 @@ class ClassifierTest:
     fold_auc: dict[str, np.ndarray] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     cnn_scores: np.ndarray | None = None
+    feature_auc: dict[str, float] = field(default_factory=dict)
 
     @property
     def n_per_class(self) -> int:
@@ -180,7 +186,8 @@ class ClassifierTest:
                     self.fold_auc[classifier].std(), self.n_per_class, seconds)
 
     def summary(self, floor: ClassifierTest | None = None) -> dict:
-        """JSON-able figures: patches per class, folds and per classifier its AUC, spread and seconds.
+        """JSON-able figures: patches per class, folds, per classifier its AUC, spread and seconds, and under
+        ``logistic_features`` the logistic AUC of each feature group alone (`feature_auc`).
 
         Parameters
         ----------
@@ -195,6 +202,8 @@ class ClassifierTest:
             floor_auc = floor.auc(name) if floor is not None else None
             if floor_auc is not None:
                 result[name]["margin"] = float(aucs.mean()) - floor_auc
+        if self.feature_auc:
+            result["logistic_features"] = dict(self.feature_auc)
         return result
 
 
@@ -237,7 +246,10 @@ def classifier_test(
     patches = np.concatenate([first[take[0]], second[take[1]]])
     test = ClassifierTest(patches, target, splits)
     start = time.perf_counter()
-    test.record("logistic", logistic_fold_auc(patch_features(patches), target, splits), time.perf_counter() - start)
+    features = patch_features(patches)
+    test.record("logistic", logistic_fold_auc(features, target, splits), time.perf_counter() - start)
+    test.feature_auc = {group: float(logistic_fold_auc(features[:, columns], target, splits).mean())
+                        for group, columns in FEATURE_GROUPS.items()}
     if cnn is not None:
         from sklearn.metrics import roc_auc_score
 

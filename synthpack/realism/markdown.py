@@ -154,26 +154,42 @@ def _classifier_section(report: dict) -> list[str]:
     return out
 
 
+#: The report's words for each feature group of `synthpack.measure.patch_features.FEATURE_GROUPS`.
+_FEATURE_GROUP_NAMES = {"intensities": "intensity histogram", "differences": "neighbour differences",
+                        "spectrum": "power spectrum"}
+
+
 def _ablation_section(packs: list[dict]) -> list[str]:
-    """Per pack, its AUCs as it is and with phases made flat (`synthpack.realism.ablation`)."""
-    if not packs or "ablation" not in packs[0]["distances"]:
-        return []
-    names = list(packs[0]["distances"]["ablation"])
+    """Per pack, its AUCs as it is and with phases made flat (`synthpack.realism.ablation`), and the logistic
+    AUC of each feature group alone."""
+    out = []
+    if packs and "ablation" in packs[0]["distances"]:
+        names = list(packs[0]["distances"]["ablation"])
 
-    def cell(summary: dict) -> str:
-        return " / ".join(f"{summary[c]['auc']:.3f}" if c in summary else "n/a" for c in ("logistic", "cnn"))
+        def cell(summary: dict) -> str:
+            return " / ".join(f"{summary[c]['auc']:.3f}" if c in summary else "n/a" for c in ("logistic", "cnn"))
 
-    rows = [["as it is", *[cell(p["distances"]["classifier"]) for p in packs]]]
-    rows += [[name, *[cell(p["distances"]["ablation"][name]) for p in packs]] for name in names]
-    note = ("Logistic / CNN AUC of the same patches, source and pack, with a phase made flat (set to the "
-            "source's level of that phase), so that only the rest can tell the pack apart. Where making a phase "
-            "flat brings an AUC down towards *labels only*, the difference lies in that phase (its texture, its "
-            "level); where neither does but *edges only* keeps the AUC, the difference lies at the boundaries "
-            "(the edge profile, the voxels next to the grains); *labels only* is the geometry alone: grain "
-            "shapes, sizes and arrangement, nothing of the intensities. The phases are cut by a soft matte, the "
-            "grain mask smoothed over about a voxel (`synthpack.realism.ablation`).\n")
-    return ["\n## Where the classifiers see the difference\n",
-            _table(["patches", *[p["name"] for p in packs]], rows), note]
+        rows = [["as it is", *[cell(p["distances"]["classifier"]) for p in packs]]]
+        rows += [[name, *[cell(p["distances"]["ablation"][name]) for p in packs]] for name in names]
+        out += [_table(["patches", *[p["name"] for p in packs]], rows),
+                "Logistic / CNN AUC of the same patches, source and pack, with a phase made flat (set to the "
+                "source's level of that phase), so that only the rest can tell the pack apart. Where making a phase "
+                "flat brings an AUC down towards *labels only*, the difference lies in that phase (its texture, its "
+                "level); where neither does but *edges only* keeps the AUC, the difference lies at the boundaries "
+                "(the edge profile, the voxels next to the grains); *labels only* is the geometry alone: grain "
+                "shapes, sizes and arrangement, nothing of the intensities. The phases are cut by a soft matte, the "
+                "grain mask smoothed over about a voxel (`synthpack.realism.ablation`).\n"]
+    if packs and all("logistic_features" in p["distances"]["classifier"] for p in packs):
+        groups = list(packs[0]["distances"]["classifier"]["logistic_features"])
+        out += [_table(["logistic AUC on one feature group alone", *[p["name"] for p in packs]],
+                       [[_FEATURE_GROUP_NAMES.get(g, g),
+                         *[f"{p['distances']['classifier']['logistic_features'][g]:.3f}" for p in packs]]
+                        for g in groups]),
+                "The logistic regression on the patches as they are, with one group of its features at a time "
+                "(`synthpack.measure.patch_features.FEATURE_GROUPS`): a group whose AUC stays near the whole "
+                "regression's is what tells the pack apart (grey levels, the steps between neighbouring pixels "
+                "at edges and in the noise, or the texture's spectrum); a group near 0.5 already matches.\n"]
+    return ["\n## Where the classifiers see the difference\n", *out] if out else []
 
 
 def _nps_section(packs: list[dict]) -> list[str]:
