@@ -15,7 +15,7 @@ from synthpack.errors import SynthpackInputError
 from synthpack.io import read_label_image, write_label_image
 from synthpack.library.core import ParticleLibrary
 from synthpack.scan.split import VAL_FRACTION, central_block, slice_splits
-from training.arms import budget_slices
+from training.arms import budget_slices, make_arms, synthetic_images
 from training.compute import plan_compute
 from training.curves import RISE_LIMIT, tail_rise
 from training.evaluate import score
@@ -80,7 +80,7 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
     arms = {row["arm"] for row in rows}
     assert arms == {"large", "large+syn", "large+syn-nopp", "small", "small+syn",
                     "large:syn", "large:syn-rand", "large@5", "large@5+syn", "unet_large", "unet_large+syn",
-                    "unet3d_large", "unet3d_large+syn"}
+                    "unet3d_large", "unet3d_large+syn", "unet3d_large+syn-first"}
     assert {(row["arm"], row["test_set"]) for row in rows} == {(a, t) for a in arms for t in ("large", "small")}
     for row in rows:
         assert 0.0 <= float(row["dice"]) <= 1.0 and 0.0 <= float(row["instance_f1"]) <= 1.0
@@ -91,7 +91,8 @@ def test_smoke_experiment_writes_every_arm_and_test_set(smoke):
     for heading in ("Table 1", "Table 2", "(94.5%)", "(90.9%)", "Synthetic packs alone", "Label efficiency",
                     "large+syn − large |", "large:syn-rand − large:syn |", "large@5+syn − large@5 |",
                     "unet_large+syn − unet_large |", "unet_large − large |", "test: large, F1@0.5", "U-Net arms",
-                    "unet3d_large+syn − unet3d_large |", "unet3d_large − unet_large |", "3D U-Net arms"):
+                    "unet3d_large+syn − unet3d_large |", "unet3d_large − unet_large |", "3D U-Net arms",
+                    "Packs first, then real", "unet3d_large+syn-first − unet3d_large+syn |"):
         assert heading in report
     assert (smoke / "label_efficiency.png").stat().st_size > 0
     comparisons = json.loads((smoke / "results.json").read_text())["comparisons"]
@@ -132,6 +133,11 @@ def test_smoke_unet_arms_train_for_their_planned_steps_and_write_their_predictio
     # 45 and 82 training images (half of 90 and of 163): the same steps
     assert (plans[f"{family}_large"]["images"] != plans[f"{family}_large+syn"]["images"]) == (family == "unet")
     assert steps[f"{family}_large"] == steps[f"{family}_large+syn"]
+    if family == "unet3d":  # the packs-first twin of unet3d_large+syn: its plan and steps, its pack patches first
+        twin = json.loads((smoke / "runs" / "unet3d_large+syn" / "seed0" / "train.json").read_text())
+        first = json.loads((smoke / "runs" / "unet3d_large+syn-first" / "seed0" / "train.json").read_text())
+        assert first["plan"] == twin["plan"] and first["steps_taken"] == twin["steps_taken"]
+        assert 0 < first["items_first"] < twin["plan"]["images"] and twin["items_first"] is None
 
 
 @pytest.mark.slow
@@ -424,3 +430,35 @@ def test_each_model_family_is_planned_on_its_own_with_the_unet_budget_where_give
             assert budgets[family] <= plan.images_seen < budgets[family] + plan.images
     line = compute_line(plans, {arm.name: arm.family for arm in config.arm_list})
     assert "YOLOv8-seg: 6150 to" in line and f"2D U-Net: {budgets['unet']} to" in line
+
+
+def test_a_packs_first_arm_trains_on_its_twins_dataset_and_only_the_unet_families_take_it(tmp_path):
+    arms = {arm.name: arm for arm in make_arms({"real": ["s"], "syn": ["s"], "budget": ["s"], "syn-first": ["s"]},
+                                               [5], "unet")}
+    first, budget = arms["unet_s+syn-first"], arms["unet_s@5+syn-first"]
+    assert (first.dataset, first.whole_export, first.packs_first, first.export) == ("s+syn", True, True, "syn")
+    assert (budget.dataset, budget.real_slices, budget.whole_export) == ("s@5+syn", 5, False)
+    assert budget.description == "5 real slices + synthetic, synthetic first"
+    assert not any(arm.packs_first for name, arm in arms.items() if not name.endswith("-first"))
+    assert [a.name for a in make_arms({"syn-first": ["s"]}, [5], "unet3d")] == ["unet3d_s+syn-first"]  # no budgets
+    # which training images are pack slices: from the export's sources, for an export and an arm's subset of it
+    export, subset = tmp_path / "s+syn", tmp_path / "s@5+syn"
+    export.mkdir()
+    subset.mkdir()
+    (export / "export.json").write_text(json.dumps({"sources": [{"name": "syn_pack_0000", "kind": "synthetic"},
+                                                                {"name": "real_scan0", "kind": "real"}]}))
+    (subset / "dataset.json").write_text(json.dumps({"export": str(export)}))
+    images = [export / "images" / "train" / name for name in
+              ("real_scan0_a0_s0003.png", "syn_pack_0000_a0_s0000.png", "syn_pack_0000_a0_s0101.png")]
+    assert synthetic_images(export / "data.yaml", images).tolist() == [False, True, True]
+    assert synthetic_images(subset / "data.yaml", images[:2]).tolist() == [False, True]
+    # YOLO's batches are ultralytics' to draw: a syn-first arm is refused there, taken by the U-Nets
+    config = {"real": {"large": {"sample": "large"}}, "arms": ["real", "syn", "syn-first"],
+              "train": {"model_family": ["yolo", "unet"]}}
+    (tmp_path / "yolo.yaml").write_text(yaml.safe_dump(config))
+    with pytest.raises(SynthpackInputError, match="unet.arms or unet3d.arms"):
+        ExperimentConfig.load(tmp_path / "yolo.yaml")
+    config.update(arms=["real", "syn"], unet={"arms": ["real", "syn", "syn-first"]})
+    (tmp_path / "unet.yaml").write_text(yaml.safe_dump(config))
+    assert ExperimentConfig.load(tmp_path / "unet.yaml").arms == ["large", "large+syn", "unet_large",
+                                                                  "unet_large+syn", "unet_large+syn-first"]

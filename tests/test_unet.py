@@ -11,7 +11,7 @@ from synthpack.export.nnunet import instances_from_target, semantic_target
 from synthpack.io import read_label_image
 from synthpack.metrics import match_instances
 from training.train import TrainSettings
-from training.unet import UNetSettings, slice_target, target_instances
+from training.unet import UNetSettings, item_order, slice_target, target_instances
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +75,24 @@ def test_model_family_and_unet_settings_are_checked():
     UNetSettings().check_crop(96)
     with pytest.raises(SynthpackInputError, match="multiple of 8"):
         UNetSettings().check_crop(100)
+
+
+def test_a_packs_first_order_takes_every_item_as_often_as_the_mixed_order_with_the_packs_first():
+    torch = pytest.importorskip("torch")
+    first = np.zeros(11, dtype=bool)
+    first[[0, 3, 4, 8, 9, 10]] = True  # 6 pack items among 11
+    order, epoch_of = item_order(11, 3, torch.Generator().manual_seed(5), first)
+    mixed, mixed_epochs = item_order(11, 3, torch.Generator().manual_seed(5))
+    assert len(order) == len(mixed) == len(epoch_of) == 33
+    assert np.array_equal(np.bincount(order.numpy(), minlength=11), np.bincount(mixed.numpy(), minlength=11))
+    assert first[order[:18].numpy()].all() and not first[order[18:].numpy()].any()  # all 3 epochs of packs first
+    for part in (slice(0, 18), slice(18, 33)):  # each group's epochs in turn, each a fresh random order
+        assert np.array_equal(epoch_of[part].numpy(), np.sort(epoch_of[part].numpy()))
+        assert np.array_equal(np.bincount(epoch_of[part].numpy()), [(part.stop - part.start) // 3] * 3)
+    # the mixed order is every epoch of all the items in turn, as the training always drew it
+    generator = torch.Generator().manual_seed(5)
+    assert torch.equal(mixed, torch.cat([torch.randperm(11, generator=generator) for _ in range(3)]))
+    assert torch.equal(mixed_epochs, torch.arange(3).repeat_interleave(11))
+    for wrong in (np.ones(11, dtype=bool), np.zeros(11, dtype=bool), np.ones(5, dtype=bool)):
+        with pytest.raises(SynthpackInputError, match="both pack and real"):
+            item_order(11, 3, torch.Generator(), wrong)

@@ -93,6 +93,8 @@ def test_training_patches_hold_only_training_slices_and_each_volume_its_share(pa
     assert 0.0 <= float(x.min()) and float(x.max()) <= 1.0 and set(torch.unique(y).tolist()) <= {0, 1, 2}
     mixed = _Patches(arm_volumes("syn", pack_scan, [export_pack_dir], window), settings, 0, 0.1, seed=3)
     assert [len(s) for s in mixed.sets] == [len(train), pack_scan.shape[0]]
+    assert np.array_equal(mixed.synthetic, np.repeat([False, True], [len(train), pack_scan.shape[0]]))
+    assert not real.synthetic.any() and len(real.synthetic) == len(real)  # what a packs-first order puts first
     alone = arm_volumes("syn-only", pack_scan, [export_pack_dir], window)
     assert [v.split for v in alone] == ["all"]
     clean = arm_volumes("syn-nopp", pack_scan, [export_pack_dir], window)[1].scan.tomogram

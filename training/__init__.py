@@ -22,8 +22,8 @@ curves
 evaluate
     Predictions of the test slices as label images; Dice (pooled and per slice) and mAP50.
 arms
-    The training arms (real, + packs, packs alone, randomised packs, label budgets) and
-    the training lists of those that take part of an export.
+    The training arms (real, + packs, packs alone, randomised packs, label budgets, packs first
+    then real) and the training lists of those that take part of an export.
 stats
     Paired bootstrap intervals of a difference in Dice over test slices and seeds.
 report

@@ -12,7 +12,16 @@ kind              arm name             trains on
 ``syn-rand``      ``s:syn-rand``       packs with ``postprocess: randomised`` only
 ``budget``        ``s@K``, ``s@K+syn`` K real training slices (`budget_slices`), without / with
                                        the calibrated packs
+``syn-first``     ``s+syn-first``,     the training set of ``s+syn`` (and of each ``s@K+syn`` where
+                  ``s@K+syn-first``    the config has ``budget`` arms too), the packs' slices first:
+                                       pretraining on packs, then fine-tuning on the real slices
 ================  ===================  ============================================================
+
+A ``syn-first`` arm sees the same images, as many times each, as its ``+syn`` twin, in the
+same number of steps: only the order differs (every epoch of the packs' slices, then every
+epoch of the real ones: `training.unet.item_order`), so the pair measures pretraining on packs
+against mixing them in at equal compute. The U-Net families draw their own batches and take
+it; YOLO, whose batches ultralytics draws, does not.
 
 Every arm validates on the scan's real val slices (model selection) and is tested on
 the real test block; no arm ever trains on a val or test slice. Each arm is trained by one
@@ -36,7 +45,8 @@ from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 from synthpack.scan.split import slice_splits
 
-__all__ = ["ARM_KINDS", "MODEL_FAMILIES", "Arm", "budget_slices", "dataset_images", "make_arms", "subset_dataset"]
+__all__ = ["ARM_KINDS", "DEFAULT_KINDS", "FIRST_SUFFIX", "MODEL_FAMILIES", "Arm", "budget_slices", "dataset_images", "make_arms",
+           "subset_dataset", "synthetic_images"]
 
 #: Arm kinds and what they train on.
 ARM_KINDS = {
@@ -46,7 +56,12 @@ ARM_KINDS = {
     "syn-only": "synthetic only",
     "syn-rand": "synthetic only, randomised post-processing",
     "budget": "K real slices, without / with synthetic",
+    "syn-first": "synthetic first, then real",
 }
+#: The kinds of a config without ``arms:`` (``syn-first`` only where asked for: YOLO has no form of it).
+DEFAULT_KINDS = tuple(kind for kind in ARM_KINDS if kind != "syn-first")
+#: The name suffix of a ``syn-first`` arm: its twin's name (``s+syn``, ``s@K+syn``) and this.
+FIRST_SUFFIX = "-first"
 #: Model families, the prefix of their arms' names and what they are, in the report's words.
 MODEL_FAMILIES = {
     "yolo": ("", "YOLOv8-seg (Ultralytics), instances from its masks"),
@@ -79,6 +94,8 @@ class Arm:
         Whether it keeps the export's synthetic training slices.
     family : str
         Its model family, a key of `MODEL_FAMILIES`.
+    packs_first : bool
+        Whether it trains on its packs' slices first, then on the real ones (``syn-first``).
     """
 
     name: str
@@ -88,11 +105,13 @@ class Arm:
     real_slices: int | None = None
     synthetic: bool = True
     family: str = "yolo"
+    packs_first: bool = False
 
     @property
     def dataset(self) -> str:
-        """Its dataset's name (``data/<dataset>``): `name` without the family's prefix."""
-        return self.name[len(MODEL_FAMILIES[self.family][0]):]
+        """Its dataset's name (``data/<dataset>``): `name` without the family's prefix (nor `FIRST_SUFFIX`: a
+        ``syn-first`` arm trains on its twin's dataset)."""
+        return self.name[len(MODEL_FAMILIES[self.family][0]):].removesuffix(FIRST_SUFFIX)
 
     @property
     def whole_export(self) -> bool:
@@ -102,8 +121,9 @@ class Arm:
     @property
     def description(self) -> str:
         """What it trains on, in words."""
-        if self.kind == "budget":
-            return f"{self.real_slices} real slices" + (" + synthetic" if self.synthetic else "")
+        if self.real_slices:
+            what = f"{self.real_slices} real slices" + (" + synthetic" if self.synthetic else "")
+            return what + (", synthetic first" if self.packs_first else "")
         return ARM_KINDS[self.kind]
 
 
@@ -132,6 +152,10 @@ def make_arms(kinds: dict[str, list[str]], budgets: list[int], family: str = "yo
             for k in budgets:
                 add(f"{scan}@{k}", scan, "budget", "real", real_slices=k, synthetic=False)
                 add(f"{scan}@{k}+syn", scan, "budget", "syn", real_slices=k)
+        if "syn-first" in wanted:
+            add(scan + "+syn" + FIRST_SUFFIX, scan, "syn-first", "syn", packs_first=True)
+            for k in budgets if "budget" in wanted else []:
+                add(f"{scan}@{k}+syn{FIRST_SUFFIX}", scan, "syn-first", "syn", real_slices=k, packs_first=True)
     return arms
 
 
@@ -206,6 +230,26 @@ def subset_dataset(export: Path, out: Path, arm: Arm) -> dict[str, int]:
         with atomic_file(out / name) as staging:
             staging.write_text(text)
     return counts
+
+
+def synthetic_images(data: Path, images: list[Path]) -> np.ndarray:
+    """Which of `images`, training images of the dataset ``data`` (its ``data.yaml``), are slices of a pack.
+
+    An image's source is its name before ``_a<axis>_s<index>`` (`subset_dataset`); the export's
+    ``export.json`` (that of `data`'s folder, or the one its ``dataset.json`` names) says which
+    sources are synthetic.
+
+    Returns
+    -------
+    ndarray of bool, shape (len(images),)
+    """
+    folder = Path(data).parent
+    export = folder
+    if (folder / "dataset.json").is_file():
+        export = Path(json.loads((folder / "dataset.json").read_text())["export"])
+    summary = json.loads((export / "export.json").read_text())
+    synthetic = {source["name"] for source in summary["sources"] if source["kind"] == "synthetic"}
+    return np.array([Path(image).stem.rsplit("_a", 1)[0] in synthetic for image in images], dtype=bool)
 
 
 def dataset_images(data: Path, arm: str) -> dict[str, int]:

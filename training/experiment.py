@@ -74,7 +74,7 @@ from synthpack.scan.samples import SAMPLE_NAMES, sample_scan
 from synthpack.scan.core import Scan
 from synthpack.scan.split import central_block
 
-from .arms import ARM_KINDS, EXPORT_SUFFIXES, Arm, dataset_images, make_arms, subset_dataset
+from .arms import ARM_KINDS, DEFAULT_KINDS, EXPORT_SUFFIXES, Arm, dataset_images, make_arms, subset_dataset
 from .compute import ArmPlan, plan_compute
 from .curves import CurveRecorder, read_curve
 from .evaluate import evaluate, score, write_scores
@@ -129,7 +129,8 @@ class ExperimentConfig:
     kinds : dict
         Arm kind (`training.arms.ARM_KINDS`) -> the real scans it is run for
         (config ``arms:``: a list of kinds for every scan, or kind -> ``all`` or a
-        list of scans; default every kind for every scan).
+        list of scans; default every kind but ``syn-first`` for every scan:
+        `training.arms.DEFAULT_KINDS`).
     budgets : list of int
         The label budgets K of the ``budget`` arms (config ``budgets:``; ``all``, the
         whole training part, is the ``real`` and ``syn`` arms themselves).
@@ -197,14 +198,19 @@ class ExperimentConfig:
                                       f"slices spread over the volume): use {', '.join(KIND_VOLUMES)}")
         train = dict(data.get("train") or {})
         imgsz_by_scan = _imgsz_by_scan(train.pop("imgsz_by_scan", None) or {}, list(listed))
+        kinds = _kinds(data.get("arms"), list(listed), list(real))
+        settings = TrainSettings.from_dict(train)
+        if "syn-first" in kinds and "yolo" in settings.families:
+            raise SynthpackInputError("arms: syn-first orders the batches, which ultralytics draws itself for YOLO: "
+                                      "list it under unet.arms or unet3d.arms instead")
         return cls(
             name=data.get("name", path.stem), real=real, axis=int(data.get("axis", 0)),
             n_packs=int(synthetic.get("n_packs", 1)),
             packs={name: common.replace(**per_scan.get(name, {})) for name in real},
-            train=TrainSettings.from_dict(train),
+            train=settings,
             seeds=[int(s) for s in data.get("seeds", [0])],
             conf=float(data.get("evaluate", {}).get("conf", 0.25)),
-            kinds=_kinds(data.get("arms"), list(listed), list(real)),
+            kinds=kinds,
             budgets=_budgets(data.get("budgets", [])),
             unet=UNetSettings.from_dict(unet),
             unet_kinds=_kinds(unet_arms, list(listed), list(real)),
@@ -261,7 +267,7 @@ def _path(value: str) -> Path:
 def _kinds(value: list | dict | None, listed: list[str], present: list[str]) -> dict[str, list[str]]:
     """The config's ``arms`` as kind -> scans (those present), checked."""
     if value is None:
-        value = list(ARM_KINDS)
+        value = list(DEFAULT_KINDS)
     if isinstance(value, list):
         value = {kind: "all" for kind in value}
     if not isinstance(value, dict):
@@ -455,13 +461,14 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                             plan.epochs, plan.images, plan.images_seen)
                 settings = TrainSettings(**{**vars(config.train), "seed": seed, "imgsz": config.imgsz(arm)})
                 if arm.family == "unet":
-                    train_unet(data[arm.name], run, settings, config.unet, plan)
+                    train_unet(data[arm.name], run, settings, config.unet, plan, packs_first=arm.packs_first)
                 elif arm.family == "unet3d":
                     export = data[arm.scan].parent
                     folder = out / ("packs-randomised" if arm.kind == "syn-rand" else "packs") / arm.scan
                     packs = find_packs(folder) if folder.is_dir() else []
                     volumes = arm_volumes(arm.kind, scans(arm.scan), packs, window_of(export))
-                    train_unet3d(volumes, export, scans(arm.scan), run, settings, config.unet3d, plan)
+                    train_unet3d(volumes, export, scans(arm.scan), run, settings, config.unet3d, plan,
+                                 packs_first=arm.packs_first)
                 else:
                     recorder = CurveRecorder(run, data[arm.name], batch=config.train.batch,
                                              imgsz=config.imgsz(arm), conf=config.conf, device=device)
@@ -480,7 +487,7 @@ def run_arms(config: ExperimentConfig, out: Path, data: dict[str, Path],
                 slices[(arm.name, seed, test_set)] = np.array(
                     [[s[key] for key in SLICE_COUNTS] for s in scores["slices"]], dtype=np.int64)
                 rows.append({"arm": arm.name, "family": arm.family, "train_scan": arm.scan, "kind": arm.description,
-                             "budget": arm.real_slices if arm.kind == "budget" else "", "seed": seed,
+                             "budget": arm.real_slices or "", "seed": seed,
                              "test_set": test_set, "train_seconds": round(record["seconds"], 1),
                              "epochs": plan.epochs, "images_seen": plan.images_seen, "steps": round(plan.steps, 1),
                              **{key: scores[key] for key in RESULT_COLUMNS if key in scores}})

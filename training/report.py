@@ -44,6 +44,10 @@ COMPARISONS = (
     ("synthetic only", "{s}:syn-rand", "{s}:syn"),
     ("label budget", "{s}@{k}+syn", "{s}@{k}"),
     ("label budget", "{s}@{k}+syn", "{s}"),
+    ("packs first", "{s}+syn-first", "{s}+syn"),
+    ("packs first", "{s}+syn-first", "{s}"),
+    ("packs first", "{s}@{k}+syn-first", "{s}@{k}+syn"),
+    ("packs first", "{s}@{k}+syn-first", "{s}"),
 )
 #: The model families against each other on the same training set: ``{u}`` the 2D U-Net arms' prefix, ``{v}``
 #: the 3D U-Net's (YOLO's is empty).
@@ -360,6 +364,13 @@ def report_markdown(config, rows: list[dict], comparisons: list[Comparison], out
                   "K = 0 with packs is `scan:syn`; K = all is `scan` and `scan+syn`. Chart: "
                   "`label_efficiency.png`.", "", *_budget_lines(config, summary),
                   *_differences(comparisons, "label budget", tests)]
+    first = [arm.name for arm in config.arm_list if arm.packs_first]
+    if first:
+        lines += ["", "## Packs first, then real: pretraining on the packs at equal steps", "",
+                  "`+syn-first` arms train on their `+syn` twin's slices, as many times each in as many steps, "
+                  "every epoch of the pack slices first, then every epoch of the real ones; only the order "
+                  "differs.", "", *_table(summary, first, tests, both),
+                  *_differences(comparisons, "packs first", tests)]
     if any(c.group == "model family" for c in comparisons):
         lines += ["", "## Model families on the same training set: the 2D U-Net against YOLO, the 3D U-Net against "
                   "the 2D", "", *_table(summary, pick("", "+syn", ":syn"), tests, both),

@@ -21,9 +21,10 @@ Training compute
     random order, cut into batches of `plan.batch` slices across the epochs' ends. Every step
     but perhaps the last takes a full batch and the training sees exactly `plan.images_seen`
     slices in ``ceil(images_seen / batch)`` optimizer steps: arms of equal images seen take
-    equal steps. Each slice of a batch is a random ``train.imgsz`` square crop at its own
-    resolution (grains keep their pixel size; a smaller slice is padded with background),
-    turned by one of the 8 flips and quarter turns at random.
+    equal steps. A ``syn-first`` arm (`training.arms`) takes the same items in the same steps,
+    every epoch of its packs' slices first (`item_order`). Each slice of a batch is a random
+    ``train.imgsz`` square crop at its own resolution (grains keep their pixel size; a smaller
+    slice is padded with background), turned by one of the 8 flips and quarter turns at random.
 Validation and model selection
     After the step that completes each of the plan's validation epochs (`ArmPlan.validation_epochs`,
     or only the last with the option ``val: false``) the real val slices are predicted and their
@@ -62,14 +63,15 @@ from synthpack.errors import SynthpackInputError
 from synthpack.export.nnunet import instances_from_target, semantic_target
 from synthpack.io import atomic_file, read_label_image, write_label_image
 
+from .arms import synthetic_images
 from .compute import ArmPlan
 from .evaluate import score, write_scores
 from .train import TrainSettings, resolve_device, unknown_fields
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["N_CLASSES", "UNetSettings", "build_model", "evaluate_unet", "load_model", "predict_label_images",
-           "predict_labels", "slice_target", "split_images", "target_instances", "train_unet"]
+__all__ = ["N_CLASSES", "UNetSettings", "build_model", "evaluate_unet", "item_order", "load_model",
+           "predict_label_images", "predict_labels", "slice_target", "split_images", "target_instances", "train_unet"]
 
 #: Output classes: background 0, grain interior 1, boundary 2 (`synthpack.export.nnunet.LABELS`).
 N_CLASSES = 3
@@ -312,8 +314,51 @@ def _steps(plan: ArmPlan) -> int:
     return math.ceil(plan.images_seen / plan.batch)
 
 
+def item_order(n_items: int, epochs: int, generator, first: np.ndarray | None = None):
+    """The order a training takes its items in: `epochs` passes over `n_items`, each a fresh random order.
+
+    Parameters
+    ----------
+    n_items : int
+        Training items (slices or patches) of an epoch.
+    epochs : int
+    generator : torch.Generator
+        The training's data stream.
+    first : ndarray of bool, shape (n_items,), optional
+        Items that come first: every epoch of them, then every epoch of the rest (a ``syn-first``
+        arm's pack slices, `training.arms`). Default: every epoch of all the items in turn.
+
+    Returns
+    -------
+    order : torch.Tensor of int64, shape (epochs * n_items,)
+        Item indices.
+    epoch_of : torch.Tensor of int64, same shape
+        The epoch (0-based) each entry of `order` belongs to.
+
+    Raises
+    ------
+    SynthpackInputError
+        If `first` holds all of the items or none.
+    """
+    import torch
+
+    if first is None:
+        order = torch.cat([torch.randperm(n_items, generator=generator) for _ in range(epochs)])
+        return order, torch.arange(epochs).repeat_interleave(n_items)
+    first = np.asarray(first, dtype=bool)
+    if first.shape != (n_items,) or first.all() or not first.any():
+        raise SynthpackInputError(f"a packs-first training needs both pack and real training items, got "
+                                  f"{int(first.sum())} pack items of {n_items}")
+    order, epoch_of = [], []
+    for group in (torch.from_numpy(np.flatnonzero(first)), torch.from_numpy(np.flatnonzero(~first))):
+        for epoch in range(epochs):
+            order.append(group[torch.randperm(len(group), generator=generator)])
+            epoch_of.append(torch.full((len(group),), epoch, dtype=torch.int64))
+    return torch.cat(order), torch.cat(epoch_of)
+
+
 def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainSettings, unet: UNetSettings,
-               plan: ArmPlan) -> Path:
+               plan: ArmPlan, *, packs_first: bool = False) -> Path:
     """Train a U-Net from scratch on the dataset `data` for `plan`'s images seen and return its best weights.
 
     Parameters
@@ -330,6 +375,8 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
         ``options["val"]`` are read; the plan holds the rest.
     unet : UNetSettings
     plan : training.compute.ArmPlan
+    packs_first : bool
+        Train on the pack slices first, then on the real ones (`item_order`; a ``syn-first`` arm).
 
     Returns
     -------
@@ -355,11 +402,12 @@ def train_unet(data: str | os.PathLike, out: str | os.PathLike, settings: TrainS
 
     return fit(out, settings, unet, plan, spatial_dims=2, validate=validate, data=str(data),
                batch_of=lambda indices, epochs, generator: _batch(pictures, targets, indices, settings.imgsz,
-                                                                  generator))
+                                                                  generator),
+               first=synthetic_images(data, images) if packs_first else None)
 
 
 def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *, spatial_dims: int,
-        batch_of: Callable, validate: Callable, data: str) -> Path:
+        batch_of: Callable, validate: Callable, data: str, first: np.ndarray | None = None) -> Path:
     """The U-Net families' training loop: `plan`'s images seen in batches, validations, the best weights.
 
     Parameters
@@ -372,7 +420,8 @@ def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *
         The network (`build_model`), AdamW's learning rate and weight decay.
     plan : training.compute.ArmPlan
         ``plan.epochs`` epochs of ``plan.images`` training items (slices or patches), each
-        epoch a fresh random order, cut into batches of ``plan.batch`` across the epochs' ends.
+        epoch a fresh random order, cut into batches of ``plan.batch`` across the epochs' ends
+        (`item_order`).
     spatial_dims : {2, 3}
     batch_of : callable
         ``batch_of(indices, epochs, generator) -> (x, y)``: the items `indices` (int64 tensor)
@@ -383,6 +432,8 @@ def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *
         ``validate(model) -> float``: the real val slices' foreground Dice.
     data : str
         What it trained on, for ``train.json``.
+    first : ndarray of bool, shape (plan.images,), optional
+        The items trained on first (`item_order`), recorded in ``train.json`` as ``items_first``.
 
     Returns
     -------
@@ -401,8 +452,7 @@ def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *
     optimizer = torch.optim.AdamW(model.parameters(), lr=unet.lr, weight_decay=unet.weight_decay)
     n_steps = _steps(plan)
     schedule = torch.optim.lr_scheduler.PolynomialLR(optimizer, total_iters=n_steps, power=0.9)
-    order = torch.cat([torch.randperm(plan.images, generator=generator) for _ in range(plan.epochs)])
-    epoch_of = torch.arange(plan.epochs).repeat_interleave(plan.images)
+    order, epoch_of = item_order(plan.images, plan.epochs, generator, first)
     due = plan.validation_epochs if settings.options.get("val", True) else [plan.epochs]
     (out / "weights").mkdir(parents=True, exist_ok=True)
     points, best, seen = [], None, 0
@@ -438,7 +488,8 @@ def fit(out: Path, settings: TrainSettings, unet: UNetSettings, plan: ArmPlan, *
     family = "unet" if spatial_dims == 2 else "unet3d"
     record = {"data": data, "device": device, "seconds": seconds, "family": family,
               **dataclasses.asdict(settings), "unet": dataclasses.asdict(unet), "epochs": plan.epochs,
-              "plan": plan.to_dict(), "steps_taken": n_steps, "images_seen": seen}
+              "plan": plan.to_dict(), "steps_taken": n_steps, "images_seen": seen,
+              "items_first": None if first is None else int(np.count_nonzero(first))}
     with atomic_file(out / "train.json") as staging:  # the experiment takes it as "this run is done"
         staging.write_text(json.dumps(record, indent=1))
     logger.info("trained a %dD U-Net on %s in %.0f s (%d steps, best val Dice %.3f)", spatial_dims, data, seconds,

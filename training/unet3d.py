@@ -69,7 +69,7 @@ __all__ = ["KIND_VOLUMES", "SEED_EROSIONS", "UNet3DSettings", "Volume", "arm_vol
 
 #: Arm kinds of the 3D family and which volumes they train on: (real training slices, pack volumes' kind).
 KIND_VOLUMES = {"real": (True, None), "syn": (True, "tomogram"), "syn-nopp": (True, "clean"),
-                "syn-only": (False, "tomogram"), "syn-rand": (False, "tomogram")}
+                "syn-only": (False, "tomogram"), "syn-rand": (False, "tomogram"), "syn-first": (True, "tomogram")}
 _SLICE_NAME = re.compile(r"_a(\d)_s(\d+)$")
 #: Seed erosions tried on each arm's val slices (`choose_seed_erosion`), voxels; 0 is the nnU-Net export's recovery.
 SEED_EROSIONS = (0, 1, 2, 3)
@@ -184,6 +184,8 @@ class _Patches:
                      for v, n in zip(volumes, _shares(per_epoch or sum(slices), slices))]
         self.targets = [semantic_target(v.scan.labels) for v in volumes]
         self.offsets = np.cumsum([0] + [len(s) for s in self.sets])
+        #: bool (len(self),): the items cut from a pack (a volume of split "all"), for a packs-first order
+        self.synthetic = np.repeat([v.split == "all" for v in volumes], [len(s) for s in self.sets])
         for patches in self.sets:
             thinnest, shape = int(np.min(np.diff(patches.blocks(0), axis=1))), patches.volumes.volume_shapes()[0]
             if thinnest < settings.patch[axis] or any(n < p for n, p in zip(shape, settings.patch)):
@@ -309,7 +311,7 @@ def _export_settings(export: Path) -> dict:
 
 
 def train_unet3d(volumes: list[Volume], export: str | os.PathLike, scan: Scan, out: str | os.PathLike,
-                 settings: TrainSettings, unet3d: UNet3DSettings, plan: ArmPlan) -> Path:
+                 settings: TrainSettings, unet3d: UNet3DSettings, plan: ArmPlan, *, packs_first: bool = False) -> Path:
     """Train a 3D U-Net from scratch on `volumes` for `plan`'s patches seen; return its best weights.
 
     Parameters
@@ -329,6 +331,9 @@ def train_unet3d(volumes: list[Volume], export: str | os.PathLike, scan: Scan, o
     plan : training.compute.ArmPlan
         Planned with ``unet3d.batch`` patches a step; its ``images`` are the patches of an
         epoch.
+    packs_first : bool
+        Train on the packs' patches first, then on the real scan's (`training.unet.item_order`; a
+        ``syn-first`` arm).
     """
     export, out = Path(export), Path(out).resolve()
     options = _export_settings(export)
@@ -344,7 +349,7 @@ def train_unet3d(volumes: list[Volume], export: str | os.PathLike, scan: Scan, o
         return score(out / "curve_pred", export / "truth" / "val")["dice"]
 
     return fit(out, settings, unet3d, plan, spatial_dims=3, batch_of=patches.batch, validate=validate,
-               data=", ".join(v.scan.source for v in volumes))
+               data=", ".join(v.scan.source for v in volumes), first=patches.synthetic if packs_first else None)
 
 
 def choose_seed_erosion(weights: str | os.PathLike, scan: Scan, export: str | os.PathLike, out: str | os.PathLike, *,
