@@ -45,8 +45,8 @@ from synthpack.errors import SynthpackInputError
 from synthpack.io import atomic_file
 from synthpack.scan.split import slice_splits
 
-__all__ = ["ARM_KINDS", "DEFAULT_KINDS", "FIRST_SUFFIX", "MODEL_FAMILIES", "Arm", "budget_slices", "dataset_images", "make_arms",
-           "subset_dataset", "synthetic_images"]
+__all__ = ["ARM_KINDS", "DEFAULT_KINDS", "FIRST_SUFFIX", "MODEL_FAMILIES", "Arm", "budget_slices", "dataset_images",
+           "make_arms", "subset_dataset", "synthetic_images"]
 
 #: Arm kinds and what they train on.
 ARM_KINDS = {
