@@ -247,6 +247,9 @@ def test_the_cpu_config_runs_its_arms_over_three_seeds_with_the_concrete_scan_wh
         assert sizes["concrete"] == sizes["concrete+syn"] == 192 != config.train.imgsz == sizes["unet_concrete"]
         # the 3D U-Net on the real scan, where the 2D one has room to gain
         assert {"unet3d_concrete", "unet3d_concrete+syn", "unet3d_concrete:syn"} <= names
+        # pretraining on the packs, then the real slices, at equal steps: the U-Nets on the real scan
+        assert {"unet_concrete+syn-first", "unet_concrete@14+syn-first", "unet3d_concrete+syn-first"} <= names
+        assert not any(name.endswith("-first") for name in names if not name.startswith("unet"))
 
 
 def test_image_sizes_by_scan_name_scans_of_the_config_and_whole_sizes(tmp_path):

@@ -47,6 +47,7 @@ COMPARISONS = (
     ("packs first", "{s}+syn-first", "{s}+syn"),
     ("packs first", "{s}+syn-first", "{s}"),
     ("packs first", "{s}@{k}+syn-first", "{s}@{k}+syn"),
+    ("packs first", "{s}@{k}+syn-first", "{s}@{k}"),
     ("packs first", "{s}@{k}+syn-first", "{s}"),
 )
 #: The model families against each other on the same training set: ``{u}`` the 2D U-Net arms' prefix, ``{v}``
