@@ -139,11 +139,14 @@ def test_the_feature_groups_alone_say_which_statistic_tells_two_sets_apart():
     # every patch holds the same 256 values: smooth in one set, the same values shuffled (white) in the other
     ranked = np.linspace(0.2, 0.8, 256)[np.argsort(np.argsort(smooth, axis=1), axis=1)]
     shuffled = rng.permuted(ranked, axis=1)
-    test = classifier_test(ranked.reshape(300, 16, 16), shuffled.reshape(300, 16, 16), seed=0)
+    test = classifier_test(ranked.reshape(300, 16, 16), shuffled.reshape(300, 16, 16), seed=0, feature_groups=True)
     groups = test.feature_auc
     assert list(groups) == ["intensities", "differences", "spectrum"]
     assert abs(groups["intensities"] - 0.5) < 0.1 and groups["differences"] > 0.95 and groups["spectrum"] > 0.95
     assert test.summary()["logistic_features"] == groups and test.auc("logistic") > 0.95
+    alone = classifier_test(ranked.reshape(300, 16, 16), shuffled.reshape(300, 16, 16), seed=0)
+    assert alone.feature_auc == {} and "logistic_features" not in alone.summary()  # only when asked for
+    assert alone.auc("logistic") == test.auc("logistic")
 
 
 @pytest.fixture(scope="module")

@@ -214,6 +214,7 @@ def classifier_test(
     folds: int = FOLDS,
     seed: int = 0,
     cnn: CnnConfig | None = None,
+    feature_groups: bool = False,
 ) -> ClassifierTest:
     """Cross-validated AUCs of the classifiers telling `first` from `second` patches.
 
@@ -230,6 +231,8 @@ def classifier_test(
         Seed of the fold shuffling and of the CNN.
     cnn : CnnConfig, optional
         Also train the CNN with these settings; None = the logistic regression only.
+    feature_groups : bool
+        Also fit the logistic regression on each feature group alone (`ClassifierTest.feature_auc`).
 
     Returns
     -------
@@ -248,8 +251,9 @@ def classifier_test(
     start = time.perf_counter()
     features = patch_features(patches)
     test.record("logistic", logistic_fold_auc(features, target, splits), time.perf_counter() - start)
-    test.feature_auc = {group: float(logistic_fold_auc(features[:, columns], target, splits).mean())
-                        for group, columns in FEATURE_GROUPS.items()}
+    if feature_groups:
+        test.feature_auc = {group: float(logistic_fold_auc(features[:, columns], target, splits).mean())
+                            for group, columns in FEATURE_GROUPS.items()}
     if cnn is not None:
         from sklearn.metrics import roc_auc_score
 

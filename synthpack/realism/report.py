@@ -367,7 +367,8 @@ def compare(
     for directory in directories:
         specimen = Specimen.from_pack(directory, name=_column_name(directory, directories))
         measured.append(measure(specimen, window, patch=patch))
-        tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn))
+        tests.append(classifier_test(reference.patches, measured[-1].patches, seed=seed, cnn=cnn,
+                                     feature_groups=True))
         if ablation:
             logger.info("%s: the classifiers on its ablations", specimen.name)
             pack_ablated = ablated(measured[-1])
