@@ -186,6 +186,18 @@ def test_a_phase_without_a_measured_spectrum_gets_white_noise_at_its_own_level(r
     assert fit["target_power"]["pores"] == list(STATISTICS.nps_pores)
 
 
+def test_a_scan_with_no_phase_wide_enough_for_a_spectrum_is_still_calibrated_with_white_noise(rendered):
+    # small grains and narrow pores (a finer sand at a coarser voxel): the blur is fitted all the same
+    statistics = dataclasses.replace(STATISTICS, nps_grains=None, nps_pores=None, noise_grain_std=0.02,
+                                     noise_pore_std=None)
+    resolved = _resolve("calibrated", rendered, statistics)
+    fit = resolved.record["calibration"]
+    assert resolved.record["postprocess_mode"] == "calibrated" and "postprocess_fallback" not in resolved.record
+    assert fit["blur_sigma"] > 0 and "gaussian_blur" in [t.name for t in resolved.pipeline]
+    for phase in ("grains", "pores"):  # the pores take the grains' level
+        np.testing.assert_allclose(fit["target_power"][phase], white_ring_powers(0.02**2, 6))
+
+
 def test_the_clean_spectrum_of_a_phase_too_thin_for_a_patch_is_white_noise_plus_the_pore_texture():
     texture = np.full((16, 16, 16), 2.0)  # a white texture of variance 2
     np.testing.assert_allclose(_clean_ring_powers(None, 6, 1.0, texture), white_ring_powers(3.0, 6))

@@ -14,12 +14,13 @@ from synthpack.errors import SynthpackInputError
 from synthpack.scan.core import Scan
 from synthpack.measure import estimate_noise, estimate_phases, fit_edge_spread, noise_power_spectrum, volume_edge_width
 from synthpack.source import SourceStatistics, measure_source
-from synthpack.measure.edges import edge_profile, signed_distance
+from synthpack.measure.edges import INTERIOR, edge_profile, signed_distance
 from synthpack.measure.specimen import specimen_mask
 from synthpack.measure.lattice import patch_corners, take_patches
 from synthpack.measure.noise_estimate import estimate_spread
 from synthpack.measure.pore_spectrum import measure_pore_spectrum
-from synthpack.measure.spectrum import phase_interiors, ring_of, white_ring_powers
+from synthpack.measure.spectrum import (NPS_DEPTH_STEP, measurable_phase_spectra, phase_interiors, phase_spectra,
+                                       ring_of, white_ring_powers)
 
 
 def test_pore_statistics_leave_out_the_blurred_rim_along_grains():
@@ -230,6 +231,23 @@ def test_noise_power_spectrum_of_a_phase_too_thin_is_none():
     assert noise_power_spectrum(volume, mask) is None
     mask[:, 4:28, :] = True
     assert noise_power_spectrum(volume, mask) is not None
+
+
+def test_phases_too_thin_at_the_edges_reach_are_measured_at_the_deepest_interior_that_holds_a_spectrum():
+    # grain slabs 11 voxels wide, pores 1 wide: small grains and narrow pores at a coarse voxel
+    labels = np.zeros((24, 96, 64), dtype=np.int32)
+    for k, y in enumerate(range(0, 96, 12)):
+        labels[:, y:y + 11] = k + 1
+    volume = np.random.default_rng(0).normal(0.0, 0.1, labels.shape).astype(np.float32)
+    distance = signed_distance(labels)
+    assert all(s is None for s in phase_spectra(volume, distance, None, 4.0).values())
+    spectra, depth = measurable_phase_spectra(volume, distance, None, 4.0)
+    steps = (4.0 - depth) / NPS_DEPTH_STEP
+    assert INTERIOR <= depth < 4.0 and steps == pytest.approx(round(steps))
+    assert all(s is None for s in phase_spectra(volume, distance, None, depth + NPS_DEPTH_STEP).values())  # the deepest
+    np.testing.assert_allclose(spectra["grains"].power[1:], white_ring_powers(0.1**2, 6), rtol=0.1)
+    assert spectra["pores"] is None
+    assert measurable_phase_spectra(volume, distance, None, depth)[1] == depth  # measurable: measured where asked
 
 
 def test_noise_power_spectrum_of_known_coloured_noise():

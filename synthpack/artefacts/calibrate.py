@@ -383,6 +383,7 @@ def calibrate(
     target_sigma: float,
     target_shift: float,
     target_power: dict[str, Sequence[float]],
+    target_nps_depth: float | None = None,
     target_phase_noise: dict[str, float | None],
     target_edge_width: float,
     target_noise: float,
@@ -417,6 +418,9 @@ def calibrate(
     target_power : dict
         ``"grains"`` and ``"pores"``: the source's noise power per ring (rings 1, 2, ...),
         intensity units squared (`~synthpack.source.SourceStatistics.nps_grains`).
+    target_nps_depth : float, optional
+        Voxels from the edges beyond which the source's noise spectra were measured, and the
+        pack's are (`~synthpack.source.SourceStatistics.nps_depth`); None: at the edges' reach.
     target_phase_noise : dict
         ``"grains"`` and ``"pores"``: the source's noise level, intensity units
         (`~synthpack.source.SourceStatistics.noise_grain_std`), or None (not matched).
@@ -494,13 +498,14 @@ def calibrate(
         logger.warning("the clean pack's edges (width %.3f voxels) are already as soft as the source's (%.3f): "
                        "no blur", fitted[0], target_sigma)
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
+    nps_depth = interior_depth(target_sigma) if target_nps_depth is None else target_nps_depth
     rounding = rounding_variance() if round_levels else 0.0  # the last step's white noise, part of the source's
     gamma_targets = {phase: None if target_semivariogram is None or target_semivariogram.get(phase) is None
                      else np.asarray(target_semivariogram[phase], dtype=np.float64) for phase in targets}
 
     def fit_at(sigma: float, blurred: np.ndarray, profile: EdgeProfile, spread: EdgeSpread) -> Calibration:
         """The calibration with a PSF of `sigma` (`blurred`, `profile`, `spread`: its edge) and the noise fitted to it."""
-        measured = phase_spectra(blurred, distance, box_region, interior_depth(target_sigma))
+        measured = phase_spectra(blurred, distance, box_region, nps_depth)
         noise = estimate_noise(blurred, np.where(box_region, box_labels.astype(np.int64), -1))
         clean_noise = {"grains": noise.grain_std, "pores": noise.pore_std}
         textures = {"grains": None, "pores": None if pore_texture is None else _blurred(pore_texture, sigma)}

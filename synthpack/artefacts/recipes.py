@@ -87,7 +87,7 @@ from ..errors import SynthpackInputError
 from ..render.grid import Grid
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phase_histograms import BAND_KEYS
-from ..measure.spectrum import NPS_PATCH, white_ring_powers
+from ..measure.spectrum import NPS_PATCH, ring_frequencies, white_ring_powers
 from ..physics.checks import bulk_shortfall
 from ..source.statistics import SourceStatistics
 
@@ -171,9 +171,6 @@ def _uncalibratable(statistics: SourceStatistics) -> str | None:
     if any(value is None for value in edges):
         return ("the source scan's edge width could not be measured when the particle library was built: it "
                 "needs grain and pore interiors of different levels; rebuild the library from such a scan")
-    if statistics.nps_pores is None and statistics.nps_grains is None:
-        return ("the source scan's noise spectrum could not be measured when the particle library was built: "
-                f"no phase interior holds enough voxel pairs at the lags of a {NPS_PATCH} x {NPS_PATCH} patch")
     return None
 
 
@@ -190,20 +187,24 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
     """Keyword arguments of `~synthpack.artefacts.calibrate` from the source statistics.
 
     A phase without a measured noise level takes the other phase's. A phase without a
-    measured spectrum (too thin for a patch) gets white noise at its noise level: the
-    other phase's spectrum may hold that phase's texture (a cement paste's sand and
-    voids), which is not the noise of the first.
+    measured spectrum (too thin for a patch) gets white noise at its noise level (or the
+    scan's, where neither phase's is measured): the other phase's spectrum may hold that
+    phase's texture (a cement paste's sand and voids), which is not the noise of the
+    first. A scan whose grains and pores are both too thin (small grains, narrow pores)
+    is calibrated with white noise in both: its edges and levels are still fitted.
     """
     grain_std, pore_std = statistics.noise_grain_std, statistics.noise_pore_std
     levels = {"grains": grain_std if grain_std is not None else pore_std,
               "pores": pore_std if pore_std is not None else grain_std}
-    n_rings = len(statistics.nps_pores or statistics.nps_grains)
-    spectra = {phase: tuple(measured) if measured is not None else tuple(white_ring_powers(levels[phase] ** 2, n_rings))
-               for phase, measured in (("grains", statistics.nps_grains), ("pores", statistics.nps_pores))}
+    n_rings = len(ring_frequencies(NPS_PATCH)) - 1  # ring 0, the patch mean, is not kept
+    spectra = {phase: tuple(measured) if measured is not None else tuple(white_ring_powers(
+        (levels[phase] if levels[phase] is not None else statistics.noise_std) ** 2, n_rings))
+        for phase, measured in (("grains", statistics.nps_grains), ("pores", statistics.nps_pores))}
     rings = None if statistics.ring_radii is None else (
         statistics.ring_radii, statistics.ring_amplitudes, statistics.ring_width)
     return {"target_sigma": float(statistics.edge_sigma), "target_shift": float(statistics.edge_shift),
-            "target_power": spectra, "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
+            "target_power": spectra, "target_nps_depth": statistics.nps_depth,
+            "target_phase_noise": levels, "target_edge_width": float(statistics.edge_width),
             "target_noise": float(statistics.noise_std), "pore_level": statistics.pore_mean,
             "grain_level": statistics.grain_mean, "cupping_strength": statistics.cupping_strength, "rings": rings,
             "target_histograms": {"grains": statistics.histogram_grains, "pores": statistics.histogram_pores,

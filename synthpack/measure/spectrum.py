@@ -51,7 +51,8 @@ from scipy import fft
 
 from .edges import INTERIOR
 
-__all__ = ["MAX_NPS_ERROR", "MAX_NPS_VOXELS", "NPS_PATCH", "NoiseSpectrum", "noise_power_spectrum", "patch_lags",
+__all__ = ["MAX_NPS_ERROR", "MAX_NPS_VOXELS", "NPS_DEPTH_STEP", "NPS_PATCH", "NoiseSpectrum",
+           "measurable_phase_spectra", "noise_power_spectrum", "patch_lags",
            "patch_ring_powers", "phase_interiors", "phase_spectra", "ring_errors", "ring_frequencies", "ring_of",
            "slice_difference_gain", "white_ring_powers"]
 
@@ -63,6 +64,9 @@ MAX_NPS_VOXELS = 1 << 22
 #: to this relative standard error or better (`ring_errors`, for white noise): a phase too thin or too small
 #: is not measured (the corner rings beyond hold a few frequencies each and little power).
 MAX_NPS_ERROR = 0.1
+#: Where both phases are too thin for a spectrum at the edges' reach, `measurable_phase_spectra` tries again this
+#: many voxels closer to the edges at a time, down to `~synthpack.measure.edges.INTERIOR`.
+NPS_DEPTH_STEP = 0.25
 
 
 def ring_of(size: int = NPS_PATCH) -> np.ndarray:
@@ -274,3 +278,28 @@ def phase_spectra(
     """
     return {phase: noise_power_spectrum(tomogram, mask)
             for phase, mask in phase_interiors(distance, region, depth).items()}
+
+
+def measurable_phase_spectra(
+    tomogram: np.ndarray, distance: np.ndarray, region: np.ndarray | None, depth: float,
+) -> tuple[dict[str, NoiseSpectrum | None], float]:
+    """`phase_spectra` at `depth`, or nearer the edges where both phases are too thin there.
+
+    Small grains and narrow pores (a fine sand at a coarse voxel) may leave no interior
+    `depth` voxels from the edges wide enough for the pairs of a patch. The depth then
+    steps down by `NPS_DEPTH_STEP` voxels, to `~synthpack.measure.edges.INTERIOR` at the
+    least, until one phase is measured: the deepest interior that is, where the edges
+    leak least into the second differences.
+
+    Returns
+    -------
+    spectra : dict
+        As `phase_spectra`'s.
+    depth : float
+        The depth measured at, voxels: `depth` itself, unless both phases are too thin there.
+    """
+    spectra = phase_spectra(tomogram, distance, region, depth)
+    while all(spectrum is None for spectrum in spectra.values()) and depth > INTERIOR:
+        depth = max(INTERIOR, depth - NPS_DEPTH_STEP)
+        spectra = phase_spectra(tomogram, distance, region, depth)
+    return spectra, depth

@@ -25,7 +25,7 @@ from ..measure.scanner import measure_scanner
 from ..measure.phase_histograms import band_quantiles, phase_masks, phase_quantiles
 from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.semivariogram import phase_semivariograms
-from ..measure.spectrum import phase_interiors, phase_spectra
+from ..measure.spectrum import measurable_phase_spectra, phase_interiors
 from ..measure.steepness import edge_steepness
 
 logger = logging.getLogger(__name__)
@@ -83,6 +83,11 @@ class SourceStatistics:
         per voxel, intensity units squared (their sum is the noise variance within an
         in-slice patch of `~synthpack.measure.spectrum.NPS_PATCH` voxels); None where the
         phase is too thin to measure.
+    nps_depth : float or None
+        Voxels from the edges beyond which `nps_grains` and `nps_pores` were measured, where
+        both phases are too thin at the edges' reach (small grains and narrow pores): the
+        deepest of `NPS_DEPTH_STEP` steps down to `~synthpack.measure.edges.INTERIOR` at
+        which one of them holds enough voxel pairs. None: at the edges' reach.
     pore_spectrum : tuple of float or None
         Power spectral density of the pore interior's intensity fluctuations on
         every scale up to `~synthpack.measure.pore_spectrum.PORE_SPECTRUM_SIZE`
@@ -188,6 +193,7 @@ class SourceStatistics:
     noise_pore_std: float | None = None
     nps_grains: tuple[float, ...] | None = None
     nps_pores: tuple[float, ...] | None = None
+    nps_depth: float | None = None
     pore_spectrum: tuple[float, ...] | None = None
     pore_quantiles: tuple[float, ...] | None = None
     scan_axis: tuple[float, float] | None = None
@@ -326,10 +332,14 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     except SynthpackInputError as error:
         logger.warning("the source's edge width cannot be measured (%s): packs of 'postprocess: calibrated' "
                        "(the default) will get noise matched to the source's level and no fitted blur", error)
-    depth = interior_depth(edges.get("edge_sigma"))
-    spectra = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
-               for phase, spectrum in phase_spectra(scan.tomogram, distance, specimen, depth).items()
-               if spectrum is not None}
+    reach = interior_depth(edges.get("edge_sigma"))
+    measured, nps_depth = measurable_phase_spectra(scan.tomogram, distance, specimen, reach)
+    spectra: dict[str, Any] = {f"nps_{phase}": tuple(float(p) for p in spectrum.power[1:])
+                               for phase, spectrum in measured.items() if spectrum is not None}
+    if nps_depth != reach and spectra:
+        spectra["nps_depth"] = nps_depth
+        logger.info("no phase interior %.2f voxels from the edges is wide enough for a noise spectrum: measured "
+                    "%.2f voxels from them", reach, nps_depth)
     spectra.update({f"histogram_{phase}": tuple(float(q) for q in quantiles)
                     for phase, quantiles in phase_quantiles(scan.tomogram, phase_masks(distance, specimen)).items()
                     if quantiles is not None})
@@ -351,7 +361,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
     else:
         spectra["pore_spectrum"] = tuple(float(p) for p in pore_spectrum)
     spectra.update({f"semivariogram_{phase}": tuple(float(g) for g in gamma)
-                    for phase, gamma in phase_semivariograms(flat, distance, specimen, depth).items()
+                    for phase, gamma in phase_semivariograms(flat, distance, specimen, reach).items()
                     if gamma is not None})
     pore_quantiles = measure_pore_quantiles(flat, pore_interior)
     if pore_quantiles is not None:
