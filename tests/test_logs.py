@@ -124,7 +124,9 @@ def test_a_warning_of_packs_built_by_dask_workers_is_shown_once(scan_files):
     assert len(lines) == 1 and lines[0].startswith("synthpack: postprocess: calibrated cannot be fitted"), lines
     reasons = {json.loads((scan_files / "dask" / f"pack_000{k}" / "manifest.json").read_text())
                ["postprocess_fallback"] for k in range(2)}
-    assert len(reasons) == 1 and reasons.pop() in lines[0]  # both packs fell back for the one reason shown
+    # both packs fell back for one reason, each with its own figures (how deep its pour is): the first shown
+    assert len({re.sub(r"[\d.]+", "#", reason) for reason in reasons}) == 1
+    assert any(reason in lines[0] for reason in reasons)
 
 
 def test_figures_are_rounded_by_their_meaning():

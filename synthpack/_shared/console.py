@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 from collections.abc import Iterator
 from typing import Any
 
@@ -32,8 +33,10 @@ def progress_bar(*args: Any, disable: bool = False, **kwargs: Any) -> tqdm:
 
 
 class _WarnOnce(logging.Filter):
-    """Drops a warning already shown by this handler: packs built side by side (each by its own
-    Dask worker, whose records are forwarded here) warn of the same thing once each."""
+    """Drops a warning of a kind already shown by this handler: packs built side by side (each by its
+    own Dask worker, whose records are forwarded here) warn of the same thing once each, often with
+    their own figures ("1.6 diameters deep ... pour ~50" and "... pour ~51"). A kind is the message
+    with its numbers taken out (`_kind`); the first of a kind is shown."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -42,11 +45,19 @@ class _WarnOnce(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         if record.levelno != logging.WARNING:
             return True
-        message = record.getMessage()
-        if message in self._shown:
+        kind = _kind(record.getMessage())
+        if kind in self._shown:
             return False
-        self._shown.add(message)
+        self._shown.add(kind)
         return True
+
+
+def _kind(message: str) -> str:
+    """`message` with every number in it replaced by ``#``."""
+    return _NUMBER.sub("#", message)
+
+
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 
 
 def log_to_stderr(level: int) -> logging.Handler:
@@ -54,7 +65,7 @@ def log_to_stderr(level: int) -> logging.Handler:
 
     Only the ``synthpack`` logger is set: other libraries' messages keep their own
     levels (Python's default shows their warnings). A warning is shown once, however
-    many times it is logged (by as many packs).
+    many times it is logged (by as many packs, each with its own figures: the first is shown).
     """
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter(LOG_FORMAT))

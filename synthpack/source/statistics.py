@@ -338,8 +338,8 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                for phase, spectrum in measured.items() if spectrum is not None}
     if nps_depth != reach and spectra:
         spectra["nps_depth"] = nps_depth
-        logger.info("no phase interior %.2f voxels from the edges is wide enough for a noise spectrum: measured "
-                    "%.2f voxels from them", reach, nps_depth)
+        logger.info("noise spectrum measured %.2f voxels from the edges (no phase is wide enough %.2f from them)",
+                    nps_depth, reach)
     spectra.update({f"histogram_{phase}": tuple(float(q) for q in quantiles)
                     for phase, quantiles in phase_quantiles(scan.tomogram, phase_masks(distance, specimen)).items()
                     if quantiles is not None})
