@@ -175,6 +175,10 @@ def test_a_source_with_a_container_keeps_the_tube_and_few_grains_fall_back_to_it
     with caplog.at_level(logging.DEBUG, logger="synthpack.pipeline.generate"):
         assert resolve_view(large_library, few) == "tube"  # 23 grains hold no crop
     assert "23 grains are too few" in caplog.text and "pour at least" in caplog.text
+    needed = few.pour.crop_grains(large_library)  # the one line shown says how many a crop needs
+    (line,) = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+    assert line.startswith("view auto: the tube: 23 grains are too few") and f"({needed} or more" in line
+    assert resolve_view(large_library, few.replace(pour={"n_particles": needed})) == "interior"
     with pytest.raises(SynthpackInputError, match=r"too few for an interior crop.*pour at least \d+"):
         resolve_view(large_library, SMALL.replace(reconstruct={"view": "interior"}))
     assert resolve_view(large_library, INTERIOR.replace(reconstruct={"view": "tube"})) == "tube"

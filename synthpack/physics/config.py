@@ -142,7 +142,7 @@ class PourConfig:
         if interior and radius is None:
             radius = interior_radius(library, self.n_particles, scale=scale, packing_fraction=fraction)
             if radius is None:
-                needed = interior_grains(library, scale=scale, packing_fraction=fraction)
+                needed = self.crop_grains(library)
                 raise SynthpackInputError(
                     f"{self.n_particles} grains are too few for an interior crop of these grains: pour at least "
                     f"{needed} (pour.n_particles), or show the tube (reconstruct.view: tube)."
@@ -155,3 +155,10 @@ class PourConfig:
             )
         return Tube.for_library(library, self.n_particles, scale=scale, inner_radius=radius,
                                 height=self.tube_height, packing_fraction=fraction)
+
+    def crop_grains(self, library: LibraryLike) -> int:
+        """The fewest grains of `library` whose pour holds an interior crop of its source, at this pour's largest
+        ``scale`` and packing fraction (`~synthpack.physics.container.interior_grains`)."""
+        return interior_grains(library, scale=parse_scale(self.scale)[1],
+                               packing_fraction=expected_fraction(self.target_solid_fraction, library,
+                                                                  DEFAULT_PACKING_FRACTION))

@@ -106,15 +106,21 @@ def resolve_view(library: ParticleLibrary, config: PackConfig) -> str:
         except SynthpackInputError as error:
             if config.reconstruct.view != "auto":
                 raise
-            _warn_tube(str(error))
+            _warn_tube(str(error), None if config.pour.tube_radius is not None else (
+                config.pour.n_particles, config.pour.crop_grains(library)))
             return "tube"
     return view
 
 
 @functools.cache
-def _warn_tube(why: str) -> None:
-    """Say (at INFO, one short line; why at DEBUG) that ``view: auto`` shows the tube for an interior-crop source."""
-    logger.info("view auto: the tube (too few grains for an interior crop of the source; -v says why)")
+def _warn_tube(why: str, grains: tuple[int, int] | None) -> None:
+    """Say (at INFO, one short line; why at DEBUG) that ``view: auto`` shows the tube for an interior-crop source:
+    where `grains` (the grains poured, the fewest that hold a crop) are given, how many a crop needs."""
+    if grains is None:
+        logger.info("view auto: the tube (the given tube is too narrow for an interior crop; -v says why)")
+    else:
+        logger.info("view auto: the tube: %d grains are too few for an interior crop of the source (%d or more: "
+                    "--n-particles)", *grains)
     logger.debug("The source scan is an interior crop, but the pack shows the tube: %s", why)
 
 
