@@ -86,8 +86,8 @@ class SourceStatistics:
     nps_depth : float or None
         Voxels from the edges beyond which `nps_grains` and `nps_pores` were measured, where
         both phases are too thin at the edges' reach (small grains and narrow pores): the
-        deepest of `NPS_DEPTH_STEP` steps down to `~synthpack.measure.edges.INTERIOR` at
-        which one of them holds enough voxel pairs. None: at the edges' reach.
+        deepest at which one of them holds enough voxel pairs
+        (`~synthpack.measure.spectrum.measurable_phase_spectra`). None: at the edges' reach.
     pore_spectrum : tuple of float or None
         Power spectral density of the pore interior's intensity fluctuations on
         every scale up to `~synthpack.measure.pore_spectrum.PORE_SPECTRUM_SIZE`
