@@ -13,6 +13,7 @@ packs it stopped.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import sys
@@ -40,19 +41,19 @@ __all__ = ["main"]
 _ENGINE_CHOICES = tuple(ENGINES)
 
 
-def _target_option(text: str) -> float | str:
-    """A ``--target-solid-fraction`` or ``--target-coordination`` value: a number as a float, 'source' or 'none'
-    as given (checked by PourConfig)."""
-    try:
-        return float(text)
-    except ValueError:
-        return text
+def _number_option(text: str) -> int | float | str:
+    """A ``--n-particles``, ``--target-solid-fraction`` or ``--target-coordination`` value: a number as an int or
+    a float, a word ('auto', 'source', 'none') as given (all checked by PourConfig)."""
+    for kind in (int, float):
+        with contextlib.suppress(ValueError):
+            return kind(text)
+    return text
 
 
 #: The options of `pour` and `generate` that are `PourConfig` settings (validated by it), with their types.
-_POUR_OPTIONS = (("n_particles", int), ("batch_size", int), ("engine", str), ("collision_shape", str),
-                 ("tube_radius", float), ("tube_height", float), ("target_solid_fraction", _target_option),
-                 ("target_coordination", _target_option))
+_POUR_OPTIONS = (("n_particles", _number_option), ("batch_size", int), ("engine", str), ("collision_shape", str),
+                 ("tube_radius", float), ("tube_height", float), ("target_solid_fraction", _number_option),
+                 ("target_coordination", _number_option))
 
 #: Per command: the options that name an output, and what is written there (``module:Output``),
 #: checked before any work starts (:func:`synthpack.io.atomic.check_output`).
@@ -538,7 +539,7 @@ def _add_pour_arguments(parser: argparse.ArgumentParser, in_config: bool = False
             key = f"config pour.{name}"
             text = text.replace("(default", f"({key}, default") if "(default" in text else f"{text} ({key})"
         parser.add_argument("--" + name.replace("_", "-"), type=kind, choices=choices.get(name), help=text,
-                            metavar="TARGET" if kind is _target_option else None)
+                            metavar="N" if name == "n_particles" else "TARGET" if kind is _number_option else None)
 
 
 def _pour_options(args: argparse.Namespace) -> dict[str, Any]:

@@ -37,7 +37,7 @@ def test_pore_texture_is_a_sub_section_of_reconstruct():
     [
         ({"pour": {"n_partcles": 5}}, "unknown config key 'pour.n_partcles'"),
         ({"colour": 1}, "unknown config key 'colour'"),
-        ({"pour": {"n_particles": "many"}}, "'pour.n_particles' has the wrong type"),
+        ({"pour": {"n_particles": "many"}}, "'pour.n_particles' is out of range: got 'many', expected a whole number > 0, or 'auto'"),
         ({"pour": {"n_particles": 2.5}}, "'pour.n_particles' has the wrong type"),
         ({"library": {"include_border": 1}}, "'library.include_border' has the wrong type"),
         ({"pour": {"n_particles": 0}}, "'pour.n_particles' is out of range"),

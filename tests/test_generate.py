@@ -9,7 +9,9 @@ import pytest
 import synthpack.store.pack as pack_module
 from synthpack.pipeline.config import PackConfig
 from synthpack.errors import PackBuildError, SynthpackInputError
-from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed, resolve_view
+from synthpack.pipeline.generate import build_pack, generate_packs, pack_seed
+from synthpack.physics.config import DEFAULT_GRAINS
+from synthpack.pipeline.view import resolve_pack, resolve_view
 from synthpack.physics.container import interior_radius
 from synthpack.realism import Specimen
 from synthpack.store.pack import is_complete_pack, open_pack
@@ -129,20 +131,23 @@ def test_zarr_packs_open_lazily(large_library, tmp_path):
     assert pack.labels[middle].max() >= 1
 
 
-INTERIOR = PackConfig().replace(seed=2, pour={"n_particles": 200, "batch_size": 50, "target_solid_fraction": None})
+INTERIOR = PackConfig().replace(seed=2, pour={"batch_size": 50, "target_solid_fraction": None})  # n_particles: auto
 
 
 @pytest.fixture(scope="module")
 def interior_pack(large_library, tmp_path_factory):
-    """A pack of the `large` sample (an interior crop, no wall) as the default view makes it: a crop, no tube."""
+    """A pack of the `large` sample (an interior crop, no wall) as the default view and grain count make it: a crop,
+    no tube."""
     (path,) = generate_packs(large_library, tmp_path_factory.mktemp("interior"), 1, INTERIOR, progress=False)
     return path
 
 
-def test_an_interior_crop_is_full_of_grains_to_its_edges_with_no_wall_or_air(interior_pack):
+def test_an_interior_crop_is_full_of_grains_to_its_edges_with_no_wall_or_air(interior_pack, large_library):
     pack = open_pack(interior_pack)
     manifest = pack.manifest
     assert manifest["view"]["view"] == "interior" and manifest["view"]["requested"] == "auto"
+    assert manifest["config"]["pour"]["n_particles"] == "auto"  # as asked: the same config makes the same pack
+    assert manifest["n_particles"] == INTERIOR.pour.crop_grains(large_library) > DEFAULT_GRAINS  # as many as a crop needs
     assert manifest["wall"] is None
     lo, hi = (np.array(manifest["view"]["crop"][k]) for k in ("lo", "hi"))
     assert np.allclose((hi - lo) / pack.voxel_size, np.array(pack.shape) - 1, atol=1)  # the grid is the crop
@@ -172,7 +177,7 @@ def test_a_source_with_a_container_keeps_the_tube_and_few_grains_fall_back_to_it
     assert resolve_view(library, INTERIOR) == "tube"  # a container in view: the tube with its wall
     assert resolve_view(large_library, INTERIOR) == "interior"
     few = SMALL.replace(pour={"n_particles": 23})  # a count no other test pours: its warning is not yet given
-    with caplog.at_level(logging.DEBUG, logger="synthpack.pipeline.generate"):
+    with caplog.at_level(logging.DEBUG, logger="synthpack.pipeline.view"):
         assert resolve_view(large_library, few) == "tube"  # 23 grains hold no crop
     assert "23 grains are too few" in caplog.text and "pour at least" in caplog.text
     needed = few.pour.crop_grains(large_library)  # the one line shown says how many a crop needs
@@ -188,6 +193,23 @@ def test_a_source_with_a_container_keeps_the_tube_and_few_grains_fall_back_to_it
         resolve_view(large_library, narrow.replace(reconstruct={"view": "interior"}))
     wide = interior_radius(large_library, 200)
     assert resolve_view(large_library, INTERIOR.replace(pour={"tube_radius": wide})) == "interior"
+
+
+def test_the_default_grain_count_is_a_tubes_or_as_many_as_an_interior_crop_needs(large_library):
+    needed = INTERIOR.pour.crop_grains(large_library)
+    assert needed > DEFAULT_GRAINS  # the built-in sample's grains need more than a tube's count
+    config, view = resolve_pack(large_library, INTERIOR)  # n_particles: auto, a crop-like source
+    assert (view, config.pour.n_particles) == ("interior", needed)
+    assert config.replace(pour={"n_particles": "auto"}) == INTERIOR  # nothing else resolved
+    walled = copy.copy(large_library)
+    walled.statistics = dataclasses.replace(large_library.statistics, wall_intensity=0.5, wall_thickness=3.0,
+                                            wall_gap=1.0)
+    assert resolve_pack(walled, INTERIOR)[0].pour.n_particles == DEFAULT_GRAINS  # a container in view: the tube's
+    tube = INTERIOR.replace(reconstruct={"view": "tube"})
+    assert resolve_pack(large_library, tube)[0].pour.n_particles == DEFAULT_GRAINS
+    given = INTERIOR.replace(pour={"n_particles": needed + 7})
+    assert resolve_pack(large_library, given) == (given, "interior")  # a given count is kept
+    assert INTERIOR.pour.tube(large_library, interior=True) == config.pour.tube(large_library, interior=True)
 
 
 def test_a_tube_pack_records_its_view(small_pack):

@@ -14,7 +14,12 @@ from .plan import parse_scale
 from .registry import DEFAULT_ENGINE, ENGINES, get_engine
 from .shells import parse_coordination
 
-__all__ = ["PourConfig"]
+__all__ = ["PourConfig", "DEFAULT_GRAINS", "GRAINS_AUTO"]
+
+#: Grains a pour of ``n_particles: auto`` pours into a tube (an interior crop takes more where it needs them).
+DEFAULT_GRAINS = 150
+#: The ``n_particles`` value that resolves the count from the source (`PourConfig.grains`).
+GRAINS_AUTO = "auto"
 
 
 def _scale(value: float | list) -> bool:
@@ -36,6 +41,15 @@ def _target(value: Any) -> bool:
 
 _target.__doc__ = (f"'source', a number in (0, {MAX_TARGET:g}] (no pour of rigid grains packs denser), "
                    "or none")
+
+
+def _grains(value: Any) -> bool:
+    if isinstance(value, str):
+        return value == GRAINS_AUTO
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
+_grains.__doc__ = f"a whole number > 0, or {GRAINS_AUTO!r}"
 
 
 def _coordination(value: Any) -> bool:
@@ -63,7 +77,10 @@ class PourConfig:
         the key (``pour.engine_options.<option>``).
     """
 
-    n_particles: int = setting(150, positive, "grains poured into the tube")
+    n_particles: int | str = setting(
+        GRAINS_AUTO, _grains,
+        f"grains poured, or {GRAINS_AUTO} ({DEFAULT_GRAINS} into a tube; for an interior crop of the source, as many "
+        "more as fill one)")
     batch_size: int = setting(50, positive, "grains per batch; each batch settles and is locked")
     engine: str = setting(DEFAULT_ENGINE, one_of(ENGINES), "rigid-body engine: " + " or ".join(ENGINES))
     scale: float | list = setting(1.0, _scale, "grain scale factor, or [min, max] drawn per grain")
@@ -106,11 +123,33 @@ class PourConfig:
         return Material(friction=self.friction, restitution=self.restitution,
                         collision_shape=self.collision_shape)
 
+    def grains(self, library: LibraryLike, *, interior: bool = False) -> int:
+        """The number of grains this pour pours: ``n_particles``, or for ``auto`` the count it resolves to.
+
+        ``auto`` is `DEFAULT_GRAINS` for a tube, and for an interior crop (`interior`) as many
+        more as the crop needs (`crop_grains`, in the given ``tube_radius`` where there is one),
+        so a pack of a crop-like source is a crop by default.
+
+        Parameters
+        ----------
+        library : ParticleLibrary
+            The grains and the source scan's shape.
+        interior : bool
+            For the pour of an interior crop (``reconstruct.view: interior``).
+
+        Returns
+        -------
+        int
+        """
+        if self.n_particles != GRAINS_AUTO:
+            return self.n_particles
+        return max(DEFAULT_GRAINS, self.crop_grains(library)) if interior else DEFAULT_GRAINS
+
     def tube(self, library: LibraryLike, *, interior: bool = False) -> Tube:
         """The tube this pour fills, sized for `library`; ``tube_radius`` and ``tube_height`` override it.
 
         The one sizing of a pour's tube (:meth:`Tube.for_library`), for `pour`, ``synthpack
-        generate`` and ``synthpack pour`` alike: for ``n_particles`` grains of `library` at the
+        generate`` and ``synthpack pour`` alike: for the pour's grains (:meth:`grains`) of `library` at the
         largest ``scale``, at the packing fraction the target gives
         (:func:`~synthpack.physics.compaction.expected_fraction`: the usual
         :data:`~synthpack.physics.container.DEFAULT_PACKING_FRACTION`, or a looser target,
@@ -133,32 +172,35 @@ class PourConfig:
         Raises
         ------
         SynthpackInputError
-            With `interior`, where ``n_particles`` grains, or the given ``tube_radius``, cannot hold a
+            With `interior`, where the grains, or the given ``tube_radius``, cannot hold a
             crop (it says what can).
         """
         scale = parse_scale(self.scale)[1]
         fraction = expected_fraction(self.target_solid_fraction, library, DEFAULT_PACKING_FRACTION)
+        grains = self.grains(library, interior=interior)
         radius = self.tube_radius
         if interior and radius is None:
-            radius = interior_radius(library, self.n_particles, scale=scale, packing_fraction=fraction)
+            radius = interior_radius(library, grains, scale=scale, packing_fraction=fraction)
             if radius is None:
                 needed = self.crop_grains(library)
                 raise SynthpackInputError(
-                    f"{self.n_particles} grains are too few for an interior crop of these grains: pour at least "
-                    f"{needed} (pour.n_particles), or show the tube (reconstruct.view: tube)."
+                    f"{grains} grains are too few for an interior crop of these grains: pour at least "
+                    f"{needed} (pour.n_particles, or auto), or show the tube (reconstruct.view: tube)."
                 )
-        elif interior and not holds_crop(library, self.n_particles, radius, scale=scale, packing_fraction=fraction):
+        elif interior and not holds_crop(library, grains, radius, scale=scale, packing_fraction=fraction):
             raise SynthpackInputError(
-                f"a tube of radius {radius:g} (pour.tube_radius) with {self.n_particles} grains holds no interior "
+                f"a tube of radius {radius:g} (pour.tube_radius) with {grains} grains holds no interior "
                 "crop of these grains: widen it or leave it out, pour more grains (pour.n_particles), "
                 "or show the tube (reconstruct.view: tube)."
             )
-        return Tube.for_library(library, self.n_particles, scale=scale, inner_radius=radius,
+        return Tube.for_library(library, grains, scale=scale, inner_radius=radius,
                                 height=self.tube_height, packing_fraction=fraction)
 
     def crop_grains(self, library: LibraryLike) -> int:
         """The fewest grains of `library` whose pour holds an interior crop of its source, at this pour's largest
-        ``scale`` and packing fraction (`~synthpack.physics.container.interior_grains`)."""
+        ``scale`` and packing fraction, in the given ``tube_radius`` or the narrowest tube that holds one
+        (`~synthpack.physics.container.interior_grains`)."""
         return interior_grains(library, scale=parse_scale(self.scale)[1],
                                packing_fraction=expected_fraction(self.target_solid_fraction, library,
-                                                                  DEFAULT_PACKING_FRACTION))
+                                                                  DEFAULT_PACKING_FRACTION),
+                               radius=self.tube_radius)

@@ -324,11 +324,12 @@ def interior_radius(
     return sizing.radius(t)
 
 
-def interior_grains(library: LibraryLike, *, scale: float = 1.0,
-                    packing_fraction: float = DEFAULT_PACKING_FRACTION) -> int:
-    """The fewest grains whose pour holds an interior crop `MIN_CROP` diameters across (see `interior_radius`)."""
+def interior_grains(library: LibraryLike, *, scale: float = 1.0, packing_fraction: float = DEFAULT_PACKING_FRACTION,
+                    radius: float | None = None) -> int:
+    """The fewest grains whose pour holds an interior crop `MIN_CROP` diameters across (see `interior_radius`), in a
+    tube of inner `radius` (physical units; None: the narrowest that holds it; `holds_crop` says whether one does)."""
     sizing = _CropSizing(library, scale, packing_fraction)
-    return math.ceil(sizing.grains(sizing.smallest))
+    return math.ceil(sizing.grains(sizing.smallest, radius))
 
 
 def holds_crop(

@@ -69,6 +69,9 @@ def pour(
 ) -> Placements:
     """Pour ``config.n_particles`` grains of `library` into a tube, ``config.batch_size`` at a time.
 
+    ``n_particles: auto`` pours :data:`~synthpack.physics.config.DEFAULT_GRAINS`, as into a tube
+    (:meth:`PourConfig.grains`); `synthpack.pipeline.generate` resolves it for an interior crop.
+
     Parameters
     ----------
     library : ParticleLibrary
@@ -133,7 +136,7 @@ def pour(
     if not isinstance(config, PourConfig):
         raise SynthpackInputError(f"config must be a PourConfig, got {type(config).__name__}: "
                                   "e.g. pour(library, PourConfig(n_particles=150, batch_size=50), seed=0).")
-    n_particles, batch_size, seed = _check_request(library, config.n_particles, config.batch_size, seed)
+    n_particles, batch_size, seed = _check_request(library, config.grains(library), config.batch_size, seed)
     chosen = get_engine(config.engine)
     options = chosen.options(config.engine_options)
     material = config.material()
@@ -227,7 +230,7 @@ def check_pour_size(library: Any, config: PourConfig, tube: Tube) -> None:
     library : ParticleLibrary
         The grains (their median diameter sets the simulation unit).
     config : PourConfig
-        The pour (its count and grain scale).
+        The pour (its count, :meth:`PourConfig.grains` for the tube, and grain scale).
     tube : Tube
         The container, physical units (:meth:`PourConfig.tube`).
 
@@ -236,7 +239,7 @@ def check_pour_size(library: Any, config: PourConfig, tube: Tube) -> None:
     SynthpackInputError
         With the estimate (hours or GiB) and the setting to change.
     """
-    check_pour(config.n_particles, tube.inner_radius / _length_scale(library, _reference_scale(config.scale)))
+    check_pour(config.grains(library), tube.inner_radius / _length_scale(library, _reference_scale(config.scale)))
 
 
 def _reference_scale(scale: float | Sequence[float]) -> float:

@@ -7,7 +7,7 @@ optional and falls back to the default shown by ``synthpack generate
     seed: 0
     library: {min_voxels: 50, include_border: false, density: 2.65, target_faces: 500}
     grains: {deform: {strength: 0.0, lattice: 3}}
-    pour: {n_particles: 150, batch_size: 50, engine: pybullet, scale: 1.0, ...}
+    pour: {n_particles: auto, batch_size: 50, engine: pybullet, scale: 1.0, ...}
     reconstruct: {view: auto, order: 1, wall: true, margin: 4, partial_volume: true, pore_texture: {...}}
     run: {chunks: [64, 256, 256], device: auto, threads: null}
     postprocess: calibrated       # or match_source, generic, randomised, none, or a list of artefact transforms

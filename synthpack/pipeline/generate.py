@@ -41,10 +41,11 @@ from ..render.torch_render import TorchRenderer, resolve_device
 from .._shared.chunks import thread_count
 from .pour_process import can_start_pour_process, pour_in_process
 from .runner import run_packs
+from .view import resolve_pack, warn_tube
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name", "resolve_view"]
+__all__ = ["SyntheticPack", "build_pack", "generate_pack", "generate_packs", "pack_seed", "pack_name"]
 
 #: ``allocate(name, shape, dtype, chunks) -> array``: where `build_pack` writes a volume.
 Allocate = Callable[[str, tuple[int, int, int], Any, tuple[int, int, int]], Any]
@@ -88,49 +89,14 @@ class SyntheticPack:
     manifest: dict = field(default_factory=dict)
 
 
-def resolve_view(library: ParticleLibrary, config: PackConfig) -> str:
-    """What a pack of `config` shows: ``"tube"`` or ``"interior"`` (``reconstruct.view``, `ReconstructConfig.view_of`).
-
-    ``auto`` for a source scan that is an interior crop is ``interior``, unless ``pour.n_particles``
-    grains are too few for one: then ``tube``, with a warning that says how many are enough.
-
-    Raises
-    ------
-    SynthpackInputError
-        For ``view: interior`` with too few grains for a crop.
-    """
-    view = config.reconstruct.view_of(library.statistics)
-    if view == "interior":
-        try:
-            config.pour.tube(library, interior=True)
-        except SynthpackInputError as error:
-            if config.reconstruct.view != "auto":
-                raise
-            _warn_tube(str(error), None if config.pour.tube_radius is not None else (
-                config.pour.n_particles, config.pour.crop_grains(library)))
-            return "tube"
-    return view
-
-
-@functools.cache
-def _warn_tube(why: str, grains: tuple[int, int] | None) -> None:
-    """Say (at INFO, one short line; why at DEBUG) that ``view: auto`` shows the tube for an interior-crop source:
-    where `grains` (the grains poured, the fewest that hold a crop) are given, how many a crop needs."""
-    if grains is None:
-        logger.info("view auto: the tube (the given tube is too narrow for an interior crop; -v says why)")
-    else:
-        logger.info("view auto: the tube: %d grains are too few for an interior crop of the source (%d or more: "
-                    "--n-particles)", *grains)
-    logger.debug("The source scan is an interior crop, but the pack shows the tube: %s", why)
-
-
 def _check_size(library: ParticleLibrary, config: PackConfig, format: str) -> None:
     """Refuse up front a pack whose pour or whose volumes cannot fit this machine (`synthpack._shared.budget`).
 
     The grid is bounded by the tube (its full height, the fill being lower), as `_render` lays it out
     (an interior crop lies inside it).
     """
-    tube = config.pour.tube(library, interior=resolve_view(library, config) == "interior")
+    config, view = resolve_pack(library, config)
+    tube = config.pour.tube(library, interior=view == "interior")
     check_pour_size(library, config.pour, tube)
     grid = Grid.covering(tube.outer_radius, -tube.base_thickness, tube.height, library.voxel_size,
                          margin=config.reconstruct.margin)
@@ -182,7 +148,7 @@ def build_pack(
         Default: NumPy arrays.
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
-    view = resolve_view(library, config)
+    requested, (config, view) = config, resolve_pack(library, config)
     device = resolve_device(config.run.device, config.reconstruct.order)
     allocate = allocate or _numpy_volume
     chunks = tuple(config.run.chunks)
@@ -213,7 +179,7 @@ def build_pack(
                                          placements.tube.inner_radius)
     grid = render.grid
     manifest = dict(
-        seed=seed, random_streams=random_streams(), config=config.to_dict(), library_source=library.source,
+        seed=seed, random_streams=random_streams(), config=requested.to_dict(), library_source=library.source,
         n_particles=len(placements),
         n_labels=_grains_present(render.present, every=render.crop is None),
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
@@ -441,7 +407,7 @@ def _render(
                    "or show the tube (reconstruct.view: tube)")
             if pack.reconstruct.view != "auto":
                 raise SynthpackInputError(why)
-            _warn_tube(why)  # auto: the tube after all
+            warn_tube(why, "the pour's bulk is too low for an interior crop (-v says why)")  # auto: the tube after all
     if crop is not None:
         grid = Grid.box(*crop, library.voxel_size)
     else:
