@@ -3,9 +3,12 @@
 # docs/realism-sand.md's "Variants of the scan" section. Each variant is written to OUT (never
 # into the repository), then a default (calibrated) and a `postprocess: none` pack of the same
 # pour are made and compared with it, as docs/realism-real-scans.sh does. Not a test (about
-# 40 minutes on 2 cores). Usage: bash docs/realism-variants.sh OUT   (from the repository root)
+# 40 minutes on 2 cores). Usage: bash docs/realism-variants.sh OUT [VARIANT ...]   (from the repository
+# root; the named variants only, e.g. up2 flt, or all of them)
 set -euo pipefail
-OUT=${1:?usage: docs/realism-variants.sh OUT}
+OUT=${1:?usage: docs/realism-variants.sh OUT [VARIANT ...]}
+shift
+ONLY=" $* "
 D=${SYNTHPACK_SHARED_DATA:-../shared/data}
 PY=${PYTHON:-.venv/bin/python}
 mkdir -p "$OUT/scans"
@@ -50,6 +53,7 @@ write("up2", np.clip(finer, 0, 255).astype(np.uint8), ndimage.zoom(labels, 2, or
 PYTHON
 run() { # name n_particles voxel_size...
   local name=$1 n=$2; shift 2
+  [[ "$ONLY" == "  " || "$ONLY" == *" $name "* ]] || return 0
   local S="--tomogram $OUT/scans/$name.tif --labels $OUT/scans/${name}_labels.tif --voxel-size $* --unit px"
   mkdir -p "$OUT/$name"
   $PY -m synthpack generate $S --n-particles "$n" --batch-size 50 --workers 0 --out "$OUT/$name/calibrated"
@@ -62,4 +66,4 @@ run inv 400 1
 run cyl 300 1
 run flt 400 1
 run aniso 400 2 1 1
-run up2 150 1
+run up2 auto 1
