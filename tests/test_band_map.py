@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.artefacts import ColouredNoise, GaussianNoise
+from synthpack.artefacts import ColouredNoise, GaussianNoise, RoundLevels
 from synthpack.artefacts.band_map import BandMap, apply_band_map, fit_band_map
 from synthpack.artefacts.guard import TARGET, guard_steps
 from synthpack.measure.edges import signed_distance
@@ -99,7 +99,7 @@ def test_the_band_map_applied_chunk_by_chunk_is_the_whole_volumes(halo_source, f
     # only the voxels inside are mapped; rounding puts them on whole numbers
     outside = pack.copy() * 100
     inside = lambda lo, hi: np.arange(lo[0], hi[0])[:, None, None] < 16 + np.zeros((1, hi[1] - lo[1], hi[2] - lo[2]))
-    apply_band_map(band_map, outside, labels, (8, 16, 16), inside=inside, round_levels=True)
+    apply_band_map(band_map, outside, labels, (8, 16, 16), inside=inside, rounding=RoundLevels())
     np.testing.assert_array_equal(outside[16:], np.round(pack[16:] * 100))
     assert not np.array_equal(outside[:16], np.round(pack[:16] * 100))
 

@@ -21,6 +21,7 @@ from synthpack.artefacts import (
     MotionBlur,
     PoissonNoise,
     RingArtefacts,
+    RoundLevels,
     SpeckleNoise,
 )
 from synthpack.artefacts._base import BlockContext
@@ -101,7 +102,7 @@ def test_the_numpy_path_does_not_import_torch():
 @pytest.mark.parametrize("transform", [
     GaussianBlur(sigma=1.3), MotionBlur(length=3.5, angle=30.0), _calibrated()[1], BeamHardening(strength=-0.1),
     RingArtefacts(amplitude=0.05, n_rings=4), GaussianNoise(std=0.05), SpeckleNoise(std=0.05),
-    ContrastGamma(contrast=1.3, gamma=0.6, pore_level=PORE, grain_level=GRAIN),
+    ContrastGamma(contrast=1.3, gamma=0.6, pore_level=PORE, grain_level=GRAIN), RoundLevels(step=0.05, offset=0.01),
 ], ids=lambda t: t.name)
 def test_each_device_step_equals_its_numpy_block_step_over_the_whole_block(volume, transform):
     """Halo included: a blur mirrors beyond the block's edges as SciPy's "reflect" does."""

@@ -122,7 +122,7 @@ def test_library_stores_its_source_statistics_under_phases(large_library, tmp_pa
                                     "pore_spectrum", "pore_quantiles", "scan_axis", "cupping_error",
                                     "solid_fraction", "histogram_grains", "histogram_pores",
                                     "histogram_edges", "coordination", "edge_coverage", "semivariogram_grains",
-                                    "semivariogram_pores", "whole_levels", "edge_steepness",
+                                    "semivariogram_pores", "edge_steepness",
                                     "band_histograms", "patch_window", "patch_features",
                                     "logistic_floor"]  # no scanner artefact
     assert large_library[:2].statistics is large_library.statistics

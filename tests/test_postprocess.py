@@ -489,11 +489,25 @@ def test_calibrated_puts_a_whole_number_source_pack_on_its_grey_level_grid(rende
     statistics = dataclasses.replace(STATISTICS, pore_mean=40.0, grain_mean=160.0, noise_std=2.0,
                                      nps_grains=(0.5,) * 6, nps_pores=(0.5,) * 6)
     for whole in (True, False):
-        resolved = _resolve("calibrated", scaled, dataclasses.replace(statistics, whole_levels=whole))
+        resolved = _resolve("calibrated", scaled, dataclasses.replace(statistics, grey_levels=(1.0, 0.0) if whole else None))
         out = resolved.pipeline(scaled[0], 1)
-        assert resolved.record["calibration"]["round_levels"] is whole
+        assert resolved.record["calibration"]["grey_levels"] == ([1.0, 0.0] if whole else None)
         assert np.array_equal(out, np.round(out)) is whole
         assert isinstance(resolved.pipeline.transforms[-1], RoundLevels) is whole
+
+
+def test_calibrated_puts_a_float_source_pack_on_its_grid_of_scaled_integers(rendered):
+    clean, labels, grid = rendered
+    step, offset = 2e-4, -0.005  # an 8-bit scan written as attenuation: 2e-4 per grey level, less 0.005
+    scaled = (clean * 200 * step + offset).astype(np.float32), labels, grid
+    statistics = dataclasses.replace(STATISTICS, pore_mean=40 * step + offset, grain_mean=160 * step + offset,
+                                     noise_std=2.0 * step, nps_grains=(0.5 * step**2,) * 6,
+                                     nps_pores=(0.5 * step**2,) * 6, grey_levels=(step, 0.0))
+    resolved = _resolve("calibrated", scaled, statistics)
+    assert resolved.record["calibration"]["grey_levels"] == [step, 0.0]
+    levels = (resolved.pipeline(scaled[0], 1).astype(np.float64) - offset) / step
+    assert np.abs(levels - np.round(levels)).max() < 0.01  # on the source's grid (to float32 rounding)
+    assert np.unique(np.round(levels)).size > 50  # of many levels, as the source's
 
 
 def test_the_source_statistics_hold_the_interior_texture_and_whether_the_scan_holds_whole_numbers(phantom):
@@ -501,7 +515,7 @@ def test_the_source_statistics_hold_the_interior_texture_and_whether_the_scan_ho
     noisy = GaussianNoise(std=0.02)(clean, 0)
     floats = measure_source(Scan(noisy, labels, voxel_size=(1.0, 1.0, 1.0), unit="px"))
     whole = measure_source(Scan(np.round(noisy * 200).astype(np.uint8), labels, voxel_size=(1.0, 1.0, 1.0), unit="px"))
-    assert floats.whole_levels is False and whole.whole_levels is True
+    assert floats.grey_levels is None and whole.grey_levels == (1.0, 0.0)
     for statistics, scale in ((floats, 1.0), (whole, 200.0)):
         gamma = np.asarray(statistics.semivariogram_grains)
         assert gamma.shape == (4,) and np.all(np.diff(gamma) >= -0.05 * gamma.max())  # white noise: flat, 2 * std^2 / 2
@@ -584,6 +598,6 @@ def test_a_rounded_pack_has_the_source_noise_after_its_rounding(rendered):
     scaled = (clean * 200).astype(np.float32), labels, grid
     statistics = dataclasses.replace(STATISTICS, pore_mean=40.0, grain_mean=160.0, noise_std=1.0, noise_grain_std=1.0,
                                      noise_pore_std=1.0, nps_grains=tuple(white_ring_powers(1.0, 6)),
-                                     nps_pores=tuple(white_ring_powers(1.0, 6)), whole_levels=True)
+                                     nps_pores=tuple(white_ring_powers(1.0, 6)), grey_levels=(1.0, 0.0))
     resolved = _resolve("calibrated", scaled, statistics)
     assert estimate_noise(resolved.pipeline(scaled[0], 1), labels).std == pytest.approx(1.0, rel=0.02)

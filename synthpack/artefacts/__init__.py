@@ -23,7 +23,8 @@ Transforms, by config name:
 ``beam_hardening``        `BeamHardening` (strength): radial cupping (signed)
 ``contrast_gamma``        `ContrastGamma` (contrast, gamma, pore_level, grain_level): the
                           intensity response between the two phase levels
-``round_levels``          `RoundLevels` (step): the grey-level grid of a scan stored as integers
+``round_levels``          `RoundLevels` (step, offset): the grey-level grid of a scan stored as
+                          integers, or as floats of regular steps
 ``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
                           filter_name): projection, photon noise, gain errors, FBP
 ``compose``               `Compose` (transforms)

@@ -183,7 +183,7 @@ def _distance(labels: np.ndarray) -> np.ndarray:
 
 def apply_band_map(
     band_map: BandMap, volume, labels, chunks: tuple[int, int, int], *, threads: int | None = None,
-    inside: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, round_levels: bool = False,
+    inside: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, rounding: RoundLevels | None = None,
 ) -> None:
     """Apply `band_map` to `volume` in place, chunk by chunk.
 
@@ -201,9 +201,9 @@ def apply_band_map(
     inside : callable, optional
         ``inside(lo, hi) -> ndarray of bool`` of the chunk ``[lo, hi)``: the voxels to map (the
         specimen: not a container's wall or the air around it); default every voxel.
-    round_levels : bool
-        Round the mapped intensities to whole numbers (`~synthpack.artefacts.RoundLevels`), as the
-        calibration's pipeline would have last.
+    rounding : RoundLevels, optional
+        Round the mapped intensities to the source's grey-level grid, as the calibration's
+        pipeline would have last; None: not rounded.
     """
     shape = tuple(volume.shape)
 
@@ -215,7 +215,7 @@ def apply_band_map(
         block = np.asarray(volume[tuple(slice(a, b) for a, b in zip(lo, hi))], dtype=np.float32)
         where = np.ones(block.shape, dtype=bool) if inside is None else inside(lo, hi)
         block[where] = band_map.apply(block[where], distance[where])
-        return RoundLevels()(block, 0) if round_levels else block
+        return block if rounding is None else rounding(block, 0)
 
     for (lo, hi), block in bounded_map(mapped, chunk_boxes(shape, chunks), thread_count(threads)):
         volume[tuple(slice(a, b) for a, b in zip(lo, hi))] = block

@@ -98,12 +98,12 @@ its cost is fixed and vanishes per voxel on big packs.
    It reads the pack's labels, so it is applied after the pipeline
    (`~synthpack.artefacts.band_map.apply_band_map`).
 
-6. **The grey-level grid.** Where the source holds whole numbers only (an 8 or 16 bit
-   file, `~synthpack.source.SourceStatistics.whole_levels`), `~synthpack.artefacts.RoundLevels`
-   rounds the pack's intensities last (after the band map, where there is one), so that its neighbour differences come in the
+6. **The grey-level grid.** Where the source's values lie on a grid (an 8 or 16 bit file, or
+   floats of regular steps: `~synthpack.source.SourceStatistics.grey_levels`),
+   `~synthpack.artefacts.RoundLevels` rounds the pack's intensities to it last (after the band map, where there is one), so that its neighbour differences come in the
    source's steps. Not a guarded step, but the guard measures every subset rounded, as the pack
    will be, and the noise is fitted less the white noise the rounding adds
-   (`~synthpack.artefacts.intensity.rounding_variance`, ``1/12``): the source's noise holds its
+   (`~synthpack.artefacts.intensity.rounding_variance`, ``step^2/12``): the source's noise holds its
    own rounding, and a pack whose noise matched it before rounding read 7 % noisier after it
    (the sand micro-CT).
 
@@ -242,9 +242,10 @@ class Calibration:
         ``texture`` ``[variance, sigma]`` (intensity units squared, voxels; None where the
         noise's own knots carry it) that `~synthpack.artefacts.ColouredNoise` adds with it;
         None: no semivariogram to fit (not measured in the source or the pack).
-    round_levels : bool
-        Whether the pack's intensities end on whole numbers (the source holds whole numbers only):
-        `pipeline` ends with `~synthpack.artefacts.RoundLevels`, or, with a `band_map`, the map rounds.
+    grey_levels : list of float or None
+        ``[step, offset]``: the source's grey-level grid, which the pack's intensities end on
+        (`~synthpack.artefacts.RoundLevels`, last in `pipeline`, or, with a `band_map`, after the
+        map: `rounding`); None: not rounded.
     band_map : dict or None
         The `~synthpack.artefacts.band_map.BandMap` kept by the guard (`BandMap.to_dict`), applied
         after the pipeline with the pack's labels (`band_mapping`); None: none.
@@ -283,7 +284,7 @@ class Calibration:
     target_semivariogram: dict[str, list[float] | None] | None = None
     clean_semivariogram: dict[str, list[float] | None] | None = None
     textured: dict[str, dict | None] | None = None
-    round_levels: bool = False
+    grey_levels: list[float] | None = None
     band_map: dict | None = None
     noise_scale: dict[str, float] | None = None
 
@@ -342,8 +343,12 @@ class Calibration:
     def pipeline(self) -> Compose:
         """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid
         (unless a `band_map` follows, which rounds)."""
-        rounds = self.round_levels and self.band_map is None
-        return Compose(self.transforms(self.applied_steps(), self.noise_scale) + ([RoundLevels()] if rounds else []))
+        return Compose(self.transforms(self.applied_steps(), self.noise_scale)
+                       + (self.rounding() if self.band_map is None else []))
+
+    def rounding(self) -> list[RoundLevels]:
+        """The last transform, onto the source's grey-level grid (`grey_levels`); none where it has none."""
+        return [] if self.grey_levels is None else [RoundLevels(*self.grey_levels)]
 
     def band_mapping(self) -> BandMap | None:
         """The `band_map`, or None."""
@@ -397,7 +402,7 @@ def calibrate(
     target_steepness: Sequence[float] | None = None,
     target_bands: dict[int, Sequence[float] | None] | None = None,
     target_patches: PatchReference | None = None,
-    round_levels: bool = False,
+    grey_levels: Sequence[float] | None = None,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
 ) -> Calibration:
@@ -458,8 +463,9 @@ def calibrate(
     target_patches : PatchReference, optional
         The source's classifier patches (`~synthpack.source.SourceStatistics.patch_reference`): the
         guard records the logistic AUC against them (step 4); None: it does not.
-    round_levels : bool
-        End the pipeline with `~synthpack.artefacts.RoundLevels` (the source holds whole numbers only).
+    grey_levels : (float, float), optional
+        ``(step, offset)``: end the pipeline with `~synthpack.artefacts.RoundLevels` onto the
+        source's grey-level grid (`~synthpack.source.SourceStatistics.grey_levels`); None: no rounding.
     steps : int
         Fixed-point steps of the PSF fit (see the module docstring).
     max_voxels : int
@@ -499,7 +505,8 @@ def calibrate(
                        "no blur", fitted[0], target_sigma)
     targets = {phase: np.asarray(power, dtype=np.float64) for phase, power in target_power.items()}
     nps_depth = interior_depth(target_sigma) if target_nps_depth is None else target_nps_depth
-    rounding = rounding_variance() if round_levels else 0.0  # the last step's white noise, part of the source's
+    # the last step's white noise, part of the source's
+    rounding = 0.0 if grey_levels is None else rounding_variance(grey_levels[0])
     gamma_targets = {phase: None if target_semivariogram is None or target_semivariogram.get(phase) is None
                      else np.asarray(target_semivariogram[phase], dtype=np.float64) for phase in targets}
 
@@ -547,7 +554,7 @@ def calibrate(
             ring_width=None if rings is None else float(rings[2]),
             target_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_targets.items()},
             clean_semivariogram={k: None if v is None else v.tolist() for k, v in gamma_cleans.items()},
-            textured=textured, round_levels=bool(round_levels),
+            textured=textured, grey_levels=None if grey_levels is None else [float(v) for v in grey_levels],
         )
 
     calibration = fit_at(sigma, blurred, profile, spread)
@@ -638,7 +645,7 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
     occupied = np.flatnonzero(region.any(axis=(1, 2)))
     low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
     window = (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
-    rounds = [RoundLevels()] if calibration.round_levels else []  # measured as the pack will be: rounded last
+    rounds = calibration.rounding()  # measured as the pack will be: rounded last
     _, record = guard_steps(
         lambda steps: calibration.transforms(steps) + rounds, calibration.fitted_steps(),
         np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window], histograms=histograms,

@@ -4,8 +4,9 @@ A scan's grey values are a monotone function of the attenuation that differs fro
 one scanner, reconstruction and export to the next: the grain-pore contrast
 is stretched or squeezed, and the response is bent (a gamma). `ContrastGamma`
 applies such a response point by point, between a pore and a grain level.
-Most scans are then stored as whole numbers (8 or 16 bit): `RoundLevels` puts a
-volume on that grid, so that its neighbour differences come in the same steps.
+Most scans are then stored as whole numbers (8 or 16 bit), or as floats on a grid of regular
+steps: `RoundLevels` puts a volume on that grid, so that its neighbour differences come in the
+same steps.
 """
 
 from __future__ import annotations
@@ -123,7 +124,8 @@ def rounding_variance(step: float = 1.0) -> float:
 
 
 class RoundLevels(Transform):
-    """Round the intensities to the nearest multiple of `step`: the grey-level grid of a scan stored as integers.
+    """Round the intensities to the nearest ``offset + k step``: the grey-level grid of a scan stored as integers
+    (`~synthpack.measure.grey_levels.grey_level_grid`).
 
     A voxel transform; float32 in and out.
 
@@ -131,22 +133,29 @@ class RoundLevels(Transform):
     ----------
     step : float
         Grid spacing, intensity units (> 0). Default 1: whole numbers.
+    offset : float
+        Where the grid lies, intensity units. Default 0: whole numbers.
     p : float
         Probability of applying the transform at a call. Default 1.
     """
 
     name = "round_levels"
-    params = (Param("step", minimum=0.0, exclusive_minimum=True, rangeable=False),)
+    params = (Param("step", minimum=0.0, exclusive_minimum=True, rangeable=False),
+              Param("offset", rangeable=False))
 
-    def __init__(self, step: float = 1.0, *, p: float = 1.0) -> None:
-        super().__init__(step=step, p=p)
+    def __init__(self, step: float = 1.0, offset: float = 0.0, *, p: float = 1.0) -> None:
+        super().__init__(step=step, offset=offset, p=p)
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: float) -> np.ndarray:
-        step = _f32(params["step"])
-        return (np.round(image / step) * step).astype(np.float32, copy=False)
+        step, offset = _f32(params["step"]), _f32(params["offset"])
+        if offset == 0:  # whole numbers: no shift, so integer scans' packs keep their bytes
+            return (np.round(image / step) * step).astype(np.float32, copy=False)
+        return (np.round((image - offset) / step) * step + offset).astype(np.float32, copy=False)
 
     def _transform_block_torch(
         self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: float
     ) -> torch.Tensor:
-        step = _f32(params["step"])
-        return (block / step).round_() * step
+        step, offset = _f32(params["step"]), _f32(params["offset"])
+        if offset == 0:
+            return (block / step).round_() * step
+        return ((block - offset) / step).round_() * step + offset

@@ -74,6 +74,7 @@ from . import (
     GaussianBlur,
     GaussianNoise,
     RingArtefacts,
+    RoundLevels,
     calibrate,
     calibration_halo,
     from_config,
@@ -135,9 +136,9 @@ class Postprocessing:
     band_map : BandMap or None
         Applied after `pipeline`, with the pack's labels (`~synthpack.artefacts.band_map.apply_band_map`):
         ``calibrated``'s, where its guard kept one.
-    band_map_rounds : bool
-        Whether the band map's output is rounded to whole numbers (the calibration's
-        ``round_levels``: the pipeline then leaves the rounding to it).
+    band_map_rounding : RoundLevels or None
+        The source's grey-level grid, which the band map's output is rounded to (the calibration's
+        `~synthpack.artefacts.calibrate.Calibration.rounding`: the pipeline then leaves it to the map); None: none.
     record : dict
         Entries for the pack manifest: ``postprocess_mode`` (the mode applied:
         one of `POSTPROCESS_MODES`, or ``custom``), and every fitted or matched
@@ -149,7 +150,7 @@ class Postprocessing:
     pipeline: Compose
     record: dict[str, Any] = field(default_factory=dict)
     band_map: BandMap | None = None
-    band_map_rounds: bool = False
+    band_map_rounding: RoundLevels | None = None
 
 
 @functools.cache
@@ -213,7 +214,7 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "target_steepness": statistics.edge_steepness,
             "target_bands": None if statistics.band_histograms is None else dict(zip(BAND_KEYS, statistics.band_histograms)),
             "target_patches": statistics.patch_reference,
-            "round_levels": bool(statistics.whole_levels)}
+            "grey_levels": statistics.grey_levels}
 
 
 def check_postprocess(postprocess: str | list, statistics: SourceStatistics) -> None:
@@ -296,7 +297,8 @@ def resolve_postprocessing(
         if calibration is not None and postprocess == "calibrated":
             return Postprocessing(calibration.pipeline(),
                                   {"postprocess_mode": "calibrated", "calibration": calibration.to_dict()},
-                                  band_map=calibration.band_mapping(), band_map_rounds=calibration.round_levels)
+                                  band_map=calibration.band_mapping(),
+                                  band_map_rounding=next(iter(calibration.rounding()), None))
         if fallback is not None:
             _fallback(fallback, postprocess)
     matched = None if calibration is not None else _matched_noise(statistics, clean, labels)

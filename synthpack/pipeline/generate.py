@@ -470,10 +470,11 @@ def _postprocess(
     )
     band_map = postprocessing.band_map
     if band_map is not None:
-        rounds = postprocessing.band_map_rounds
+        rounding = postprocessing.band_map_rounding
         apply_band_map(band_map, tomogram, render.labels, chunks, threads=threads,
-                       inside=None if render.wall is None else _in_tube(render.grid, tube_radius), round_levels=rounds)
-        applied.append({"name": "band_map", "bands": list(band_map.bands), "round_levels": rounds})
+                       inside=None if render.wall is None else _in_tube(render.grid, tube_radius), rounding=rounding)
+        applied.append({"name": "band_map", "bands": list(band_map.bands),
+                        "grey_levels": None if rounding is None else [rounding.step, rounding.offset]})
     return tomogram, applied
 
 

@@ -15,6 +15,7 @@ from ..errors import SynthpackInputError
 from ..scan.core import Scan
 from ..measure.contacts import mean_coordination
 from ..measure.edges import edge_profile, edge_width, interior_depth, signed_distance
+from ..measure.grey_levels import grey_level_grid
 from ..measure.noise_estimate import estimate_noise
 from ..measure.phases import estimate_phases
 from ..measure.psf import fit_edge_spread
@@ -153,10 +154,12 @@ class SourceStatistics:
         (`~synthpack.measure.semivariogram.semivariogram`), intensity units squared; what
         ``postprocess: calibrated`` fills a pack's texture to. None where a phase is too thin
         to measure, or in a library of an older synthpack.
-    whole_levels : bool or None
-        Whether the scan holds whole numbers only (an integer file, 8 or 16 bit, as most
-        scans are stored): ``postprocess: calibrated`` then puts a pack's intensities on the
-        same grid (`~synthpack.artefacts.RoundLevels`). None in a library of an older synthpack.
+    grey_levels : (float, float) or None
+        ``(step, offset)``: the grid every value of the scan lies on
+        (`~synthpack.measure.grey_levels.grey_level_grid`): ``(1, 0)`` for whole numbers (an
+        integer file, 8 or 16 bit, as most scans are stored), or the regular steps of a float
+        file of scaled integers; ``postprocess: calibrated`` puts a pack's intensities on the
+        same grid (`~synthpack.artefacts.RoundLevels`). None where the values lie on no grid.
     air_intensity : float or None
         The air around the container (`~synthpack.measure.scanner.Wall.air`), intensity
         units: what a pack's tube has outside its wall. None where no wall was measured, or
@@ -213,7 +216,7 @@ class SourceStatistics:
     edge_coverage: float | None = None
     semivariogram_grains: tuple[float, ...] | None = None
     semivariogram_pores: tuple[float, ...] | None = None
-    whole_levels: bool | None = None
+    grey_levels: tuple[float, float] | None = None
     edge_steepness: tuple[float, ...] | None = None
     air_intensity: float | None = None
     band_histograms: tuple[tuple[float, ...] | None, ...] | None = None
@@ -266,8 +269,12 @@ class SourceStatistics:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, float | list[float]]) -> SourceStatistics:
-        """Read back what `to_dict` wrote (a missing optional field is None)."""
-        return cls(**{name: _tuples(value) for name, value in data.items()})
+        """Read back what `to_dict` wrote (a missing optional field is None; an older synthpack's ``whole_levels``
+        is the grid of whole numbers where it was true)."""
+        values = {name: _tuples(value) for name, value in data.items() if name != "whole_levels"}
+        if data.get("whole_levels"):
+            values.setdefault("grey_levels", (1.0, 0.0))
+        return cls(**values)
 
 
 def _lists(value: Any) -> Any:
@@ -278,13 +285,6 @@ def _lists(value: Any) -> Any:
 def _tuples(value: Any) -> Any:
     """`value` with its lists, nested too, as tuples (what `_lists` wrote)."""
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
-
-
-def _whole_levels(tomogram: np.ndarray) -> bool:
-    """Whether `tomogram` holds whole numbers only: an integer dtype, or floats that are all whole."""
-    if np.issubdtype(tomogram.dtype, np.integer):
-        return True
-    return bool(all(np.array_equal(block, np.round(block)) for block in tomogram))
 
 
 def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int = 0) -> SourceStatistics:
@@ -379,7 +379,7 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
                                   solid_fraction=solid_fraction(scan.labels, specimen),
                                   coordination=mean_coordination(scan.labels, specimen, readable=readable),
-                                  edge_coverage=edge_coverage(whole), whole_levels=_whole_levels(scan.tomogram),
+                                  edge_coverage=edge_coverage(whole), grey_levels=grey_level_grid(scan.tomogram),
                                   **scanner_fields)
     logger.info("source: %s", statistics.summary())
     logger.debug("source statistics of %s: %r", scan.source or "the scan", statistics)
