@@ -8,10 +8,10 @@ from scipy import ndimage
 
 from synthpack.artefacts import ColouredNoise, GaussianNoise, RoundLevels
 from synthpack.artefacts.band_map import BandMap, apply_band_map, fit_band_map
-from synthpack.artefacts.guard import NPS_FIGURES, TARGET, guard_steps, spectrum_figures
+from synthpack.artefacts.guard import TARGET, guard_steps
 from synthpack.measure.edges import signed_distance
 from synthpack.measure.noise_estimate import estimate_noise
-from synthpack.measure.spectrum import phase_spectra, white_ring_powers
+from synthpack.measure.spectrum import white_ring_powers
 from synthpack.measure.phase_histograms import (
     BAND_KEYS,
     band_of,
@@ -208,30 +208,3 @@ def test_the_guard_maps_the_pores_alone_where_a_map_of_both_sides_stretches_the_
     assert figures["band_mapped"]["noise_grains"] == figures["applied"]["noise_grains"]  # the grains untouched
     both = fit_band_map(steps["noise"](clean, 0), distance, region, targets["bands"])
     assert any(band > 0 for band in both.bands)  # a map of both sides was there to take
-
-
-def test_a_map_without_its_tails_shifts_the_rarest_values_rather_than_stretch_them():
-    probabilities = (np.arange(200) + 0.5) / 200
-    pack = np.quantile(np.random.default_rng(0).normal(0.0, 1.0, 100_000), probabilities)
-    source = pack.copy()
-    source[-2:] += [5.0, 10.0]  # the source's two brightest quantiles: its structure's, far beyond the noise
-    full = BandMap(bands=(1,), knots=(1.0,), pack=(tuple(pack),), source=(tuple(source),))
-    trimmed = full.without_tails(2)
-    assert len(trimmed.pack[0]) == len(trimmed.source[0]) == 196
-    values, distance = np.array([0.0, pack[-1], pack[-1] + 0.5]), np.ones(3)
-    np.testing.assert_allclose(full.apply(values, distance), [0.0, pack[-1] + 10.0, pack[-1] + 10.5], atol=1e-5)
-    np.testing.assert_allclose(trimmed.apply(values, distance), values, atol=1e-5)  # the tail keeps its spread
-
-
-def test_the_noise_spectrum_figure_is_the_largest_log2_ratio_over_the_rings(phantom):
-    clean, labels = phantom
-    distance = signed_distance(labels)
-    region = np.ones(labels.shape, bool)
-    source = GaussianNoise(std=0.02)(clean, 1)
-    targets = {phase: spectrum.power[1:] for phase, spectrum in phase_spectra(source, distance, region, 2.5).items()}
-    same = spectrum_figures(GaussianNoise(std=0.02)(clean, 2), distance, region, targets, 2.5)
-    doubled = spectrum_figures(GaussianNoise(std=0.04)(clean, 2), distance, region, targets, 2.5)
-    assert set(same) == set(NPS_FIGURES) and max(same.values()) < 0.6  # another draw (the phantom's grains are small)
-    for name in NPS_FIGURES:
-        assert doubled[name] == pytest.approx(2.0, abs=0.6)  # twice the amplitude: four times the power
-        assert doubled[name] > TARGET[name] > same[name]

@@ -60,9 +60,8 @@ put them (inclusions, cracks, clusters of fines): on a binned sand scan the map 
 shells stretched their noise tail to a kurtosis of 80 (the scan's: 11) and their noise power at the
 highest frequencies to 4.6 times the scan's. So the targets a map misses count the noise spectra
 too (`NPS_FIGURES`, each phase's ``max |log2|`` over the rings against the source's, target 1:
-within a factor 2, where the guard's region holds enough of a phase's interior to measure it), and
-where no map is taken without missing one of those, the three are tried again with each band's
-outer 1 % left out (`TAIL_QUANTILES`; beyond them values are shifted, keeping their spread). It is asked for only where a
+within a factor 2), and where no map is taken, the three are tried again with each band's outer
+1 % left out (`TAIL_QUANTILES`; beyond them values are shifted, keeping their spread). It is asked for only where a
 histogram misses: a pack whose histograms meet their targets keeps its bytes.
 
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
@@ -432,12 +431,11 @@ def _band_mapped(
     (``scale / (level / source's level)``, `RESCALE_ROUNDS` times, within `NOISE_SCALES`); all
     of it with the map of both sides of the boundary, then of the pores' shells alone, then of
     the grains' alone (`MAP_SIDES`), then the three again with each band's tails left out
-    (`TAIL_QUANTILES`). After each, of those fitted so far, the one that is admissible (no figure
-    worse than no post-processing beyond its tolerance, unless within target) and misses the
-    fewest targets, `NPS_FIGURES` counted where `measure` gives them (ties: whole tails, the most
-    steps, both sides, the lowest sum of `FIGURES`, unscaled first), is taken if it misses fewer
-    than `kept` does without one and no noise spectrum's target (after the last: any); else
-    the next is tried.
+    (`TAIL_QUANTILES`), each only where none before it is taken. Of those fitted, the one that is
+    admissible (no figure worse than no post-processing beyond its tolerance, unless within
+    target) and misses the fewest targets, `NPS_FIGURES` counted where `measure` gives them
+    (ties: whole tails, the most steps, both sides, the lowest sum of `FIGURES`, unscaled first),
+    is taken if it misses fewer than `kept` does without one.
     """
     none = measured[()]
     names = FIGURES + NPS_FIGURES
@@ -478,8 +476,7 @@ def _band_mapped(
             subset, scale, band_map, mapped, _, whole = min(admissible, key=lambda f: (
                 _missed(f[3], names), not f[5], -len(f[0]), f[4] != 0,
                 sum(f[3][name] for name in FIGURES if name in f[3]), f[1] is not None, subsets.index(f[0])))
-            last = not whole_tails and side == MAP_SIDES[-1]
-            if _missed(mapped, names) < _missed(unmapped, names) and (last or not _missed(mapped, NPS_FIGURES)):
+            if _missed(mapped, names) < _missed(unmapped, names):
                 logger.info("calibration: band map fitted (%d bands%s) with the steps %s%s: %s", len(band_map.bands),
                             "" if whole else ", tails left out", ", ".join(subset) or "none", "" if scale is None
                             else ", the noise scaled by " + ", ".join(f"{sig(v, 3)} in the {p}" for p, v in scale.items()),
