@@ -120,13 +120,6 @@ class BandMap:
             out[selected] = result
         return out.astype(np.float32)
 
-    def without_tails(self, count: int) -> BandMap:
-        """The map with the `count` outermost quantiles of each band at each end left out: beyond the rest, values
-        are shifted by the end's offset, so the pack's rarest values keep their spread rather than take the
-        source's tails (which a scan's structure may fill where a pack has only noise)."""
-        return BandMap(self.bands, self.knots, tuple(q[count:len(q) - count] for q in self.pack),
-                       tuple(q[count:len(q) - count] for q in self.source))
-
     def side(self, sign: int) -> BandMap | None:
         """The map of the bands on one side of the boundary only (``-1``: the pores', ``+1``: the grains'), or None
         where it has none there; the other side's voxels then keep their values."""

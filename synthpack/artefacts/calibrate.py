@@ -575,7 +575,7 @@ def calibrate(
             calibration.steepness_sigmas, calibration.steepness_distances = tried, distances
     def guarded(calibration: Calibration) -> Calibration:
         calibration.guard = _guard(calibration, clean, labels, region, target_histograms or {},
-                                   calibration_halo(target_sigma), target_bands, target_patches, nps_depth)
+                                   calibration_halo(target_sigma), target_bands, target_patches)
         return calibration
 
     calibration = guarded(calibration)
@@ -635,9 +635,8 @@ def _steepness_distances(volume: np.ndarray, region: np.ndarray, sigmas: Sequenc
 
 def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
            histograms: dict[str, Sequence[float] | None], halo: int,
-           bands: dict[int, Sequence[float] | None] | None, patches: PatchReference | None, nps_depth: float) -> dict:
-    """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`, with the
-    source's noise spectra (`Calibration.target_power`, measured `nps_depth` voxels from the edges).
+           bands: dict[int, Sequence[float] | None] | None, patches: PatchReference | None) -> dict:
+    """`~synthpack.artefacts.guard.guard_steps` of the calibration's fitted steps on the measured `region`.
 
     The slices of `clean` the region occupies (and `halo` more on each side, for the blur) are
     read, in each the window `~synthpack.artefacts.calibration_region.lateral_window` keeps: the artefacts about the slice centre lie
@@ -651,7 +650,7 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         lambda steps: calibration.transforms(steps) + rounds, calibration.fitted_steps(),
         np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window], histograms=histograms,
         noise=calibration.target_phase_noise, contrast=calibration.grain_level - calibration.pore_level,
-        requires=REQUIRES, bands=bands, patches=patches, spectra=calibration.target_power, nps_depth=nps_depth,
+        requires=REQUIRES, bands=bands, patches=patches,
         rescaled=lambda steps, scale: calibration.transforms(steps, scale) + rounds
         if any(step.endswith(("_noise", "_texture")) for step in steps) else None)
     return record

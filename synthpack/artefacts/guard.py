@@ -54,14 +54,7 @@ pores alone may then be the one that leaves no figure worse (a central 60x56x56 
 concrete neutron CT: every map of both sides left the grains' noise 36-160 % off the scan's,
 so the guard kept no step at all and the paste no noise; the pores' map alone keeps them
 all, the grains' noise within 2 %). A side alone is tried only where no map of both sides is
-taken (so a pack that takes one costs what it did). **The tails.** A map takes a band's rarest
-values, in the pack mostly single voxels of noise, to the source's, where a scan's structure may
-put them (inclusions, cracks, clusters of fines): on a binned sand scan the map of the grains'
-shells stretched their noise tail to a kurtosis of 80 (the scan's: 11) and their noise power at the
-highest frequencies to 4.6 times the scan's. So the targets a map misses count the noise spectra
-too (`NPS_FIGURES`, each phase's ``max |log2|`` over the rings against the source's, target 1:
-within a factor 2), and where no map is taken, the three are tried again with each band's outer
-1 % left out (`TAIL_QUANTILES`; beyond them values are shifted, keeping their spread). It is asked for only where a
+taken (so a pack that takes one costs what it did). It is asked for only where a
 histogram misses: a pack whose histograms meet their targets keeps its bytes.
 
 A step may need another (`guard_steps`'s ``requires``: a phase's texture is fitted with its
@@ -89,28 +82,22 @@ from ..measure.lattice import patch_corners
 from ..measure.noise_estimate import estimate_noise, estimate_spread
 from ..measure.patch_features import DEFAULT_PATCH, MAX_PATCHES, PatchReference
 from ..measure.phase_histograms import phase_masks, phase_quantiles, quantile_distance
-from ..measure.spectrum import phase_spectra
 from ._base import Transform
 from .band_map import BandMap, fit_band_map
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FIGURES", "LOGISTIC_TOLERANCE", "MAP_SIDES", "MEASURED_MARGIN", "NPS_FIGURES", "TAIL_QUANTILES", "TARGET",
-           "TOLERANCE", "W_FIGURES", "figures", "guard_missed", "guard_steps", "noise_ratios", "spectrum_figures"]
+__all__ = ["FIGURES", "LOGISTIC_TOLERANCE", "MAP_SIDES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "W_FIGURES",
+           "figures", "guard_missed", "guard_steps", "noise_ratios"]
 
 #: The guard's figures, each lower = more like the source (see the module docstring).
 FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
 #: The figures of the phase histograms: a band map is fitted where one of them misses its target.
 W_FIGURES = FIGURES[:3]
-#: The figures of the noise spectra, ``max |log2(pack / source)|`` over the rings of a phase's noise power
-#: spectrum (`phase_spectrum_figures`): counted, with `FIGURES`, in the targets a band map misses.
-NPS_FIGURES = ("nps_grains", "nps_pores")
 #: How much a figure must change to count as better or worse: W as a fraction of the contrast, noise relative.
-TOLERANCE = {"w_grains": 0.002, "w_pores": 0.002, "w_edges": 0.002, "noise_grains": 0.02, "noise_pores": 0.02,
-             "nps_grains": 0.1, "nps_pores": 0.1}
+TOLERANCE = {"w_grains": 0.002, "w_pores": 0.002, "w_edges": 0.002, "noise_grains": 0.02, "noise_pores": 0.02}
 #: The realism target of each figure (issue 26): a figure within it may get worse, to the benefit of others.
-TARGET = {"w_grains": 0.05, "w_pores": 0.05, "w_edges": 0.05, "noise_grains": 0.1, "noise_pores": 0.1,
-          "nps_grains": 1.0, "nps_pores": 1.0}
+TARGET = {"w_grains": 0.05, "w_pores": 0.05, "w_edges": 0.05, "noise_grains": 0.1, "noise_pores": 0.1}
 #: The kinds of transform a calibration holds, in pipeline order: each draws from its own key of the guard's stream.
 _KINDS = ("gaussian_blur", "coloured_noise", "beam_hardening", "ring_artefacts")
 #: Rounds of refitting the noise's amplitude after a band map (`guard_steps`'s ``rescaled``).
@@ -122,13 +109,8 @@ NOISE_SCALES = (0.25, 4.0)
 LOGISTIC_TOLERANCE = 0.01
 #: The sides of the boundary a band map is tried on, each only where no map before it is taken (`_band_mapped`):
 #: both, then the pores' bands alone, then the grains' alone (stretching one phase's shells can take its noise
-#: beyond the source's where a map of the other phase alone leaves every figure no worse); then the same with the
-#: map's tails left out (`TAIL_QUANTILES`).
+#: beyond the source's where a map of the other phase alone leaves every figure no worse).
 MAP_SIDES = (0, -1, 1)
-#: The quantiles at each end of a band's histogram that a map with its tails left out does not map
-#: (`~synthpack.artefacts.band_map.BandMap.without_tails`): the outer 1 % of each band, of
-#: `~synthpack.measure.phase_histograms.HISTOGRAM_QUANTILES`.
-TAIL_QUANTILES = 2
 #: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
 MEASURED_MARGIN = 3
 
@@ -167,37 +149,6 @@ def figures(
         if quantiles is not None and reference is not None:
             result[f"w_{phase}"] = quantile_distance(quantiles, reference) / abs(contrast)
     result.update({f"noise_{phase}": abs(ratio - 1.0) for phase, ratio in noise_ratios(volume, noise_labels, noise).items()})
-    return result
-
-
-def spectrum_figures(volume: np.ndarray, distance: np.ndarray, region: np.ndarray,
-                     spectra: Mapping[str, Sequence[float] | None], depth: float) -> Figures:
-    """`NPS_FIGURES` of `volume`: per phase, ``max |log2|`` of its noise power spectrum's rings over the source's.
-
-    Parameters
-    ----------
-    volume : ndarray of float32, shape (Z, Y, X)
-    distance : ndarray of float, same shape
-        Signed distance from the boundary, voxels.
-    region : ndarray of bool, same shape
-        Where to measure.
-    spectra : dict
-        ``"grains"``, ``"pores"``: the source's ring powers, rings 1 to K
-        (`~synthpack.source.SourceStatistics.nps_grains`), or None.
-    depth : float
-        Voxels from the edges beyond which the spectra are measured (the source's).
-
-    Returns
-    -------
-    dict of str to float
-        For the phases measured in both.
-    """
-    result: Figures = {}
-    for phase, spectrum in phase_spectra(volume, distance, region, depth).items():
-        target = spectra.get(phase)
-        if spectrum is not None and target is not None:
-            ratio = spectrum.power[1:] / np.asarray(target, dtype=np.float64)
-            result[f"nps_{phase}"] = float(np.max(np.abs(np.log2(ratio))))
     return result
 
 
@@ -250,8 +201,6 @@ def guard_steps(
     bands: Mapping[int, Sequence[float] | None] | None = None,
     rescaled: Callable[[tuple[str, ...], Mapping[str, float]], list[Transform] | None] | None = None,
     patches: PatchReference | None = None,
-    spectra: Mapping[str, Sequence[float] | None] | None = None,
-    nps_depth: float | None = None,
 ) -> tuple[tuple[str, ...], dict]:
     """The steps to keep: the admissible subset most like the source (see the module docstring).
 
@@ -283,12 +232,6 @@ def guard_steps(
     patches : PatchReference, optional
         The source's classifier patches: the logistic AUC is measured and recorded (module docstring);
         None: it is not.
-    spectra : dict, optional
-        ``"grains"``, ``"pores"``: the source's noise ring powers (`spectrum_figures`), measured at
-        `nps_depth` voxels from the edges: a band map's `NPS_FIGURES` count among the targets it
-        misses (module docstring); None: they are not measured.
-    nps_depth : float, optional
-        With `spectra`: the depth they were measured at, voxels.
 
     Returns
     -------
@@ -350,8 +293,7 @@ def guard_steps(
             def measure_with_ratios(out: np.ndarray) -> tuple[Figures, dict[str, float]]:
                 ratios = noise_ratios(out, noise_labels, noise)
                 without_noise = figures(out, masks, noise_labels, histograms=histograms, noise={}, contrast=contrast)
-                spectral = {} if spectra is None else spectrum_figures(out, distance, region[box], spectra, nps_depth)
-                return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}, **spectral}, ratios
+                return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}}, ratios
 
             kept, band_map, mapped, scale = _band_mapped(subsets, measured, kept, applied, measure_with_ratios,
                                                          distance, region[box], bands, rescaled)
@@ -430,58 +372,49 @@ def _band_mapped(
     (`rescaled` says so), again with each phase's noise scaled by what the map made of it
     (``scale / (level / source's level)``, `RESCALE_ROUNDS` times, within `NOISE_SCALES`); all
     of it with the map of both sides of the boundary, then of the pores' shells alone, then of
-    the grains' alone (`MAP_SIDES`), then the three again with each band's tails left out
-    (`TAIL_QUANTILES`), each only where none before it is taken. Of those fitted, the one that is
-    admissible (no figure worse than no post-processing beyond its tolerance, unless within
-    target) and misses the fewest targets, `NPS_FIGURES` counted where `measure` gives them
-    (ties: whole tails, the most steps, both sides, the lowest sum of `FIGURES`, unscaled first),
-    is taken if it misses fewer than `kept` does without one.
+    the grains' alone (`MAP_SIDES`), each only where none before it is taken. Of those fitted, the
+    one that is admissible (no figure worse than no post-processing beyond its tolerance, unless
+    within target) and misses the fewest targets (ties: the most steps, both sides, the lowest
+    sum of the figures, unscaled first) is taken if it misses fewer than `kept` does without one.
     """
     none = measured[()]
-    names = FIGURES + NPS_FIGURES
-    unmapped = {**measured[kept], **measure(applied(kept))[0]}  # with the spectra's figures, where measured
-    fits: list[tuple[tuple[str, ...], dict[str, float] | None, BandMap, Figures, int, bool]] = []
+    fits: list[tuple[tuple[str, ...], dict[str, float] | None, BandMap, Figures, int]] = []
 
-    def fit(subset: tuple[str, ...], scale: dict[str, float] | None, side: int,
-            whole_tails: bool) -> dict[str, float] | None:
+    def fit(subset: tuple[str, ...], scale: dict[str, float] | None, side: int) -> dict[str, float] | None:
         volume = applied(subset, scale)
         band_map = fit_band_map(volume, distance, region, bands)
         if band_map is not None and side:
             band_map = band_map.side(side)
         if band_map is None:
             return None
-        if not whole_tails:
-            band_map = band_map.without_tails(TAIL_QUANTILES)
         mapped, ratios = measure(band_map.apply(volume, distance))
-        fits.append((subset, scale, band_map, mapped, side, whole_tails))
+        fits.append((subset, scale, band_map, mapped, side))
         return ratios
 
-    for whole_tails in (True, False):
-        for side in MAP_SIDES:  # one side alone only where no map of both sides is taken: a fixed cost otherwise
-            for subset in subsets:
-                levels = fit(subset, None, side, whole_tails)
-                scale = {"grains": 1.0, "pores": 1.0}
-                if levels is None or rescaled is None or rescaled(subset, scale) is None:
-                    continue
-                for _ in range(RESCALE_ROUNDS):
-                    off = {phase: r for phase, r in levels.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
-                    if not off:
-                        break
-                    scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES))
-                             for phase in scale}
-                    levels = fit(subset, scale, side, whole_tails)
-            admissible = [f for f in fits if _admissible(f[3], none)]
-            if not admissible:
+    for side in MAP_SIDES:  # one side alone only where no map of both sides is taken: a fixed cost otherwise
+        for subset in subsets:
+            levels = fit(subset, None, side)
+            scale = {"grains": 1.0, "pores": 1.0}
+            if levels is None or rescaled is None or rescaled(subset, scale) is None:
                 continue
-            subset, scale, band_map, mapped, _, whole = min(admissible, key=lambda f: (
-                _missed(f[3], names), not f[5], -len(f[0]), f[4] != 0,
-                sum(f[3][name] for name in FIGURES if name in f[3]), f[1] is not None, subsets.index(f[0])))
-            if _missed(mapped, names) < _missed(unmapped, names):
-                logger.info("calibration: band map fitted (%d bands%s) with the steps %s%s: %s", len(band_map.bands),
-                            "" if whole else ", tails left out", ", ".join(subset) or "none", "" if scale is None
-                            else ", the noise scaled by " + ", ".join(f"{sig(v, 3)} in the {p}" for p, v in scale.items()),
-                            _text(mapped))
-                return subset, band_map, mapped, scale
+            for _ in range(RESCALE_ROUNDS):
+                off = {phase: r for phase, r in levels.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
+                if not off:
+                    break
+                scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
+                levels = fit(subset, scale, side)
+        admissible = [f for f in fits if _admissible(f[3], none)]
+        if not admissible:
+            continue
+        subset, scale, band_map, mapped, _ = min(admissible, key=lambda f: (
+            _missed(f[3]), -len(f[0]), f[4] != 0, sum(f[3].values()), f[1] is not None, subsets.index(f[0])))
+        if _missed(mapped) < _missed(measured[kept]):
+            logger.info("calibration: band map fitted (%d bands) with the steps %s%s: %s", len(band_map.bands),
+                        ", ".join(subset) or "none", "" if scale is None else
+                        ", the noise scaled by " + ", ".join(f"{sig(v, 3)} in the {p}" for p, v in scale.items()),
+                        _text(mapped))
+            return subset, band_map, mapped, scale
     logger.warning("calibration: no band map is applied: none brings the pack's histograms closer to its source's "
-                   "without moving another figure away (without one: %s)", _text(unmapped))
+                   "without moving another figure away (without one: %s)", _text(measured[kept]))
     return kept, None, None, None
+
