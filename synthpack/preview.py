@@ -129,9 +129,18 @@ def save_library_preview(
         plt.close(fig)
 
 
-def equivalent_diameters(labels: np.ndarray, voxel_size: tuple[float, float, float]) -> np.ndarray:
-    """Equivalent-sphere diameter of every label present, physical units, shape (N,)."""
-    counts = np.bincount(np.asarray(labels).ravel())[1:]
+def complete_grain_diameters(labels: np.ndarray, voxel_size: tuple[float, float, float]) -> np.ndarray:
+    """Equivalent-sphere diameter of every label present that no face of the volume cuts, physical units, shape (N,).
+
+    A grain cut by a face (an interior crop's, or a tube's top) shows only part of its volume,
+    as the source's border grains do, which the library leaves out too.
+    """
+    labels = np.asarray(labels)
+    counts = np.bincount(labels.ravel())
+    cut = np.unique(np.concatenate([np.take(labels, index, axis=axis).ravel()
+                                    for axis in range(3) for index in (0, -1)]))
+    counts[cut] = 0
+    counts[0] = 0
     return equivalent_diameter(counts[counts > 0] * float(np.prod(voxel_size)))
 
 
@@ -151,7 +160,7 @@ def save_pack_preview(
     Top row: the middle z, y and x slices of the post-processed tomogram with the
     labels overlaid. Bottom row: one slice before and after post-processing, and
     the grain-size distribution of the source particles against the synthetic
-    pack's grains.
+    pack's grains that are whole in view (`complete_grain_diameters`).
 
     Parameters
     ----------
@@ -185,10 +194,11 @@ def save_pack_preview(
         ax.set_title(f"middle z slice, {title}")
         ax.set_axis_off()
     ax = axes[1, 2]
-    synthetic = equivalent_diameters(labels, voxel_size)
-    bins = np.linspace(0, max(source_diameters.max(), synthetic.max()) * 1.05, 25)
+    synthetic = complete_grain_diameters(labels, voxel_size)
+    bins = np.linspace(0, max(source_diameters.max(), synthetic.max(initial=0.0)) * 1.05, 25)
     ax.hist(source_diameters, bins=bins, density=True, alpha=0.6, label=f"source particles ({len(source_diameters)})")
-    ax.hist(synthetic, bins=bins, density=True, alpha=0.6, label=f"synthetic grains ({len(synthetic)})")
+    if len(synthetic):
+        ax.hist(synthetic, bins=bins, density=True, alpha=0.6, label=f"synthetic grains, whole in view ({len(synthetic)})")
     ax.set_xlabel(f"equivalent diameter [{unit}]")
     ax.set_ylabel("density")
     ax.legend()
