@@ -148,14 +148,12 @@ class RoundLevels(Transform):
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, **params: float) -> np.ndarray:
         step, offset = _f32(params["step"]), _f32(params["offset"])
-        if offset == 0:  # whole numbers: no shift, so integer scans' packs keep their bytes
-            return (np.round(image / step) * step).astype(np.float32, copy=False)
-        return (np.round((image - offset) / step) * step + offset).astype(np.float32, copy=False)
+        rounded = np.round((image - offset) / step) * step
+        return (rounded + offset if offset else rounded).astype(np.float32, copy=False)  # + 0 would turn -0 to +0
 
     def _transform_block_torch(
         self, block: torch.Tensor, context: BlockContext, device: DeviceVolume, **params: float
     ) -> torch.Tensor:
         step, offset = _f32(params["step"]), _f32(params["offset"])
-        if offset == 0:
-            return (block / step).round_() * step
-        return ((block - offset) / step).round_() * step + offset
+        rounded = ((block - offset) / step).round_() * step
+        return rounded + offset if offset else rounded

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_LEVELS", "grey_level_grid"]
+__all__ = ["GRID_TOLERANCE", "MIN_LEVELS", "grey_level_grid"]
 
 #: The fewest distinct values a float scan's grid must hold (a CT scan holds many more; fewer is a phantom's).
 MIN_LEVELS = 32
