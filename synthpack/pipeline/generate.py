@@ -149,6 +149,7 @@ def build_pack(
     """
     check_postprocess(config.postprocess, library.statistics)  # fail or warn before the pour, not after it
     requested, (config, view) = config, resolve_pack(library, config)
+    segmented = config.reconstruct.segmented_labels_of(library.statistics)
     device = resolve_device(config.run.device, config.reconstruct.order)
     allocate = allocate or _numpy_volume
     chunks = tuple(config.run.chunks)
@@ -167,6 +168,11 @@ def build_pack(
         with _timed(timings, "reconstruct"):
             render = _render(library, placements, config, view, seed, chunks, threads, allocate, grains, device)
     timings["pour_engine"] = placements.checks.seconds  # the engine run alone (not saved with the placements)
+    labels_record, present = None, render.present
+    if segmented is not None:
+        with _timed(timings, "labels"):
+            labels_record = segmented.redraw(render.labels, chunks[0], len(placements))
+        present = labels_record.pop("present")
     with _timed(timings, "postprocess"):
         postprocessing = resolve_postprocessing(
             config.postprocess, library.statistics, clean=render.clean, labels=render.labels,
@@ -181,7 +187,8 @@ def build_pack(
     manifest = dict(
         seed=seed, random_streams=random_streams(), config=requested.to_dict(), library_source=library.source,
         n_particles=len(placements),
-        n_labels=_grains_present(render.present, every=render.crop is None),
+        n_labels=_grains_present(present, every=render.crop is None and segmented is None),
+        segmented_labels=labels_record,
         contested_voxels=render.contested, shape=list(grid.shape), grid_origin=list(grid.origin),
         pour_checks=placements.checks.to_dict(), pore_texture=render.background.texture_record(seed),
         view=_view_record("tube" if render.crop is None else "interior", config.reconstruct.view, placements,

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..errors import SynthpackInputError
 from .._shared.schema import finite, non_negative, one_of, setting
 from ..source.statistics import SourceStatistics
 from .partial_volume import PartialVolume
 from .pore_texture import PoreTextureConfig
+from .segmented_labels import LABEL_STYLES, SegmentedLabels
 from .surface import SIGMA, Surface
 
 __all__ = ["KERNELS", "VIEWS", "ReconstructConfig"]
@@ -49,6 +51,11 @@ class ReconstructConfig:
                           "how the CPU render draws each grain: numba (one compiled pass over its box), scipy "
                           "(SciPy's interpolation) or auto (numba where it can be imported); the same labels and "
                           "intensities either way")
+    labels: str = setting("exact", one_of(LABEL_STYLES),
+                          "how the labels are drawn: exact (every voxel whose centre lies in a grain) or segmented "
+                          "(as a threshold segmentation of the scan draws them: the grain mask blurred by the "
+                          "source's edge spread, thresholded at the level that keeps its volume, so gaps narrower "
+                          "than the blur close, as in a labelled scan)")
     pore_texture: PoreTextureConfig = field(default_factory=PoreTextureConfig)
 
     def view_of(self, statistics: SourceStatistics) -> str:
@@ -66,6 +73,22 @@ class ReconstructConfig:
         if not self.partial_volume:
             return None
         return PartialVolume.from_source(statistics, self.edge_shift, self.rim)
+
+    def segmented_labels_of(self, statistics: SourceStatistics) -> SegmentedLabels | None:
+        """How to redraw the labels of a pack of a source scan (``labels: segmented``); None for exact labels.
+
+        Raises
+        ------
+        SynthpackInputError
+            For ``segmented`` where the source's edge spread was not measured.
+        """
+        if self.labels == "exact":
+            return None
+        if statistics.edge_sigma is None:
+            raise SynthpackInputError(
+                "reconstruct.labels: segmented needs the source scan's edge spread, which was not measured "
+                "(too few grain-pore boundaries): use reconstruct.labels: exact")
+        return SegmentedLabels(float(statistics.edge_sigma))
 
     @property
     def surface(self) -> Surface:
