@@ -32,7 +32,9 @@ sizes or arrangement already differ. On the real neutron CT of concrete
 (docs/realism-concrete.md) the CNN stays at 0.994-0.996 with either phase flat and with
 the edges only, and falls to 0.751 with the labels only: the difference lies at the
 boundaries. On the sand micro-CT (docs/realism-sand.md) each part alone takes it from 0.997
-to 0.82-0.91, and the labels alone give 0.766.
+to 0.82-0.91, and the labels alone give 0.766: most of it the way the labels are drawn (the
+scan's by a segmentation of its blurred image, which joins grains closer than the blur), 0.61 for a
+pack with ``reconstruct.labels: segmented`` (`synthpack.render.segmented_labels`).
 
 The patches are the ones the classifier test cuts (same corners and intensity window),
 with the flat levels taken from the source (its appearance's interior medians), so
