@@ -11,6 +11,7 @@ from scipy import ndimage
 from synthpack.errors import SynthpackInputError
 from synthpack.pipeline.config import PackConfig
 from synthpack.pipeline.generate import build_pack
+from synthpack.render import segmented_labels
 from synthpack.render.segmented_labels import SegmentedLabels
 
 
@@ -52,7 +53,7 @@ def test_the_solid_volume_is_kept_and_tips_are_rounded():
     assert abs(np.count_nonzero(labels) - before) <= 0.01 * before
 
 
-def test_the_result_does_not_depend_on_the_slabs_and_a_zarr_array_gives_the_same():
+def test_the_result_does_not_depend_on_the_slabs_or_tiles_and_a_zarr_array_gives_the_same(monkeypatch):
     rng = np.random.default_rng(3)
     centres = rng.uniform(0, 48, size=(40, 3))
     grid = np.stack(np.mgrid[:48, :48, :48], axis=-1).astype(float)
@@ -65,6 +66,10 @@ def test_the_result_does_not_depend_on_the_slabs_and_a_zarr_array_gives_the_same
         results.append(copy)
     for other in results[1:]:
         np.testing.assert_array_equal(results[0], other)
+    monkeypatch.setattr(segmented_labels, "TILE", 7)  # lateral tiles, each with its halo
+    tiled = labels.copy()
+    SegmentedLabels(1.2).redraw(tiled, slab=5, n_labels=40)
+    np.testing.assert_array_equal(tiled, results[0])
     on_disk = zarr.array(labels, chunks=(8, 48, 48))
     SegmentedLabels(1.2).redraw(on_disk, slab=8, n_labels=40)
     np.testing.assert_array_equal(on_disk[:], results[0])

@@ -20,7 +20,9 @@ scan's labels do not draw. ``reconstruct.labels: segmented`` redraws the labels 
    (`skimage.segmentation.expand_labels`, at most `reach` voxels away); every other voxel is 0.
 
 It goes slab by slab along z, each slab read with a halo of `halo` slices on either side,
-so a Zarr pack is never held whole; the result does not depend on the slabs.
+and each slab in lateral tiles of `TILE` voxels with the same halo, so a Zarr pack is never
+held whole and the memory does not grow with its width; the result does not depend on the
+slabs or the tiles.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.segmentation import expand_labels
 
-__all__ = ["LABEL_STYLES", "LEVEL_BINS", "SegmentedLabels"]
+__all__ = ["LABEL_STYLES", "LEVEL_BINS", "TILE", "SegmentedLabels"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,6 +45,8 @@ logger = logging.getLogger(__name__)
 LABEL_STYLES = ("exact", "segmented")
 #: Bins of the histogram of the blurred mask (values in [0, 1]) from which the level is found.
 LEVEL_BINS = 4096
+#: Lateral side (voxels) of the tiles a slab is redrawn in, each with its halo: the memory stays flat however wide the pack.
+TILE = 256
 #: The Gaussian is cut at this many sigmas (SciPy's default), so a slab's halo holds all it reads.
 _TRUNCATE = 4.0
 
@@ -94,16 +98,19 @@ class SegmentedLabels:
         """
         counts = np.zeros(LEVEL_BINS, dtype=np.int64)
         solid = 0
-        for window, lo, _, blurred in self._slabs(labels, slab):
-            original = window[lo:lo + len(blurred)]
-            counts += np.bincount(self._bins(blurred), minlength=LEVEL_BINS)
-            solid += int(np.count_nonzero(original))
+        for window, lo, (z0, z1) in self._slabs(labels, slab):
+            for _, core, _, blurred in self._tiles(window, lo, z1 - z0):
+                counts += np.bincount(self._bins(blurred), minlength=LEVEL_BINS)
+                solid += int(np.count_nonzero(window[core]))
         level = self._level(counts, solid)
         present = np.zeros(n_labels + 1, dtype=bool)
         present[0] = True
         changed = 0
-        for window, lo, (z0, z1), blurred in self._slabs(labels, slab):
-            redrawn = np.where(blurred > level, expand_labels(window, self.reach)[lo:lo + z1 - z0], 0).astype(np.int32)
+        for window, lo, (z0, z1) in self._slabs(labels, slab):
+            redrawn = np.zeros((z1 - z0,) + window.shape[1:], dtype=np.int32)
+            for tile, core, inner, blurred in self._tiles(window, lo, z1 - z0):
+                expanded = expand_labels(window[tile], self.reach)[inner]
+                redrawn[(slice(None),) + core[1:]] = np.where(blurred > level, expanded, 0)
             changed += int(np.count_nonzero(redrawn != window[lo:lo + z1 - z0]))
             present[np.unique(redrawn)] = True
             labels[z0:z1] = redrawn
@@ -112,8 +119,8 @@ class SegmentedLabels:
                     "%.2f %% of the voxels changed", self.sigma, level, 100 * share)
         return {"sigma": self.sigma, "level": level, "changed": share, "present": present}
 
-    def _slabs(self, labels: Any, slab: int) -> Iterator[tuple[np.ndarray, int, tuple[int, int], np.ndarray]]:
-        """Per slab: its labels with the halo, the index of its first slice in them, ``(z0, z1)``, its blurred mask.
+    def _slabs(self, labels: Any, slab: int) -> Iterator[tuple[np.ndarray, int, tuple[int, int]]]:
+        """Per slab: its labels with the halo above and below, the index of its first slice in them, ``(z0, z1)``.
 
         The halo is read before the slab above it is overwritten: the slices below a slab are
         read from the array, those above it from a copy kept before they were written.
@@ -123,11 +130,24 @@ class SegmentedLabels:
         for z0 in range(0, depth, slab):
             z1 = min(depth, z0 + slab)
             window = np.concatenate([above, np.asarray(labels[z0:min(depth, z1 + halo)], dtype=np.int32)])
-            lo = len(above)
-            blurred = ndimage.gaussian_filter((window > 0).astype(np.float32), self.sigma, mode="nearest",
-                                              truncate=_TRUNCATE)[lo:lo + z1 - z0]
-            yield window, lo, (z0, z1), blurred
-            above = window[max(0, lo + z1 - z0 - halo):lo + z1 - z0]
+            yield window, len(above), (z0, z1)
+            above = window[max(0, len(above) + z1 - z0 - halo):len(above) + z1 - z0]
+
+    def _tiles(self, window: np.ndarray, lo: int, depth: int) -> Iterator[tuple[tuple[slice, ...], ...]]:
+        """Per lateral tile of a slab's `window` (`TILE` voxels a side, with the halo around it): the tile read
+        and its core (indices into `window`; the core without the halo, the slab's `depth` slices from `lo`), the
+        core's indices into the tile, and the core's blurred mask."""
+        halo = self.halo
+        for y0 in range(0, window.shape[1], TILE):
+            for x0 in range(0, window.shape[2], TILE):
+                y1, x1 = min(window.shape[1], y0 + TILE), min(window.shape[2], x0 + TILE)
+                tile = (slice(None), slice(max(0, y0 - halo), min(window.shape[1], y1 + halo)),
+                        slice(max(0, x0 - halo), min(window.shape[2], x1 + halo)))
+                core = (slice(lo, lo + depth), slice(y0, y1), slice(x0, x1))
+                inner = tuple(slice(c.start - (t.start or 0), c.stop - (t.start or 0)) for c, t in zip(core, tile))
+                blurred = ndimage.gaussian_filter((window[tile] > 0).astype(np.float32), self.sigma, mode="nearest",
+                                                  truncate=_TRUNCATE)[inner]
+                yield tile, core, inner, blurred
 
     @staticmethod
     def _bins(blurred: np.ndarray) -> np.ndarray:
