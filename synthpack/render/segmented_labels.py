@@ -45,7 +45,8 @@ logger = logging.getLogger(__name__)
 LABEL_STYLES = ("exact", "segmented")
 #: Bins of the histogram of the blurred mask (values in [0, 1]) from which the level is found.
 LEVEL_BINS = 4096
-#: Lateral side (voxels) of the tiles a slab is redrawn in, each with its halo: the memory stays flat however wide the pack.
+#: Lateral side (voxels) of the tiles a slab is redrawn in, each with its halo: the memory stays flat
+#: however wide the pack.
 TILE = 256
 #: The Gaussian is cut at this many sigmas (SciPy's default), so a slab's halo holds all it reads.
 _TRUNCATE = 4.0
