@@ -13,7 +13,7 @@ from synthpack.artefacts import recipes as postprocess_module
 from synthpack.artefacts import (ColouredNoise, GaussianBlur, GaussianNoise, RoundLevels, calibrate,
                                  generic_postprocessing)
 from synthpack.artefacts.calibrate import Calibration, _clean_ring_powers
-from synthpack.artefacts.calibration_region import central_slices, measured_slices
+from synthpack.artefacts.calibration_region import MIN_CALIBRATION_SLICES, central_slices, measured_slices
 from synthpack.artefacts.guard import TOLERANCE, guard_steps
 from synthpack.errors import SynthpackInputError
 from synthpack.artefacts.recipes import (POSTPROCESS_MODES, _calibration_targets, bulk_region, check_postprocess,
@@ -124,18 +124,19 @@ def test_calibrated_fits_the_psf_and_the_noise_spectrum_to_the_source_and_record
 
 
 def test_central_slices_keep_at_most_the_asked_voxels_of_a_region_centred_in_its_slices():
-    region = np.zeros((40, 8, 8), dtype=bool)
-    region[5:35, 2:6, 2:6] = True  # 30 slices of 16 voxels
+    region = np.zeros((70, 8, 8), dtype=bool)
+    region[5:65, 2:6, 2:6] = True  # 60 slices of 16 voxels
     assert central_slices(region, 10_000) is region
-    kept = central_slices(region, 320)
-    assert np.count_nonzero(kept) == 320 and not np.any(kept & ~region)
-    assert np.flatnonzero(kept.any(axis=(1, 2))).tolist() == list(range(10, 30))
+    kept = central_slices(region, 640)  # 40 slices, at least MIN_CALIBRATION_SLICES
+    assert np.count_nonzero(kept) == 640 and not np.any(kept & ~region)
+    assert np.flatnonzero(kept.any(axis=(1, 2))).tolist() == list(range(15, 55))
     assert np.count_nonzero(central_slices(region, 1)) == 1  # at least one slice of a central square
     wide = np.zeros((40, 300, 300), dtype=bool)
     wide[5:35, 10:290, 10:290] = True  # 30 slices of 78,400 voxels: one slice would be 78% of the bound
     kept = central_slices(wide, 100_000)
     slices = np.flatnonzero(kept.any(axis=(1, 2)))
-    assert len(slices) >= 16 and np.count_nonzero(kept) <= 100_000 and not np.any(kept & ~wide)
+    assert len(slices) >= min(30, MIN_CALIBRATION_SLICES) and np.count_nonzero(kept) <= 100_000
+    assert not np.any(kept & ~wide)
     rows = np.flatnonzero(kept.any(axis=(0, 2)))
     assert abs((rows[0] + rows[-1]) / 2 - 149.5) <= 1  # about the lateral centre
 

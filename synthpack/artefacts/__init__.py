@@ -25,6 +25,8 @@ Transforms, by config name:
                           intensity response between the two phase levels
 ``round_levels``          `RoundLevels` (step, offset): the grey-level grid of a scan stored as
                           integers, or as floats of regular steps
+``spectrum_match``        `SpectrumMatch` (gain): a linear filter that gives a volume a source's
+                          3D power spectrum about the slice normal
 ``ct_simulation``         `CTSimulation` (attenuation, photons, n_angles, gain_std,
                           filter_name): projection, photon noise, gain errors, FBP
 ``compose``               `Compose` (transforms)
@@ -50,6 +52,7 @@ from .intensity import ContrastGamma, RoundLevels
 from .noise import GaussianNoise, PoissonNoise, SpeckleNoise
 from .presets import generic_postprocessing
 from .radial import BeamHardening, RingArtefacts
+from .spectrum_match import SpectrumMatch
 
 __all__ = [
     "BeamHardening",
@@ -66,6 +69,7 @@ __all__ = [
     "PoissonNoise",
     "RingArtefacts",
     "SpeckleNoise",
+    "SpectrumMatch",
     "Transform",
     "available_transforms",
     "calibrate",

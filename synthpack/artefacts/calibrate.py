@@ -107,6 +107,12 @@ its cost is fixed and vanishes per voxel on big packs.
    own rounding, and a pack whose noise matched it before rounding read 7 % noisier after it
    (the sand micro-CT).
 
+7. **The spectrum match**, where the source's 3D power spectrum is known (`~synthpack.source.SourceStatistics.volume_spectrum`):
+   a linear filter fitted on the steps' output (`~synthpack.artefacts.spectrum_match`) gives the pack the source's
+   spectrum about the slice normal, structure and noise together, applied after the steps (before the band map and
+   the rounding) only where it lowers the logistic AUC of the region's patches against the source's and misses no
+   more targets (`~synthpack.artefacts.guard.guard_spectrum_match`, `Calibration.spectrum_match`).
+
 The fit has no random part (the guard draws from its own fixed stream); with the pack's
 seed the noise realisation is reproducible too. It records the grid search and every
 value it matched or applied.
@@ -138,9 +144,10 @@ from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of
 from .intensity import RoundLevels, rounding_variance
 from .calibration_region import (CALIBRATION_VOXELS, bounding_box, calibration_halo, central_slices,
                                  lateral_window)
-from .guard import guard_missed, guard_steps
+from .guard import guard_missed, guard_spectrum_match, guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
+from .spectrum_match import SpectrumMatch
 
 logger = logging.getLogger(__name__)
 
@@ -253,6 +260,10 @@ class Calibration:
         ``"grains"``, ``"pores"``: the amplitude factor of each phase's fitted noise (and texture)
         that the guard applies with the band map, which stretches the noise with each shell's
         histogram (`~synthpack.artefacts.guard`); None: 1.
+    spectrum_match : dict or None
+        What `~synthpack.artefacts.guard.guard_spectrum_match` fitted and found (``status``,
+        ``gain``, ...): applied in `pipeline` where ``status`` is ``"applied"``; None: not fitted
+        (no source spectrum).
     """
 
     blur_sigma: float
@@ -287,6 +298,7 @@ class Calibration:
     grey_levels: list[float] | None = None
     band_map: dict | None = None
     noise_scale: dict[str, float] | None = None
+    spectrum_match: dict | None = None
 
     def fitted_steps(self) -> tuple[str, ...]:
         """The steps of `STEPS` that do something: a blur wider than 0, noise added to a phase, the source's artefacts."""
@@ -341,10 +353,15 @@ class Calibration:
         return transforms
 
     def pipeline(self) -> Compose:
-        """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, then the grey-level grid
-        (unless a `band_map` follows, which rounds)."""
-        return Compose(self.transforms(self.applied_steps(), self.noise_scale)
+        """The transforms of `applied_steps`: blur, coloured noise, the scanner's artefacts, the spectrum match, then
+        the grey-level grid (unless a `band_map` follows, which rounds)."""
+        return Compose(self.transforms(self.applied_steps(), self.noise_scale) + self.matched_spectrum()
                        + (self.rounding() if self.band_map is None else []))
+
+    def matched_spectrum(self) -> list[SpectrumMatch]:
+        """The `~synthpack.artefacts.SpectrumMatch` of `spectrum_match` where the guard applied it, else none."""
+        match = self.spectrum_match or {}
+        return [SpectrumMatch(gain=match["gain"], level=match["level"])] if match.get("status") == "applied" else []
 
     def rounding(self) -> list[RoundLevels]:
         """The last transform, onto the source's grey-level grid (`grey_levels`); none where it has none."""
@@ -402,6 +419,7 @@ def calibrate(
     target_steepness: Sequence[float] | None = None,
     target_bands: dict[int, Sequence[float] | None] | None = None,
     target_patches: PatchReference | None = None,
+    target_spectrum: Sequence[Sequence[float]] | None = None,
     grey_levels: Sequence[float] | None = None,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
@@ -463,6 +481,9 @@ def calibrate(
     target_patches : PatchReference, optional
         The source's classifier patches (`~synthpack.source.SourceStatistics.patch_reference`): the
         guard records the logistic AUC against them (step 4); None: it does not.
+    target_spectrum : sequence of sequence of float, optional
+        The source's power spectrum about the slice normal (`~synthpack.source.SourceStatistics.volume_spectrum`):
+        a spectrum match is fitted to it (step 7); None: none is.
     grey_levels : (float, float), optional
         ``(step, offset)``: end the pipeline with `~synthpack.artefacts.RoundLevels` onto the
         source's grey-level grid (`~synthpack.source.SourceStatistics.grey_levels`); None: no rounding.
@@ -593,6 +614,10 @@ def calibrate(
         calibration.guard["psf_tried"] = tried
     calibration.band_map = calibration.guard.pop("band_map")
     calibration.noise_scale = calibration.guard.pop("noise_scale")
+    if target_spectrum is not None:
+        calibration.spectrum_match = _spectrum_match(calibration, clean, labels, region, target_spectrum,
+                                                     target_histograms or {}, calibration_halo(target_sigma),
+                                                     target_patches, nps_depth)
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
                            if std is not None)
     noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
@@ -642,9 +667,7 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
     read, in each the window `~synthpack.artefacts.calibration_region.lateral_window` keeps: the artefacts about the slice centre lie
     where the pack's will, and every value the guard measures is the one whole slices give.
     """
-    occupied = np.flatnonzero(region.any(axis=(1, 2)))
-    low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
-    window = (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
+    window = _guard_window(calibration, region, halo)
     rounds = calibration.rounding()  # measured as the pack will be: rounded last
     _, record = guard_steps(
         lambda steps: calibration.transforms(steps) + rounds, calibration.fitted_steps(),
@@ -654,3 +677,24 @@ def _guard(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, regi
         rescaled=lambda steps, scale: calibration.transforms(steps, scale) + rounds
         if any(step.endswith(("_noise", "_texture")) for step in steps) else None)
     return record
+
+
+def _guard_window(calibration: Calibration, region: np.ndarray, halo: int) -> tuple[slice, ...]:
+    """The slices `region` occupies, `halo` more on each side, in the lateral window the guard reads."""
+    occupied = np.flatnonzero(region.any(axis=(1, 2)))
+    low, high = max(0, int(occupied[0]) - halo), min(region.shape[0], int(occupied[-1]) + 1 + halo)
+    return (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
+
+
+def _spectrum_match(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
+                    target: Sequence[Sequence[float]], histograms: dict[str, Sequence[float] | None], halo: int,
+                    patches: PatchReference | None, nps_depth: float) -> dict:
+    """`~synthpack.artefacts.guard.guard_spectrum_match` after the steps kept, on the guard's window."""
+    window = _guard_window(calibration, region, halo)
+    return guard_spectrum_match(
+        calibration.transforms(calibration.applied_steps(), calibration.noise_scale),
+        np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window],
+        np.asarray(target, dtype=np.float64), histograms=histograms, noise=calibration.target_phase_noise,
+        contrast=calibration.grain_level - calibration.pore_level, patches=patches,
+        ring_powers=calibration.target_power, nps_depth=nps_depth, band_map=calibration.band_mapping(),
+        rounding=calibration.rounding())

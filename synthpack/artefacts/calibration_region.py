@@ -26,8 +26,9 @@ __all__ = ["CALIBRATION_VOXELS", "MIN_CALIBRATION_SLICES", "bounding_box", "cali
 #: the PSF sigma fitted on it is within 0.003 voxel, the noise levels within 0.1 % and the ring powers
 #: within 2 % of the whole-bulk fit, at a quarter of its cost.
 CALIBRATION_VOXELS = 1 << 20
-#: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`).
-MIN_CALIBRATION_SLICES = 16
+#: The fewest slices the fit measures: a wider region is cut to a central square first (`central_slices`); as
+#: deep as the spectrum match's cubes (`~synthpack.measure.volume_spectrum.TILE`).
+MIN_CALIBRATION_SLICES = 32
 
 
 def bounding_box(region: np.ndarray, halo: int) -> tuple[slice, ...]:

@@ -51,13 +51,16 @@ from scipy import fft
 
 from .edges import INTERIOR
 
-__all__ = ["MAX_NPS_ERROR", "MAX_NPS_VOXELS", "NPS_DEPTH_STEP", "NPS_PATCH", "NoiseSpectrum",
+__all__ = ["MAX_NPS_ERROR", "MAX_NPS_VOXELS", "NPS_DEPTH_STEP", "NPS_PATCH", "NPS_RING_FACTOR", "NoiseSpectrum",
            "measurable_phase_spectra", "noise_power_spectrum", "patch_lags",
            "patch_ring_powers", "phase_interiors", "phase_spectra", "ring_errors", "ring_frequencies", "ring_of",
            "slice_difference_gain", "white_ring_powers"]
 
 #: Side (voxels) of the in-slice patches whose rings the noise power spectrum describes.
 NPS_PATCH = 8
+#: The realism target of a pack's NPS: within this factor of the source's in every ring
+#: (`synthpack.realism.targets`; the calibration's guard keeps to it too).
+NPS_RING_FACTOR = 2.0
 #: The NPS uses at most about this many voxels of second differences per phase (evenly spaced slices).
 MAX_NPS_VOXELS = 1 << 22
 #: A phase's NPS is measured only where its voxel pairs give the power of every ring up to 0.5 cycles/voxel

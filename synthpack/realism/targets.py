@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 from ..measure.noise_estimate import estimate_spread
 from ..measure.patch_features import LOGISTIC_AUC_MARGIN
+from ..measure.spectrum import NPS_RING_FACTOR
 
 __all__ = ["CNN_AUC_MARGIN", "COORDINATION_TOLERANCE", "LOGISTIC_AUC_MARGIN", "NOISE_STD_TOLERANCE",
            "NPS_RING_FACTOR", "SOLID_FRACTION_TOLERANCE", "TARGETS", "W_LIMIT", "WORSE_RESOLUTION", "Reading", "Target",
@@ -51,8 +52,6 @@ CNN_AUC_MARGIN = 0.15
 W_LIMIT = 0.05
 #: Noise standard deviation of each phase: within this fraction of the source's.
 NOISE_STD_TOLERANCE = 0.10
-#: NPS of each phase: within this factor of the source's in every ring.
-NPS_RING_FACTOR = 2.0
 #: Solid fraction of the bulk: within this (absolute) of the source's.
 SOLID_FRACTION_TOLERANCE = 0.02
 #: Mean coordination number: within this fraction of the source's.
