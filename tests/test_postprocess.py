@@ -28,6 +28,7 @@ from synthpack.measure.steepness import edge_steepness
 from synthpack.measure.semivariogram import phase_semivariograms
 from synthpack.artefacts.coloured_noise import TEXTURE_SIGMAS
 from synthpack.measure.spectrum import white_ring_powers
+from synthpack.measure.volume_spectrum import cylindrical_spectrum
 
 STATISTICS = SourceStatistics(pore_mean=0.2, pore_std=0.01, grain_mean=0.8, noise_std=0.05, edge_width=3.0,
                               edge_shift=0.0, edge_sigma=1.2, nps_grains=(1e-4,) * 6, nps_pores=(1e-4,) * 6)
@@ -332,6 +333,22 @@ def test_a_noise_scale_scales_each_phases_noise_amplitude_alone(rendered, source
     noise = next(t for t in calibration.pipeline() if t.name == "coloured_noise")
     unscaled = next(t for t in calibration.transforms(calibration.applied_steps()) if t.name == "coloured_noise")
     np.testing.assert_allclose(noise.pore_power, 0.25 * np.asarray(unscaled.pore_power))
+
+
+def test_the_spectrum_match_is_judged_recorded_and_applied_after_the_steps(phantom, rendered, source_statistics):
+    clean, labels = phantom  # the source's spectrum, read in cubes of 16 over its whole volume (its specimen is small)
+    source = GaussianNoise(std=0.02)(GaussianBlur(sigma=0.8)(clean, 0), 1)
+    spectrum = cylindrical_spectrum(source, np.ones(source.shape, bool), tile=16)
+    statistics = dataclasses.replace(source_statistics, volume_spectrum=tuple(map(tuple, spectrum)))
+    fit = _resolve("calibrated", rendered, statistics).record["calibration"]
+    match = fit["spectrum_match"]  # fitted on the pack's slices and judged there
+    assert match["status"] in ("applied", "dropped") and len(match["gain"]) == 117 and match["tile"] == 16
+    assert set(match["logistic"]) == {"without", "with"} and set(match["figures"]) == {"without", "with"}
+    calibration = Calibration(**{**fit, "spectrum_match": {**match, "status": "applied"}, "grey_levels": [1.0, 0.0]})
+    names = [t.name for t in calibration.pipeline()]
+    assert names[-2:] == ["spectrum_match", "round_levels"] and names.index("coloured_noise") < len(names) - 2
+    without = Calibration(**{**fit, "spectrum_match": None})
+    assert "spectrum_match" not in [t.name for t in without.pipeline()]
 
 
 def test_the_guard_drops_a_noise_step_fitted_to_structure_and_records_it(rendered, source_statistics, caplog):
