@@ -358,7 +358,7 @@ def guard_spectrum_match(
     with the labels, then the rounding) and measured: the filter is applied only where the
     report's logistic AUC of the region's patches against the source's falls by at least the
     realism target's margin (`~synthpack.measure.patch_features.LOGISTIC_AUC_MARGIN`: a filter that
-    reshapes every frequency is not worth less; on the concrete neutron CT it gained 0.013), no
+    reshapes every frequency is not worth less; on the concrete neutron CT it gained 0.020), no
     more of the guard's figures miss their targets, and each ring of the phases' noise spectra
     stays within the realism target's factor of the source's
     (`~synthpack.measure.spectrum.NPS_RING_FACTOR`), or no further from it than without the
