@@ -23,8 +23,8 @@ about 1: the filter adds ``(1 - g) level`` to keep a volume of the mean intensit
 fitted pack's) at that level, so the phases' levels move by ``(g - 1)`` of their distance from it.
 
 **Applied** by FFT convolution of the volume mirrored beyond its borders (SciPy's
-``"reflect"``, NumPy's ``"symmetric"``), in float32 (3.4 times float64's speed; its rounding,
-about 1e-6 of the intensities, is far below a scan's grey-level step): a
+``"reflect"``, NumPy's ``"symmetric"``), in float32 (its rounding, about 1e-6 of the intensities,
+is far below a scan's grey-level step), with the kernel's transform kept for each block shape: a
 ``"neighbourhood"`` transform of halo `KERNEL_RADIUS`, so block by block
 (`synthpack.artefacts.blockwise`) it gives the whole volume's values within float32 rounding.
 A slice (H, W) gets the kernel summed along z (a volume constant across slices). No torch
@@ -37,7 +37,7 @@ import functools
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import fft, ndimage, signal
+from scipy import fft, ndimage
 
 from ..errors import SynthpackInputError
 from ..measure.volume_spectrum import TILE, TILES, frequency_bins, radii
@@ -93,6 +93,15 @@ def _kernel(gain: tuple[float, ...]) -> np.ndarray:
             + kernel[::-1, ::-1] + kernel[::-1, :, ::-1] + kernel[:, ::-1, ::-1] + kernel[::-1, ::-1, ::-1]) / 8
 
 
+@functools.lru_cache(maxsize=8)
+def _kernel_spectrum(gain: tuple[float, ...], shape: tuple[int, ...]) -> np.ndarray:
+    """The real FFT of the kernel (summed along z for a slice) on a grid of `shape`, complex64."""
+    kernel = _kernel(gain)
+    if len(shape) == 2:
+        kernel = kernel.sum(axis=0)
+    return fft.rfftn(kernel.astype(np.float32), shape)
+
+
 def spectrum_kernel(gain: Sequence[float]) -> np.ndarray:
     """The convolution kernel of a gain table (see the module docstring).
 
@@ -144,9 +153,11 @@ class SpectrumMatch(Transform):
 
     def _transform(self, image: np.ndarray, rng: np.random.Generator, *, gain: Sequence[float],
                    level: float) -> np.ndarray:
-        kernel = spectrum_kernel(gain)
-        if image.ndim == 2:
-            kernel = kernel.sum(axis=0)
         padded = np.pad(np.asarray(image, dtype=np.float32), KERNEL_RADIUS, mode="symmetric")
-        out = signal.fftconvolve(padded, kernel.astype(np.float32), mode="valid")
-        return (out + np.float32((1.0 - float(kernel.sum())) * level)).astype(np.float32, copy=False)
+        shape = tuple(fft.next_fast_len(n, real=True) for n in padded.shape)
+        # circular convolution on a grid at least as long as the padded image: its values from index
+        # 2 KERNEL_RADIUS on are the linear convolution's, the image's own voxels
+        out = fft.irfftn(fft.rfftn(padded, shape) * _kernel_spectrum(tuple(float(g) for g in gain), shape), shape)
+        out = out[tuple(slice(2 * KERNEL_RADIUS, n) for n in padded.shape)]
+        kept = np.float32((1.0 - float(spectrum_kernel(gain).sum())) * level)
+        return (out + kept).astype(np.float32, copy=False)
