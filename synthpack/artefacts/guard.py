@@ -399,8 +399,8 @@ def guard_spectrum_match(
     pack = cylindrical_spectrum(out, region, tile=tile)
     record: dict = {"status": "not measured", "gain": None, "tile": tile, "cubes": cubes}
     if pack is None or patches is None:
-        logger.info("calibration: no spectrum match (%s)", "no classifier patches of the source to judge it by"
-                    if pack is not None else f"{cubes} cubes of the region, fewer than needed")
+        logger.debug("calibration: no spectrum match (%s)", "no classifier patches of the source to judge it by"
+                     if pack is not None else f"{cubes} cubes of {tile} voxels in the region, fewer than needed")
         return record
     gain = np.round(fit_gain(np.asarray(target, dtype=np.float64), pack), 6)
     box, distance, masks, noise_labels = _measured(labels, region)
