@@ -70,7 +70,6 @@ a step compare the same noise realisation.
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -390,8 +389,9 @@ def guard_spectrum_match(
     dict
         ``status`` (``"applied"``, ``"dropped"``, or ``"not measured"``: too few cubes in the region
         or no patches to judge by), ``gain`` (the table, flattened row by row, or None) and ``level``
-        (the steps' mean intensity in the region, which the filter keeps), ``tile`` and
-        ``cubes`` (the side and number of the region's cubes), ``logistic`` and ``figures`` (``without``, ``with``; where judged).
+        (the steps' mean intensity in the region, which the filter keeps), ``tile`` and ``cubes``
+        (the side and number of the region's cubes), ``logistic`` and ``figures`` (``without``,
+        ``with``; where judged).
     """
     tile = table_tile(target)
     cubes = len(cube_corners(region, tile))
@@ -410,17 +410,20 @@ def guard_spectrum_match(
         return _apply(rounding, result)
 
     def ring_factors(result: np.ndarray) -> list[float]:
-        """Per ring of each phase measured (in order), its power's factor from the source's, >= 1 either way."""
+        """Per ring of each phase measured (in order), its power's factor from the source's, >= 1 either way
+        (finite: a ring without power reads 1e12)."""
         spectra = phase_spectra(result, distance, region[box], nps_depth)
-        return [max(power / target, target / power) if power > 0 else math.inf
-                for phase, target_powers in sorted((ring_powers or {}).items()) if spectra.get(phase) is not None
-                for power, target in zip(spectra[phase].power[1:], target_powers) if target > 0]
+        return [max(power / source, source / power) for phase, sources in sorted((ring_powers or {}).items())
+                if spectra.get(phase) is not None
+                for power, source in zip(np.maximum(spectra[phase].power[1:], 1e-12 * np.asarray(sources)), sources)
+                if source > 0]
 
     level = round(float(np.mean(out[region], dtype=np.float64)), 6)
-    volumes = {"without": finished(out), "with": finished(SpectrumMatch(gain=gain.ravel().tolist(), level=level)(out, 0))}
+    matched = SpectrumMatch(gain=gain.ravel().tolist(), level=level)(out, 0)
+    volumes = {"without": finished(out), "with": finished(matched)}
     factors = {name: ring_factors(v) for name, v in volumes.items()}
     measured = {name: {**figures(v, masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast),
-                       "nps_worst_ring": max(factors[name], default=1.0)} for name, v in volumes.items()}
+                       "nps_worst_ring": float(max(factors[name], default=1.0))} for name, v in volumes.items()}
     corners = patch_corners(region[box], DEFAULT_PATCH, DEFAULT_PATCH // 2, MAX_PATCHES)
     auc = {name: patches.auc(v, corners) for name, v in volumes.items()}
     helps = (None not in auc.values() and auc["with"] <= auc["without"] - LOGISTIC_AUC_MARGIN
@@ -429,7 +432,7 @@ def guard_spectrum_match(
     record.update(status="applied" if helps else "dropped", gain=gain.ravel().tolist(), level=level, logistic=auc,
                   figures=measured)
     logger.info("calibration: spectrum match %s (logistic AUC on %d cubes' region %s without, %s with; %s)",
-                record["status"], cubes, sig(auc["without"] or float("nan"), 3), sig(auc["with"] or float("nan"), 3),
+                record["status"], cubes, *(sig(a, 3) if a is not None else "n/a" for a in auc.values()),
                 _text(measured["with"]))
     return record
 

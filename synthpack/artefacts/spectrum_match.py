@@ -17,8 +17,9 @@ mean is removed), the ratio is its neighbours'.
 
 **The kernel** (`spectrum_kernel`): the gain, interpolated linearly from the table to each
 frequency of a cube of `~synthpack.measure.volume_spectrum.TILE` voxels (whatever cube side
-the table was measured with), inverse Fourier transformed and cut to `KERNEL_RADIUS` voxels about its centre; it is symmetric about every
-axis, so convolution and correlation are the same. It sums to the gain at frequency 0, ``g``,
+the table was measured with), inverse Fourier transformed and cut to `KERNEL_RADIUS` voxels
+about its centre; it is symmetric about every axis, so convolution and correlation are the
+same. It sums to the gain at frequency 0, ``g``,
 about 1: the filter adds ``(1 - g) level`` to keep a volume of the mean intensity `level` (the
 fitted pack's) at that level, so the phases' levels move by ``(g - 1)`` of their distance from it.
 
