@@ -339,7 +339,7 @@ def test_the_spectrum_match_is_judged_recorded_and_applied_after_the_steps(phant
     clean, labels = phantom  # the source's spectrum, read in cubes of 16 over its whole volume (its specimen is small)
     source = GaussianNoise(std=0.02)(GaussianBlur(sigma=0.8)(clean, 0), 1)
     spectrum = cylindrical_spectrum(source, np.ones(source.shape, bool), tile=16)
-    statistics = dataclasses.replace(source_statistics, volume_spectrum=tuple(map(tuple, spectrum)))
+    statistics = dataclasses.replace(source_statistics, volume_spectra=(tuple(map(tuple, spectrum)),))
     fit = _resolve("calibrated", rendered, statistics).record["calibration"]
     match = fit["spectrum_match"]  # fitted on the pack's slices and judged there
     assert match["status"] in ("applied", "dropped") and len(match["gain"]) == 117 and match["tile"] == 16

@@ -106,15 +106,36 @@ def test_the_guard_applies_the_filter_where_it_brings_the_patches_closer_and_rec
     source, _ = _phantom(_noise(shape, 8, (0.0, 0.6, 0.6), std=6.0))  # in-slice correlated noise
     pack, labels = _phantom(_noise(shape, 9, std=6.0))  # white noise of the same level
     reference = PatchReference.measure(source, region)
-    record = guard_spectrum_match([], pack, labels, region, cylindrical_spectrum(source, region),
+    record = guard_spectrum_match([], pack, labels, region, [cylindrical_spectrum(source, region)],
                                   histograms={}, noise={}, contrast=80.0, patches=reference)
     assert record["status"] == "applied", record["logistic"]
     assert record["logistic"]["with"] <= record["logistic"]["without"] - LOGISTIC_AUC_MARGIN
     assert len(record["gain"]) == (TILE // 2 + 1) * radii(TILE) and record["cubes"] == 27
     # the same noise as the source's: nothing to gain, so nothing applied
     same, labels = _phantom(_noise(shape, 10, (0.0, 0.6, 0.6), std=6.0))
-    record = guard_spectrum_match([], same, labels, region, cylindrical_spectrum(source, region),
+    record = guard_spectrum_match([], same, labels, region, [cylindrical_spectrum(source, region)],
                                   histograms={}, noise={}, contrast=80.0, patches=reference)
     assert record["status"] == "dropped"
-    assert guard_spectrum_match([], same, labels, region, cylindrical_spectrum(source, region), histograms={},
+    assert guard_spectrum_match([], same, labels, region, [cylindrical_spectrum(source, region)], histograms={},
                                 noise={}, contrast=80.0, patches=None)["status"] == "not measured"
+
+
+def test_a_narrow_tube_is_matched_with_the_sources_table_of_half_cubes():
+    shape = (64, 64, 64)
+    source, _ = _phantom(_noise(shape, 8, (0.0, 0.6, 0.6), std=6.0))
+    whole = np.ones(shape, bool)
+    tables = [cylindrical_spectrum(source, whole, tile=tile) for tile in (TILE, TILE // 2)]
+    # a tube 40 voxels across: no cube of 32 fits in it, cubes of 16 do
+    y, x = np.indices(shape[1:]) - 31.5
+    tube = np.broadcast_to(np.hypot(y, x) < 20, shape)
+    assert len(cube_corners(tube, TILE)) == 0 and len(cube_corners(tube, TILE // 2)) >= MIN_CUBES
+    pack, labels = _phantom(_noise(shape, 9, std=6.0))
+    reference = PatchReference.measure(source, whole)
+    record = guard_spectrum_match([], pack, labels, tube, tables, histograms={}, noise={}, contrast=80.0,
+                                  patches=reference)
+    assert record["tile"] == TILE // 2 and len(record["gain"]) == (TILE // 4 + 1) * radii(TILE // 2)
+    assert record["status"] == "applied", record["logistic"]
+    # with the table of 32 alone there is nothing to match it with
+    record = guard_spectrum_match([], pack, labels, tube, tables[:1], histograms={}, noise={}, contrast=80.0,
+                                  patches=reference)
+    assert record["status"] == "not measured" and record["tile"] == TILE and record["cubes"] == 0

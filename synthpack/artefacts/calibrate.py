@@ -107,7 +107,7 @@ its cost is fixed and vanishes per voxel on big packs.
    own rounding, and a pack whose noise matched it before rounding read 7 % noisier after it
    (the sand micro-CT).
 
-7. **The spectrum match**, where the source's 3D power spectrum is known (`~synthpack.source.SourceStatistics.volume_spectrum`):
+7. **The spectrum match**, where the source's 3D power spectrum is known (`~synthpack.source.SourceStatistics.volume_spectra`):
    a linear filter fitted on the steps' output (`~synthpack.artefacts.spectrum_match`) gives the pack the source's
    spectrum about the slice normal, structure and noise together, applied after the steps (before the band map and
    the rounding) only where it lowers the logistic AUC of the region's patches against the source's and misses no
@@ -419,7 +419,7 @@ def calibrate(
     target_steepness: Sequence[float] | None = None,
     target_bands: dict[int, Sequence[float] | None] | None = None,
     target_patches: PatchReference | None = None,
-    target_spectrum: Sequence[Sequence[float]] | None = None,
+    target_spectra: Sequence[Sequence[Sequence[float]]] | None = None,
     grey_levels: Sequence[float] | None = None,
     steps: int = PSF_STEPS,
     max_voxels: int = CALIBRATION_VOXELS,
@@ -481,9 +481,9 @@ def calibrate(
     target_patches : PatchReference, optional
         The source's classifier patches (`~synthpack.source.SourceStatistics.patch_reference`): the
         guard records the logistic AUC against them (step 4); None: it does not.
-    target_spectrum : sequence of sequence of float, optional
-        The source's power spectrum about the slice normal (`~synthpack.source.SourceStatistics.volume_spectrum`):
-        a spectrum match is fitted to it (step 7); None: none is.
+    target_spectra : sequence of (sequence of sequence of float), optional
+        The source's spectra about the slice normal, per cube side (`~synthpack.source.SourceStatistics.volume_spectra`):
+        a spectrum match is fitted to one of them (step 7); None: none is.
     grey_levels : (float, float), optional
         ``(step, offset)``: end the pipeline with `~synthpack.artefacts.RoundLevels` onto the
         source's grey-level grid (`~synthpack.source.SourceStatistics.grey_levels`); None: no rounding.
@@ -614,8 +614,8 @@ def calibrate(
         calibration.guard["psf_tried"] = tried
     calibration.band_map = calibration.guard.pop("band_map")
     calibration.noise_scale = calibration.guard.pop("noise_scale")
-    if target_spectrum is not None:
-        calibration.spectrum_match = _spectrum_match(calibration, clean, labels, region, target_spectrum,
+    if target_spectra is not None:
+        calibration.spectrum_match = _spectrum_match(calibration, clean, labels, region, target_spectra,
                                                      target_histograms or {}, calibration_halo(target_sigma),
                                                      target_patches, nps_depth)
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
@@ -687,14 +687,14 @@ def _guard_window(calibration: Calibration, region: np.ndarray, halo: int) -> tu
 
 
 def _spectrum_match(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
-                    target: Sequence[Sequence[float]], histograms: dict[str, Sequence[float] | None], halo: int,
+                    targets: Sequence[Sequence[Sequence[float]]], histograms: dict[str, Sequence[float] | None], halo: int,
                     patches: PatchReference | None, nps_depth: float) -> dict:
     """`~synthpack.artefacts.guard.guard_spectrum_match` after the steps kept, on the guard's window."""
     window = _guard_window(calibration, region, halo)
     return guard_spectrum_match(
         calibration.transforms(calibration.applied_steps(), calibration.noise_scale),
         np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window],
-        np.asarray(target, dtype=np.float64), histograms=histograms, noise=calibration.target_phase_noise,
+        [np.asarray(t, dtype=np.float64) for t in targets], histograms=histograms, noise=calibration.target_phase_noise,
         contrast=calibration.grain_level - calibration.pore_level, patches=patches,
         ring_powers=calibration.target_power, nps_depth=nps_depth, band_map=calibration.band_mapping(),
         rounding=calibration.rounding())

@@ -83,7 +83,7 @@ from ..measure.noise_estimate import estimate_noise, estimate_spread
 from ..measure.patch_features import DEFAULT_PATCH, LOGISTIC_AUC_MARGIN, MAX_PATCHES, PatchReference
 from ..measure.phase_histograms import phase_masks, phase_quantiles, quantile_distance
 from ..measure.spectrum import NPS_RING_FACTOR, phase_spectra
-from ..measure.volume_spectrum import cube_corners, cylindrical_spectrum, table_tile
+from ..measure.volume_spectrum import MIN_CUBES, cube_corners, cylindrical_spectrum, table_tile
 from ._base import Transform
 from .band_map import BandMap, fit_band_map
 from .spectrum_match import SpectrumMatch, fit_gain
@@ -337,7 +337,7 @@ def guard_spectrum_match(
     volume: np.ndarray,
     labels: np.ndarray,
     region: np.ndarray,
-    target: np.ndarray,
+    targets: Sequence[np.ndarray],
     *,
     histograms: Mapping[str, Sequence[float] | None],
     noise: Mapping[str, float | None],
@@ -352,7 +352,9 @@ def guard_spectrum_match(
 
     The steps (`transforms`) are applied to `volume` as `guard_steps` applies them; the
     spectrum of the result in `region` (`~synthpack.measure.volume_spectrum.cylindrical_spectrum`)
-    gives the gain towards `target` (`~synthpack.artefacts.spectrum_match.fit_gain`). Both
+    gives the gain towards the first of `targets` whose cubes fit in `region` often enough
+    (`~synthpack.measure.volume_spectrum.MIN_CUBES`; a narrow tube's region holds cubes of 16
+    voxels where it holds none of 32), `~synthpack.artefacts.spectrum_match.fit_gain`. Both
     volumes, without and with the filter, are then finished as the pack will be (the band map
     with the labels, then the rounding) and measured: the filter is applied only where the
     report's logistic AUC of the region's patches against the source's falls by at least the
@@ -369,9 +371,9 @@ def guard_spectrum_match(
         The calibrated steps kept, in order.
     volume, labels, region
         As `guard_steps` takes them.
-    target : ndarray of float64, shape (T // 2 + 1, radii(T))
-        The source's spectrum (`~synthpack.source.SourceStatistics.volume_spectrum`), of cubes of side ``T``:
-        the pack's is read in cubes of the same side.
+    targets : sequence of ndarray of float64, shape (T // 2 + 1, radii(T))
+        The source's spectra (`~synthpack.source.SourceStatistics.volume_spectra`), of cubes of side ``T``,
+        the largest side first: the pack's is read in cubes of the same side as the one matched.
     histograms, noise, contrast
         The source's figures, as `figures` takes them.
     patches : PatchReference or None
@@ -393,6 +395,7 @@ def guard_spectrum_match(
         (the side and number of the region's cubes), ``logistic`` and ``figures`` (``without``,
         ``with``; where judged).
     """
+    target = next((t for t in targets if len(cube_corners(region, table_tile(t))) >= MIN_CUBES), targets[-1])
     tile = table_tile(target)
     cubes = len(cube_corners(region, tile))
     out = _apply(transforms, volume)

@@ -213,7 +213,7 @@ def _calibration_targets(statistics: SourceStatistics) -> dict[str, Any]:
             "target_semivariogram": {"grains": statistics.semivariogram_grains, "pores": statistics.semivariogram_pores},
             "target_steepness": statistics.edge_steepness,
             "target_bands": None if statistics.band_histograms is None else dict(zip(BAND_KEYS, statistics.band_histograms)),
-            "target_patches": statistics.patch_reference, "target_spectrum": statistics.volume_spectrum,
+            "target_patches": statistics.patch_reference, "target_spectra": statistics.volume_spectra,
             "grey_levels": statistics.grey_levels}
 
 

@@ -51,7 +51,7 @@ _FORMAT = "synthpack-particle-library"
 #: A library folder; an earlier one (``library.json``) is replaced, anything else is refused.
 LIBRARY_OUTPUT = Output("particle library", marker="library.json")
 #: Raised whenever what a library holds on disk changes; a library of another version must be rebuilt.
-_FORMAT_VERSION = 9
+_FORMAT_VERSION = 10
 _REBUILD = "rebuild it with `synthpack library build`"
 _TABLE_COLUMNS = (
     "index", "label", "z0", "y0", "x0", "z1", "y1", "x1", "voxel_count",

@@ -27,7 +27,7 @@ from ..measure.phase_histograms import band_quantiles, phase_masks, phase_quanti
 from ..measure.specimen import edge_coverage, is_interior_crop, solid_fraction, specimen_mask
 from ..measure.semivariogram import phase_semivariograms
 from ..measure.spectrum import measurable_phase_spectra, phase_interiors
-from ..measure.volume_spectrum import cylindrical_spectrum
+from ..measure.volume_spectrum import TILES, cylindrical_spectrum
 from ..measure.steepness import edge_steepness
 
 logger = logging.getLogger(__name__)
@@ -184,13 +184,15 @@ class SourceStatistics:
         The logistic AUC of the specimen's even slabs against its odd ones (the realism
         report's floor), dimensionless. These three are None where too few patches fit in the
         specimen, or in a library of an older synthpack.
-    volume_spectrum : tuple of (tuple of float) or None
+    volume_spectra : tuple of (tuple of (tuple of float)) or None
         The specimen's 3D power spectrum about the slice normal, structure and noise together
         (`~synthpack.measure.volume_spectrum.cylindrical_spectrum`: rows ``|f_z|``, columns the
-        in-slice frequency; cubes of 32 voxels, or 16 in a small specimen), intensity units squared,
-        6 significant digits: what ``postprocess:
-        calibrated``'s spectrum match gives a pack (`~synthpack.artefacts.spectrum_match`). None
-        where too few cubes fit in the specimen.
+        in-slice frequency), intensity units squared, 6 significant digits: one table for each cube
+        side of `~synthpack.measure.volume_spectrum.TILES` of which enough cubes fit in the specimen,
+        the largest first (32 voxels, then 16), so that a pack whose calibration region holds no
+        cube of 32 (a narrow tube) is matched at 16. What ``postprocess: calibrated``'s spectrum
+        match gives a pack (`~synthpack.artefacts.spectrum_match`). None where too few cubes of any
+        side fit.
     """
 
     pore_mean: float
@@ -231,7 +233,7 @@ class SourceStatistics:
     patch_window: tuple[float, float] | None = None
     patch_features: tuple[tuple[float, ...], ...] | None = field(default=None, repr=False)  # 600 x 41 numbers
     logistic_floor: float | None = None
-    volume_spectrum: tuple[tuple[float, ...], ...] | None = field(default=None, repr=False)  # 17 x 24 (or 9 x 13) numbers
+    volume_spectra: tuple[tuple[tuple[float, ...], ...], ...] | None = field(default=None, repr=False)  # 17 x 24, 9 x 13
 
     @property
     def contrast(self) -> float:
@@ -383,9 +385,9 @@ def measure_source(scan: Scan, exclude: tuple[int, int] | None = None, axis: int
         # rounded: a record that reads the same on another CPU (a logistic fit differs in its last bits)
         spectra.update(patch_window=reference.window, logistic_floor=round(reference.floor, 3),
                        patch_features=tuple(tuple(round(float(v), 6) for v in row) for row in reference.features))
-    spectrum = cylindrical_spectrum(scan.tomogram, specimen)
-    if spectrum is not None:  # 6 significant digits: a record that reads the same on another CPU
-        spectra["volume_spectrum"] = tuple(tuple(float(f"{v:.6g}") for v in row) for row in spectrum)
+    tables = [t for t in (cylindrical_spectrum(scan.tomogram, specimen, tile=tile) for tile in TILES) if t is not None]
+    if tables:  # 6 significant digits: a record that reads the same on another CPU
+        spectra["volume_spectra"] = tuple(tuple(tuple(float(f"{v:.6g}") for v in row) for row in t) for t in tables)
     statistics = SourceStatistics(pore_mean=levels.pore_mean, pore_std=levels.pore_std,
                                   grain_mean=levels.grain_mean, noise_std=noise.std, **edges,
                                   noise_grain_std=noise.grain_std, noise_pore_std=noise.pore_std, **spectra,
