@@ -80,6 +80,22 @@ def test_a_fitted_band_map_takes_each_band_to_the_source_and_keeps_its_order(hal
     assert BandMap.from_dict(band_map.to_dict()) == band_map
 
 
+def test_a_band_map_refitted_after_a_later_step_takes_that_steps_output_to_the_source(halo_source, fitted):
+    source, labels, distance = halo_source
+    region = np.ones(labels.shape, bool)
+    pack, band_map = fitted
+    changed = 1.5 * pack + 0.1  # a later step (the spectrum match) stretches every shell
+    refitted = band_map.refitted(changed, distance, region)
+    assert refitted.bands == band_map.bands and refitted.source == band_map.source and refitted.pack != band_map.pack
+    target = band_quantiles(source, distance, region)
+    stale = band_quantiles(band_map.apply(changed, distance), distance, region)
+    fresh = band_quantiles(refitted.apply(changed, distance), distance, region)
+    for band in (-5, -2, 1, 5):
+        assert quantile_distance(fresh[band], target[band]) < 0.2 * quantile_distance(stale[band], target[band])
+    # a band of the map with no voxel in the region: nothing to refit it from
+    assert band_map.refitted(changed, distance, region & (distance < 0)) is None
+
+
 def test_a_band_map_to_the_packs_own_histograms_changes_nothing(phantom):
     clean, labels = phantom
     distance = signed_distance(labels)

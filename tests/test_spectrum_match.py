@@ -5,11 +5,14 @@ import pytest
 from scipy import ndimage
 
 from synthpack.artefacts import Compose, SpectrumMatch, from_config
+from synthpack.artefacts.band_map import BandMap, fit_band_map
 from synthpack.artefacts.blockwise import apply_blockwise
 from synthpack.artefacts.guard import guard_spectrum_match
 from synthpack.artefacts.spectrum_match import MAX_POWER_GAIN, fit_gain
 from synthpack.errors import SynthpackInputError
+from synthpack.measure.edges import signed_distance
 from synthpack.measure.patch_features import LOGISTIC_AUC_MARGIN, PatchReference
+from synthpack.measure.phase_histograms import band_quantiles
 from synthpack.measure.volume_spectrum import MIN_CUBES, TILE, cube_corners, cylindrical_spectrum, radii
 
 
@@ -139,3 +142,18 @@ def test_a_narrow_tube_is_matched_with_the_sources_table_of_half_cubes():
     record = guard_spectrum_match([], pack, labels, tube, tables[:1], histograms={}, noise={}, contrast=80.0,
                                   patches=reference)
     assert record["status"] == "not measured" and record["tile"] == TILE and record["cubes"] == 0
+
+
+def test_the_guard_judges_the_filter_with_the_band_map_refitted_after_it():
+    shape = (64, 64, 64)
+    region = np.ones(shape, bool)
+    source, labels = _phantom(_noise(shape, 8, (0.0, 0.6, 0.6), std=6.0))
+    pack, _ = _phantom(_noise(shape, 9, std=6.0))  # the same grains (one geometry), white noise
+    distance = signed_distance(labels)
+    band_map = fit_band_map(pack, distance, region, band_quantiles(source, distance, region))
+    record = guard_spectrum_match([], pack, labels, region, [cylindrical_spectrum(source, region)], histograms={},
+                                  noise={}, contrast=80.0, patches=PatchReference.measure(source, region),
+                                  band_map=band_map)
+    assert record["status"] == "applied", record["logistic"]
+    refitted = BandMap.from_dict(record["band_map"])
+    assert refitted.bands == band_map.bands and refitted.source == band_map.source and refitted.pack != band_map.pack

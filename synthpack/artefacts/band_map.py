@@ -129,6 +129,16 @@ class BandMap:
         return BandMap(tuple(self.bands[i] for i in keep), tuple(self.knots[i] for i in keep),
                        tuple(self.pack[i] for i in keep), tuple(self.source[i] for i in keep))
 
+    def refitted(self, volume: np.ndarray, distance: np.ndarray, region: np.ndarray) -> BandMap | None:
+        """The map of the same bands to the same source quantiles, from `volume`'s quantiles in `region` (a pack
+        whose intensities a later step has changed, `~synthpack.artefacts.guard.guard_spectrum_match`), or None
+        where a band of the map has no voxel there."""
+        measured = band_quantiles(volume, distance, region)
+        if any(measured[band] is None for band in self.bands):
+            return None
+        return BandMap(self.bands, self.knots, tuple(tuple(_strictly_increasing(measured[band]).tolist())
+                                                     for band in self.bands), self.source)
+
     def to_dict(self) -> dict:
         """JSON-able dict of the fields (lists)."""
         return {"bands": list(self.bands), "knots": list(self.knots), "pack": [list(q) for q in self.pack],

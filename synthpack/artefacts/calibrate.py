@@ -1,14 +1,11 @@
 """Post-processing fitted to a source scan: blur and noise that match its image formation, never making it less alike.
 
-The clean synthetic volume is rendered with partial-volume edges
-(`synthpack.render.partial_volume`) from grain crops that hold the source's noise
-thinned by resampling, between pores that hold the pore texture. `calibrate`
-fits the rest of the scanner's image formation to the source
-(`~synthpack.source.SourceStatistics`), inside a region of the pack (its bulk).
-A representative sample is enough: the fit measures the central slices of the
-region holding at most `~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS` of its
-voxels (`~synthpack.artefacts.calibration_region.central_slices`; in a region too wide, a central
-square of them), so
+The clean synthetic volume is rendered with partial-volume edges (`synthpack.render.partial_volume`) from grain
+crops that hold the source's noise thinned by resampling, between pores that hold the pore texture. `calibrate`
+fits the rest of the scanner's image formation to the source (`~synthpack.source.SourceStatistics`), inside a
+region of the pack (its bulk). A representative sample is enough: the fit measures the central slices of the
+region holding at most `~synthpack.artefacts.calibration_region.CALIBRATION_VOXELS` of its voxels
+(`~synthpack.artefacts.calibration_region.central_slices`; in a region too wide, a central square of them), so
 its cost is fixed and vanishes per voxel on big packs.
 
 1. **Point-spread function.** The width of the clean volume's edge-spread function
@@ -109,9 +106,9 @@ its cost is fixed and vanishes per voxel on big packs.
 
 7. **The spectrum match**, where the source's 3D power spectrum is known (`~synthpack.source.SourceStatistics.volume_spectra`):
    a linear filter fitted on the steps' output (`~synthpack.artefacts.spectrum_match`) gives the pack the source's
-   spectrum about the slice normal, structure and noise together, applied after the steps (before the band map and
-   the rounding) only where it lowers the logistic AUC of the region's patches against the source's and misses no
-   more targets (`~synthpack.artefacts.guard.guard_spectrum_match`, `Calibration.spectrum_match`).
+   spectrum about the slice normal, structure and noise together, applied after the steps (before the band map,
+   refitted after it, and the rounding) only where it lowers the logistic AUC of the region's patches against the
+   source's and misses no more targets (`~synthpack.artefacts.guard.guard_spectrum_match`, `Calibration.spectrum_match`).
 
 The fit has no random part (the guard draws from its own fixed stream); with the pack's
 seed the noise realisation is reproducible too. It records the grid search and every
@@ -254,8 +251,9 @@ class Calibration:
         (`~synthpack.artefacts.RoundLevels`, last in `pipeline`, or, with a `band_map`, after the
         map: `rounding`); None: not rounded.
     band_map : dict or None
-        The `~synthpack.artefacts.band_map.BandMap` kept by the guard (`BandMap.to_dict`), applied
-        after the pipeline with the pack's labels (`band_mapping`); None: none.
+        The `~synthpack.artefacts.band_map.BandMap` kept by the guard (`BandMap.to_dict`; refitted after
+        the spectrum match where it is applied), applied after the pipeline with the pack's labels
+        (`band_mapping`); None: none.
     noise_scale : dict of str to float or None
         ``"grains"``, ``"pores"``: the amplitude factor of each phase's fitted noise (and texture)
         that the guard applies with the band map, which stretches the noise with each shell's
@@ -565,8 +563,7 @@ def calibrate(
             clean_power={k: v.tolist() for k, v in cleans.items()},
             added_power={k: v.tolist() for k, v in added.items()},
             target_phase_noise=dict(target_phase_noise), clean_phase_noise=clean_noise, added_phase_noise=added_noise,
-            target_edge_width=float(target_edge_width), edge_width=edge_width(profile),
-            target_noise=float(target_noise),
+            target_edge_width=float(target_edge_width), edge_width=edge_width(profile), target_noise=float(target_noise),
             noise_std=math.sqrt(sum(v * v for v in added_levels) / len(added_levels)) if added_levels else 0.0,
             sigmas=sigmas, fitted_sigmas=fitted,
             cupping_strength=None if cupping_strength is None else float(cupping_strength),
@@ -615,9 +612,8 @@ def calibrate(
     calibration.band_map = calibration.guard.pop("band_map")
     calibration.noise_scale = calibration.guard.pop("noise_scale")
     if target_spectra is not None:
-        calibration.spectrum_match = _spectrum_match(calibration, clean, labels, region, target_spectra,
-                                                     target_histograms or {}, calibration_halo(target_sigma),
-                                                     target_patches, nps_depth)
+        _match_spectrum(calibration, clean, labels, region, target_spectra, target_histograms or {},
+                        calibration_halo(target_sigma), target_patches, nps_depth)
     noise_text = ", ".join(f"{phase} {sig(std)}" for phase, std in calibration.added_phase_noise.items()
                            if std is not None)
     noise_text += "".join(f", {phase} with texture" + ("" if t["texture"] is None else
@@ -686,15 +682,19 @@ def _guard_window(calibration: Calibration, region: np.ndarray, halo: int) -> tu
     return (slice(low, high), *lateral_window(region, halo, "cupping" in calibration.fitted_steps()))
 
 
-def _spectrum_match(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
+def _match_spectrum(calibration: Calibration, clean: np.ndarray, labels: np.ndarray, region: np.ndarray,
                     targets: Sequence[Sequence[Sequence[float]]], histograms: dict[str, Sequence[float] | None], halo: int,
-                    patches: PatchReference | None, nps_depth: float) -> dict:
-    """`~synthpack.artefacts.guard.guard_spectrum_match` after the steps kept, on the guard's window."""
+                    patches: PatchReference | None, nps_depth: float) -> None:
+    """Set `calibration`'s ``spectrum_match`` (`~synthpack.artefacts.guard.guard_spectrum_match` after the steps kept,
+    on the guard's window) and, where the filter is applied, its ``band_map`` to the one refitted after it."""
     window = _guard_window(calibration, region, halo)
-    return guard_spectrum_match(
+    record = guard_spectrum_match(
         calibration.transforms(calibration.applied_steps(), calibration.noise_scale),
         np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window],
         [np.asarray(t, dtype=np.float64) for t in targets], histograms=histograms, noise=calibration.target_phase_noise,
         contrast=calibration.grain_level - calibration.pore_level, patches=patches,
         ring_powers=calibration.target_power, nps_depth=nps_depth, band_map=calibration.band_mapping(),
         rounding=calibration.rounding())
+    if (refitted := record.pop("band_map", None)) is not None and record["status"] == "applied":
+        calibration.band_map = refitted
+    calibration.spectrum_match = record

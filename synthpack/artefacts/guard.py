@@ -382,7 +382,8 @@ def guard_spectrum_match(
         ``"grains"``, ``"pores"``: the source's noise power per ring (`~synthpack.measure.spectrum`),
         measured in the phases' interiors `nps_depth` voxels from the edges; None: rings not judged.
     band_map : BandMap, optional
-        Applied after the steps (and the filter), with the labels.
+        Applied after the steps, with the labels; after the filter, refitted to the filtered
+        shells' histograms (`BandMap.refitted`: the filter reshapes each shell's histogram too).
     rounding : sequence of Transform
         Applied last.
 
@@ -393,7 +394,7 @@ def guard_spectrum_match(
         or no patches to judge by), ``gain`` (the table, flattened row by row, or None) and ``level``
         (the steps' mean intensity in the region, which the filter keeps), ``tile`` and ``cubes``
         (the side and number of the region's cubes), ``logistic`` and ``figures`` (``without``,
-        ``with``; where judged).
+        ``with``; where judged), ``band_map`` (the refitted map, `BandMap.to_dict`, where judged with one).
     """
     target = next((t for t in targets if len(cube_corners(region, table_tile(t))) >= MIN_CUBES), targets[-1])
     tile = table_tile(target)
@@ -408,8 +409,8 @@ def guard_spectrum_match(
     gain = np.round(fit_gain(np.asarray(target, dtype=np.float64), pack), 6)
     box, distance, masks, noise_labels = _measured(labels, region)
 
-    def finished(result: np.ndarray) -> np.ndarray:
-        result = result[box] if band_map is None else band_map.apply(result[box], distance)
+    def finished(result: np.ndarray, mapping: BandMap | None) -> np.ndarray:
+        result = result[box] if mapping is None else mapping.apply(result[box], distance)
         return _apply(rounding, result)
 
     def ring_factors(result: np.ndarray) -> list[float]:
@@ -423,7 +424,9 @@ def guard_spectrum_match(
 
     level = round(float(np.mean(out[region], dtype=np.float64)), 6)
     matched = SpectrumMatch(gain=gain.ravel().tolist(), level=level)(out, 0)
-    volumes = {"without": finished(out), "with": finished(matched)}
+    # the band map fitted without the filter, refitted to the filtered shells' histograms
+    refitted = None if band_map is None else band_map.refitted(matched[box], distance, region[box])
+    volumes = {"without": finished(out, band_map), "with": finished(matched, refitted or band_map)}
     factors = {name: ring_factors(v) for name, v in volumes.items()}
     measured = {name: {**figures(v, masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast),
                        "nps_worst_ring": float(max(factors[name], default=1.0))} for name, v in volumes.items()}
@@ -433,7 +436,7 @@ def guard_spectrum_match(
              and _missed(measured["with"]) <= _missed(measured["without"])
              and all(w <= max(wo, NPS_RING_FACTOR) for w, wo in zip(factors["with"], factors["without"])))
     record.update(status="applied" if helps else "dropped", gain=gain.ravel().tolist(), level=level, logistic=auc,
-                  figures=measured)
+                  figures=measured, band_map=None if refitted is None else refitted.to_dict())
     logger.info("calibration: spectrum match %s (logistic AUC on %d cubes' region %s without, %s with; %s)",
                 record["status"], cubes, *(sig(a, 3) if a is not None else "n/a" for a in auc.values()),
                 _text(measured["with"]))
