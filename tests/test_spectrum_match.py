@@ -7,7 +7,7 @@ from scipy import ndimage
 from synthpack.artefacts import Compose, SpectrumMatch, from_config
 from synthpack.artefacts.band_map import BandMap, fit_band_map
 from synthpack.artefacts.blockwise import apply_blockwise
-from synthpack.artefacts.guard import guard_spectrum_match
+from synthpack.artefacts.guard import SPECTRUM_MATCH_STRENGTHS, guard_spectrum_match
 from synthpack.artefacts.spectrum_match import MAX_POWER_GAIN, fit_gain
 from synthpack.errors import SynthpackInputError
 from synthpack.measure.edges import signed_distance
@@ -114,6 +114,8 @@ def test_the_guard_applies_the_filter_where_it_brings_the_patches_closer_and_rec
     assert record["status"] == "applied", record["logistic"]
     assert record["logistic"]["with"] <= record["logistic"]["without"] - LOGISTIC_AUC_MARGIN
     assert len(record["gain"]) == (TILE // 2 + 1) * radii(TILE) and record["cubes"] == 27
+    assert record["strength"] == 1.0 and [t["strength"] for t in record["tried"]] == [1.0]
+    full = np.asarray(record["gain"])
     # the same noise as the source's: nothing to gain, so nothing applied
     same, labels = _phantom(_noise(shape, 10, (0.0, 0.6, 0.6), std=6.0))
     record = guard_spectrum_match([], same, labels, region, [cylindrical_spectrum(source, region)],

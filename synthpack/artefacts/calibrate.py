@@ -139,8 +139,7 @@ from .band_map import BandMap
 from .blur import GaussianBlur
 from .coloured_noise import ColouredNoise, fit_noise_and_texture, ring_powers_of_spectrum
 from .intensity import RoundLevels, rounding_variance
-from .calibration_region import (CALIBRATION_VOXELS, bounding_box, calibration_halo, central_slices,
-                                 lateral_window)
+from .calibration_region import CALIBRATION_VOXELS, bounding_box, calibration_halo, central_slices, lateral_window
 from .guard import guard_missed, guard_spectrum_match, guard_steps
 from .noise import GaussianNoise
 from .radial import BeamHardening, RingArtefacts
@@ -182,10 +181,8 @@ def noise_to_add(source: float, clean: float) -> GaussianNoise:
     """
     std = math.sqrt(max(source * source - clean * clean, 0.0))
     if source <= clean:
-        logger.warning(
-            "the clean volume (noise %.4g) is already at least as noisy as the source (%.4g): "
-            "no noise added", clean, source,
-        )
+        logger.warning("the clean volume (noise %.4g) is already at least as noisy as the source (%.4g): "
+                       "no noise added", clean, source)
     logger.info("matched noise: std %s added (source %s, clean pack %s)", sig(std), sig(source), sig(clean))
     return GaussianNoise(std=std)
 
@@ -255,9 +252,9 @@ class Calibration:
         the spectrum match where it is applied), applied after the pipeline with the pack's labels
         (`band_mapping`); None: none.
     noise_scale : dict of str to float or None
-        ``"grains"``, ``"pores"``: the amplitude factor of each phase's fitted noise (and texture)
-        that the guard applies with the band map, which stretches the noise with each shell's
-        histogram (`~synthpack.artefacts.guard`); None: 1.
+        ``"grains"``, ``"pores"``: the amplitude factor of each phase's fitted noise (and texture) that the
+        guard applies with the band map or the spectrum match, which stretch or filter the noise too
+        (`~synthpack.artefacts.guard`); None: 1.
     spectrum_match : dict or None
         What `~synthpack.artefacts.guard.guard_spectrum_match` fitted and found (``status``,
         ``gain``, ...): applied in `pipeline` where ``status`` is ``"applied"``; None: not fitted
@@ -601,8 +598,7 @@ def calibrate(
         tried = [{"sigma": sigma, "missed": guard_missed(calibration.guard)}]
         for factor in NARROWER_PSF:
             narrower = guarded(fit_at(sigma * factor, *edge(sigma * factor)))
-            narrower.steepness_sigmas, narrower.steepness_distances = (calibration.steepness_sigmas,
-                                                                       calibration.steepness_distances)
+            narrower.steepness_sigmas, narrower.steepness_distances = calibration.steepness_sigmas, calibration.steepness_distances
             tried.append({"sigma": sigma * factor, "missed": guard_missed(narrower.guard)})
             if guard_missed(narrower.guard) < guard_missed(calibration.guard):
                 logger.info("the guard drops a PSF of %s vx; one of %s vx brings the pack closer to its source",
@@ -686,15 +682,19 @@ def _match_spectrum(calibration: Calibration, clean: np.ndarray, labels: np.ndar
                     targets: Sequence[Sequence[Sequence[float]]], histograms: dict[str, Sequence[float] | None], halo: int,
                     patches: PatchReference | None, nps_depth: float) -> None:
     """Set `calibration`'s ``spectrum_match`` (`~synthpack.artefacts.guard.guard_spectrum_match` after the steps kept,
-    on the guard's window) and, where the filter is applied, its ``band_map`` to the one refitted after it."""
-    window = _guard_window(calibration, region, halo)
+    on the guard's window) and, where the filter is applied, its ``band_map`` and ``noise_scale`` to those refitted."""
+    window, steps = _guard_window(calibration, region, halo), calibration.applied_steps()
     record = guard_spectrum_match(
-        calibration.transforms(calibration.applied_steps(), calibration.noise_scale),
+        calibration.transforms(steps, calibration.noise_scale),
         np.asarray(clean[window], dtype=np.float32), np.asarray(labels[window]), region[window],
         [np.asarray(t, dtype=np.float64) for t in targets], histograms=histograms, noise=calibration.target_phase_noise,
         contrast=calibration.grain_level - calibration.pore_level, patches=patches,
         ring_powers=calibration.target_power, nps_depth=nps_depth, band_map=calibration.band_mapping(),
-        rounding=calibration.rounding())
-    if (refitted := record.pop("band_map", None)) is not None and record["status"] == "applied":
-        calibration.band_map = refitted
+        rounding=calibration.rounding(), noise_scale=calibration.noise_scale,
+        rescaled=(lambda scale: calibration.transforms(steps, scale)) if any(
+            step.endswith(("_noise", "_texture")) for step in steps) else None)
+    band_map, noise_scale = record.pop("band_map", None), record.pop("noise_scale", None)
+    if record["status"] == "applied":
+        calibration.band_map = band_map or calibration.band_map
+        calibration.noise_scale = noise_scale or calibration.noise_scale
     calibration.spectrum_match = record

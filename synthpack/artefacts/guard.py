@@ -90,8 +90,8 @@ from .spectrum_match import SpectrumMatch, fit_gain
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FIGURES", "LOGISTIC_TOLERANCE", "MAP_SIDES", "MEASURED_MARGIN", "TARGET", "TOLERANCE", "W_FIGURES",
-           "figures", "guard_missed", "guard_steps", "noise_ratios"]
+__all__ = ["FIGURES", "LOGISTIC_TOLERANCE", "MAP_SIDES", "MEASURED_MARGIN", "SPECTRUM_MATCH_STRENGTHS", "TARGET",
+           "TOLERANCE", "W_FIGURES", "figures", "guard_missed", "guard_spectrum_match", "guard_steps", "noise_ratios"]
 
 #: The guard's figures, each lower = more like the source (see the module docstring).
 FIGURES = ("w_grains", "w_pores", "w_edges", "noise_grains", "noise_pores")
@@ -114,6 +114,9 @@ LOGISTIC_TOLERANCE = 0.01
 #: both, then the pores' bands alone, then the grains' alone (stretching one phase's shells can take its noise
 #: beyond the source's where a map of the other phase alone leaves every figure no worse).
 MAP_SIDES = (0, -1, 1)
+#: The strengths of the spectrum match tried, the strongest first: the power gain raised to each (a filter that
+#: takes a figure beyond its target at full strength may keep it within at half, and still bring the patches closer).
+SPECTRUM_MATCH_STRENGTHS = (1.0, 0.5)
 #: Voxels of the volume measured around the region: the noise estimate's filter and margin reach this far.
 MEASURED_MARGIN = 3
 
@@ -167,6 +170,15 @@ def noise_ratios(volume: np.ndarray, noise_labels: np.ndarray, noise: Mapping[st
     levels = {"grains": estimate.grain_std, "pores": estimate.pore_std}
     return {phase: levels[phase] / target for phase, target in noise.items()
             if phase in levels and target and levels[phase] is not None}
+
+
+def _figures_and_ratios(volume: np.ndarray, masks: Mapping[str, np.ndarray], noise_labels: np.ndarray,
+                        histograms: Mapping[str, Sequence[float] | None], noise: Mapping[str, float | None],
+                        contrast: float) -> tuple[Figures, dict[str, float]]:
+    """`figures` and `noise_ratios` of `volume`, the noise estimated once."""
+    ratios = noise_ratios(volume, noise_labels, noise)
+    without_noise = figures(volume, masks, noise_labels, histograms=histograms, noise={}, contrast=contrast)
+    return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}}, ratios
 
 
 def _excess(figures_: Figures, reference: Figures) -> dict[str, float]:
@@ -285,9 +297,7 @@ def guard_steps(
         status = "not needed"
         if _missed(measured[kept], W_FIGURES):
             def measure_with_ratios(out: np.ndarray) -> tuple[Figures, dict[str, float]]:
-                ratios = noise_ratios(out, noise_labels, noise)
-                without_noise = figures(out, masks, noise_labels, histograms=histograms, noise={}, contrast=contrast)
-                return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}}, ratios
+                return _figures_and_ratios(out, masks, noise_labels, histograms, noise, contrast)
 
             kept, band_map, mapped, scale = _band_mapped(subsets, measured, kept, applied, measure_with_ratios,
                                                          distance, region[box], bands, rescaled)
@@ -347,6 +357,9 @@ def guard_spectrum_match(
     nps_depth: float = INTERIOR,
     band_map: BandMap | None = None,
     rounding: Sequence[Transform] = (),
+    strengths: Sequence[float] = SPECTRUM_MATCH_STRENGTHS,
+    noise_scale: Mapping[str, float] | None = None,
+    rescaled: Callable[[Mapping[str, float]], Sequence[Transform]] | None = None,
 ) -> dict:
     """Fit a `~synthpack.artefacts.spectrum_match.SpectrumMatch` after the steps kept, and keep it where it helps.
 
@@ -360,10 +373,14 @@ def guard_spectrum_match(
     report's logistic AUC of the region's patches against the source's falls by at least the
     realism target's margin (`~synthpack.measure.patch_features.LOGISTIC_AUC_MARGIN`: a filter that
     reshapes every frequency is not worth less; on the concrete neutron CT it gained 0.020), no
-    more of the guard's figures miss their targets, and each ring of the phases' noise spectra
-    stays within the realism target's factor of the source's
+    more of the guard's figures miss their targets, and each phase's worst ring of its noise
+    spectrum (the realism report's figure) stays within the target's factor of the source's
     (`~synthpack.measure.spectrum.NPS_RING_FACTOR`), or no further from it than without the
-    filter, which reshapes the noise too.
+    filter, which reshapes the noise too. Where the filter moves a phase's noise level beyond
+    its tolerance and the steps draw noise (`rescaled`), the steps are applied again with that
+    phase's noise amplitude scaled to put it back (`RESCALE_ROUNDS` times, within `NOISE_SCALES`,
+    as after a band map) and judged again. Where the whole gain fails, it is tried at the lower
+    `strengths` (the power gain raised to each), and the first that passes is applied.
 
     Parameters
     ----------
@@ -386,15 +403,24 @@ def guard_spectrum_match(
         shells' histograms (`BandMap.refitted`: the filter reshapes each shell's histogram too).
     rounding : sequence of Transform
         Applied last.
+    strengths : sequence of float
+        The powers of the gain tried, in order (`SPECTRUM_MATCH_STRENGTHS`).
+    noise_scale : dict of str to float, optional
+        ``"grains"``, ``"pores"``: the noise amplitude factors `transforms` were made with; None: 1.
+    rescaled : callable, optional
+        ``rescaled(scale)``: the steps with the noise amplitudes `scale`; None: the noise is not rescaled.
 
     Returns
     -------
     dict
         ``status`` (``"applied"``, ``"dropped"``, or ``"not measured"``: too few cubes in the region
-        or no patches to judge by), ``gain`` (the table, flattened row by row, or None) and ``level``
-        (the steps' mean intensity in the region, which the filter keeps), ``tile`` and ``cubes``
-        (the side and number of the region's cubes), ``logistic`` and ``figures`` (``without``,
-        ``with``; where judged), ``band_map`` (the refitted map, `BandMap.to_dict`, where judged with one).
+        or no patches to judge by), ``gain`` (the table at the strength applied or last tried,
+        flattened row by row, or None) and ``level`` (the steps' mean intensity in the region, which
+        the filter keeps), ``tile`` and ``cubes`` (the side and number of the region's cubes); where
+        judged, ``strength`` (applied or last tried), ``noise_scale`` (the noise amplitudes with it,
+        or None where not rescaled), ``tried`` (per strength: its noise scale, logistic AUC and the
+        figures it misses), ``logistic`` and ``figures`` (``without``, ``with``) and ``band_map``
+        (the map refitted after the filter, `BandMap.to_dict`, or None).
     """
     target = next((t for t in targets if len(cube_corners(region, table_tile(t))) >= MIN_CUBES), targets[-1])
     tile = table_tile(target)
@@ -413,33 +439,56 @@ def guard_spectrum_match(
         result = result[box] if mapping is None else mapping.apply(result[box], distance)
         return _apply(rounding, result)
 
-    def ring_factors(result: np.ndarray) -> list[float]:
-        """Per ring of each phase measured (in order), its power's factor from the source's, >= 1 either way
-        (finite: a ring without power reads 1e12)."""
+    def worst_rings(result: np.ndarray) -> dict[str, float]:
+        """Per phase measured, its worst ring's power factor from the source's, >= 1 either way (finite: a ring
+        without power reads 1e12): the realism report's NPS figure."""
         spectra = phase_spectra(result, distance, region[box], nps_depth)
-        return [max(power / source, source / power) for phase, sources in sorted((ring_powers or {}).items())
-                if spectra.get(phase) is not None
-                for power, source in zip(np.maximum(spectra[phase].power[1:], 1e-12 * np.asarray(sources)), sources)
-                if source > 0]
+        return {phase: max((max(power / source, source / power) for power, source in zip(
+                    np.maximum(spectra[phase].power[1:], 1e-12 * np.asarray(sources)), sources) if source > 0),
+                           default=1.0)
+                for phase, sources in sorted((ring_powers or {}).items()) if spectra.get(phase) is not None}
 
     level = round(float(np.mean(out[region], dtype=np.float64)), 6)
-    matched = SpectrumMatch(gain=gain.ravel().tolist(), level=level)(out, 0)
-    # the band map fitted without the filter, refitted to the filtered shells' histograms
-    refitted = None if band_map is None else band_map.refitted(matched[box], distance, region[box])
-    volumes = {"without": finished(out, band_map), "with": finished(matched, refitted or band_map)}
-    factors = {name: ring_factors(v) for name, v in volumes.items()}
-    measured = {name: {**figures(v, masks, noise_labels, histograms=histograms, noise=noise, contrast=contrast),
-                       "nps_worst_ring": float(max(factors[name], default=1.0))} for name, v in volumes.items()}
     corners = patch_corners(region[box], DEFAULT_PATCH, DEFAULT_PATCH // 2, MAX_PATCHES)
-    auc = {name: patches.auc(v, corners) for name, v in volumes.items()}
-    helps = (None not in auc.values() and auc["with"] <= auc["without"] - LOGISTIC_AUC_MARGIN
-             and _missed(measured["with"]) <= _missed(measured["without"])
-             and all(w <= max(wo, NPS_RING_FACTOR) for w, wo in zip(factors["with"], factors["without"])))
-    record.update(status="applied" if helps else "dropped", gain=gain.ravel().tolist(), level=level, logistic=auc,
-                  figures=measured, band_map=None if refitted is None else refitted.to_dict())
-    logger.info("calibration: spectrum match %s (logistic AUC on %d cubes' region %s without, %s with; %s)",
-                record["status"], cubes, *(sig(a, 3) if a is not None else "n/a" for a in auc.values()),
-                _text(measured["with"]))
+
+    def judged(volume: np.ndarray, mapping: BandMap | None) -> tuple[Figures, dict, dict, float | None]:
+        """The figures of `volume` finished with `mapping`, its worst rings and noise ratios per phase, its AUC."""
+        finished_ = finished(volume, mapping)
+        rings = worst_rings(finished_)
+        measured, ratios = _figures_and_ratios(finished_, masks, noise_labels, histograms, noise, contrast)
+        measured["nps_worst_ring"] = float(max(rings.values(), default=1.0))
+        return measured, rings, ratios, patches.auc(finished_, corners)
+
+    without, rings, _, auc = judged(out, band_map)
+    tried = []
+    for strength in strengths:
+        gain_ = np.round(gain**strength, 6)
+        match = SpectrumMatch(gain=gain_.ravel().tolist(), level=level)
+        steps, scale = out, dict(noise_scale or {"grains": 1.0, "pores": 1.0})
+        for round_ in range(RESCALE_ROUNDS + 1):
+            matched = match(steps, 0)
+            # the band map fitted without the filter, refitted to the filtered shells' histograms
+            refitted = None if band_map is None else band_map.refitted(matched[box], distance, region[box])
+            measured, rings_, ratios, auc_ = judged(matched, refitted or band_map)
+            helps = (None not in (auc, auc_) and auc_ <= auc - LOGISTIC_AUC_MARGIN
+                     and _missed(measured) <= _missed(without)
+                     and all(w <= max(rings.get(phase, 1.0), NPS_RING_FACTOR) for phase, w in rings_.items()))
+            off = {phase: r for phase, r in ratios.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
+            if helps or rescaled is None or not off or round_ == RESCALE_ROUNDS:
+                break
+            # the filter moved a phase's noise level: its noise drawn at the amplitude that puts it back
+            scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
+            steps = _apply(rescaled(scale), volume)
+        tried.append({"strength": strength, "noise_scale": scale, "logistic": auc_, "missed": _missed(measured)})
+        if helps:
+            break
+    record.update(status="applied" if helps else "dropped", gain=gain_.ravel().tolist(), level=level,
+                  strength=strength, noise_scale=None if steps is out else scale, tried=tried, logistic={"without": auc, "with": auc_},
+                  figures={"without": without, "with": measured},
+                  band_map=None if refitted is None else refitted.to_dict())
+    logger.info("calibration: spectrum match %s at strength %s (logistic AUC on %d cubes' region %s without, %s with; "
+                "%s)", record["status"], strength, cubes, *(sig(a, 3) if a is not None else "n/a" for a in (auc, auc_)),
+                _text(measured))
     return record
 
 
