@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from synthpack.artefacts import Compose, SpectrumMatch, from_config
+from synthpack.artefacts import Compose, GaussianNoise, SpectrumMatch, from_config
 from synthpack.artefacts.band_map import BandMap, fit_band_map
 from synthpack.artefacts.blockwise import apply_blockwise
 from synthpack.artefacts.guard import SPECTRUM_MATCH_STRENGTHS, guard_spectrum_match
@@ -159,3 +159,19 @@ def test_the_guard_judges_the_filter_with_the_band_map_refitted_after_it():
     assert record["status"] == "applied", record["logistic"]
     refitted = BandMap.from_dict(record["band_map"])
     assert refitted.bands == band_map.bands and refitted.source == band_map.source and refitted.pack != band_map.pack
+
+
+def test_the_guard_puts_back_the_noise_level_the_filter_moved_where_the_steps_draw_noise():
+    shape = (64, 64, 64)
+    region = np.ones(shape, bool)
+    source, _ = _phantom(_noise(shape, 8, (0.0, 0.6, 0.6), std=6.0))
+    clean, labels = _phantom(np.zeros(shape, np.float32))
+    reference, table = PatchReference.measure(source, region), [cylindrical_spectrum(source, region)]
+    # the source's noise level read as white noise of 6: the filter to its spectrum takes a third of it away
+    judged = {"histograms": {}, "noise": {"grains": 6.0, "pores": 6.0}, "contrast": 80.0, "patches": reference}
+    fixed = guard_spectrum_match([GaussianNoise(std=6.0)], clean, labels, region, table, **judged)
+    assert fixed["noise_scale"] is None and fixed["figures"]["with"]["noise_grains"] > 0.25
+    rescaled = guard_spectrum_match([GaussianNoise(std=6.0)], clean, labels, region, table, **judged,
+                                    rescaled=lambda scale: [GaussianNoise(std=6.0 * scale["grains"])])
+    assert rescaled["noise_scale"]["grains"] > 1.2  # drawn stronger before the filter
+    assert all(t["missed"] == 0 for t in rescaled["tried"]) and rescaled["figures"]["with"]["noise_grains"] < 0.1
