@@ -376,10 +376,11 @@ def guard_spectrum_match(
     more of the guard's figures miss their targets, and each phase's worst ring of its noise
     spectrum (the realism report's figure) stays within the target's factor of the source's
     (`~synthpack.measure.spectrum.NPS_RING_FACTOR`), or no further from it than without the
-    filter, which reshapes the noise too. Where the filter moves a phase's noise level beyond
-    its tolerance and the steps draw noise (`rescaled`), the steps are applied again with that
-    phase's noise amplitude scaled to put it back (`RESCALE_ROUNDS` times, within `NOISE_SCALES`,
-    as after a band map) and judged again. Where the whole gain fails, it is tried at the lower
+    filter, which reshapes the noise too. Where the filter moves a phase's noise level by more
+    than its tolerance (`TOLERANCE`, a fifth of the target) and the steps draw noise (`rescaled`),
+    the steps are applied again with that phase's noise amplitude scaled to put it back
+    (`RESCALE_ROUNDS` times, within `NOISE_SCALES`, as after a band map) and judged again; the
+    last round that passes is taken. Where none passes at the whole gain, it is tried at the lower
     `strengths` (the power gain raised to each), and the first that passes is applied.
 
     Parameters
@@ -464,7 +465,7 @@ def guard_spectrum_match(
     for strength in strengths:
         gain_ = np.round(gain**strength, 6)
         match = SpectrumMatch(gain=gain_.ravel().tolist(), level=level)
-        steps, scale = out, dict(noise_scale or {"grains": 1.0, "pores": 1.0})
+        steps, scale, rounds = out, dict(noise_scale or {"grains": 1.0, "pores": 1.0}), []
         for round_ in range(RESCALE_ROUNDS + 1):
             matched = match(steps, 0)
             # the band map fitted without the filter, refitted to the filtered shells' histograms
@@ -473,18 +474,24 @@ def guard_spectrum_match(
             helps = (None not in (auc, auc_) and auc_ <= auc - LOGISTIC_AUC_MARGIN
                      and _missed(measured) <= _missed(without)
                      and all(w <= max(rings.get(phase, 1.0), NPS_RING_FACTOR) for phase, w in rings_.items()))
+            rounds.append({"helps": helps, "noise_scale": None if steps is out else scale, "measured": measured,
+                           "logistic": auc_, "band_map": refitted})
             off = {phase: r for phase, r in ratios.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
-            if helps or rescaled is None or not off or round_ == RESCALE_ROUNDS:
+            if rescaled is None or not off or round_ == RESCALE_ROUNDS:
                 break
-            # the filter moved a phase's noise level: its noise drawn at the amplitude that puts it back
+            # the filter moved a phase's noise level: its noise drawn at the amplitude that puts it back (a level
+            # within its target but off by more than the tolerance too: the pack's whole bulk reads it less exactly)
             scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
             steps = _apply(rescaled(scale), volume)
-        tried.append({"strength": strength, "noise_scale": scale, "logistic": auc_, "missed": _missed(measured)})
-        if helps:
+        chosen = next((r for r in reversed(rounds) if r["helps"]), rounds[-1])  # the most rescaled that helps
+        tried.append({"strength": strength, "noise_scale": chosen["noise_scale"], "logistic": chosen["logistic"],
+                      "missed": _missed(chosen["measured"])})
+        if chosen["helps"]:
             break
-    record.update(status="applied" if helps else "dropped", gain=gain_.ravel().tolist(), level=level,
-                  strength=strength, noise_scale=None if steps is out else scale, tried=tried, logistic={"without": auc, "with": auc_},
-                  figures={"without": without, "with": measured},
+    measured, auc_, refitted = chosen["measured"], chosen["logistic"], chosen["band_map"]
+    record.update(status="applied" if chosen["helps"] else "dropped", gain=gain_.ravel().tolist(), level=level,
+                  strength=strength, noise_scale=chosen["noise_scale"], tried=tried,
+                  logistic={"without": auc, "with": auc_}, figures={"without": without, "with": measured},
                   band_map=None if refitted is None else refitted.to_dict())
     logger.info("calibration: spectrum match %s at strength %s (logistic AUC on %d cubes' region %s without, %s with; "
                 "%s)", record["status"], strength, cubes, *(sig(a, 3) if a is not None else "n/a" for a in (auc, auc_)),
