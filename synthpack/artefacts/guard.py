@@ -373,7 +373,10 @@ def guard_spectrum_match(
     report's logistic AUC of the region's patches against the source's falls by at least the
     realism target's margin (`~synthpack.measure.patch_features.LOGISTIC_AUC_MARGIN`: a filter that
     reshapes every frequency is not worth less; on the concrete neutron CT it gained 0.020), no
-    more of the guard's figures miss their targets, and each phase's worst ring of its noise
+    more of the guard's figures miss their targets, no phase's noise level moves further from the
+    source's than its tolerance or than without the filter (the guard's slices read it less exactly
+    than the whole pack: the sand scan's anisotropic variant passed at 6 % off and read 12 % on the
+    whole pack), and each phase's worst ring of its noise
     spectrum (the realism report's figure) stays within the target's factor of the source's
     (`~synthpack.measure.spectrum.NPS_RING_FACTOR`), or no further from it than without the
     filter, which reshapes the noise too. Where the filter moves a phase's noise level by more
@@ -473,6 +476,8 @@ def guard_spectrum_match(
             measured, rings_, ratios, auc_ = judged(matched, refitted or band_map)
             helps = (None not in (auc, auc_) and auc_ <= auc - LOGISTIC_AUC_MARGIN
                      and _missed(measured) <= _missed(without)
+                     and all(measured[name] <= max(without.get(name, 0.0), TOLERANCE[name])
+                             for name in ("noise_grains", "noise_pores") if name in measured)
                      and all(w <= max(rings.get(phase, 1.0), NPS_RING_FACTOR) for phase, w in rings_.items()))
             rounds.append({"helps": helps, "noise_scale": None if steps is out else scale, "measured": measured,
                            "logistic": auc_, "band_map": refitted})
