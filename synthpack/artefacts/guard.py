@@ -181,6 +181,15 @@ def _figures_and_ratios(volume: np.ndarray, masks: Mapping[str, np.ndarray], noi
     return {**without_noise, **{f"noise_{p}": abs(r - 1.0) for p, r in ratios.items()}}, ratios
 
 
+def _rescaled_noise(scale: Mapping[str, float], ratios: Mapping[str, float]) -> dict[str, float] | None:
+    """The noise amplitudes `scale`, each phase's divided by its level's ratio to the source's where that is off by
+    more than its `TOLERANCE` (within `NOISE_SCALES`); None where no phase is."""
+    off = {phase: r for phase, r in ratios.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
+    if not off:
+        return None
+    return {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
+
+
 def _excess(figures_: Figures, reference: Figures) -> dict[str, float]:
     """Per figure measured in both: how much `figures_` is above `reference`, less the tolerance (> 0: worse)."""
     return {name: figures_[name] - reference[name] - TOLERANCE[name] for name in FIGURES
@@ -426,9 +435,10 @@ def guard_spectrum_match(
         figures it misses), ``logistic`` and ``figures`` (``without``, ``with``) and ``band_map``
         (the map refitted after the filter, `BandMap.to_dict`, or None).
     """
-    target = next((t for t in targets if len(cube_corners(region, table_tile(t))) >= MIN_CUBES), targets[-1])
+    fits = {table_tile(t): len(cube_corners(region, table_tile(t))) for t in targets}  # cubes per side
+    target = next((t for t in targets if fits[table_tile(t)] >= MIN_CUBES), targets[-1])
     tile = table_tile(target)
-    cubes = len(cube_corners(region, tile))
+    cubes = fits[tile]
     out = _apply(transforms, volume)
     pack = cylindrical_spectrum(out, region, tile=tile)
     record: dict = {"status": "not measured", "gain": None, "tile": tile, "cubes": cubes}
@@ -481,13 +491,12 @@ def guard_spectrum_match(
                      and all(w <= max(rings.get(phase, 1.0), NPS_RING_FACTOR) for phase, w in rings_.items()))
             rounds.append({"helps": helps, "noise_scale": None if steps is out else scale, "measured": measured,
                            "logistic": auc_, "band_map": refitted})
-            off = {phase: r for phase, r in ratios.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
-            if rescaled is None or not off or round_ == RESCALE_ROUNDS:
-                break
             # the filter moved a phase's noise level: its noise drawn at the amplitude that puts it back (a level
             # within its target but off by more than the tolerance too: the pack's whole bulk reads it less exactly)
-            scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
-            steps = _apply(rescaled(scale), volume)
+            scale_ = _rescaled_noise(scale, ratios)
+            if rescaled is None or scale_ is None or round_ == RESCALE_ROUNDS:
+                break
+            scale, steps = scale_, _apply(rescaled(scale_), volume)
         chosen = next((r for r in reversed(rounds) if r["helps"]), rounds[-1])  # the most rescaled that helps
         tried.append({"strength": strength, "noise_scale": chosen["noise_scale"], "logistic": chosen["logistic"],
                       "missed": _missed(chosen["measured"])})
@@ -584,10 +593,9 @@ def _band_mapped(
             if levels is None or rescaled is None or rescaled(subset, scale) is None:
                 continue
             for _ in range(RESCALE_ROUNDS):
-                off = {phase: r for phase, r in levels.items() if abs(r - 1.0) > TOLERANCE[f"noise_{phase}"]}
-                if not off:
+                scale = _rescaled_noise(scale, levels)
+                if scale is None:
                     break
-                scale = {phase: float(np.clip(scale[phase] / off.get(phase, 1.0), *NOISE_SCALES)) for phase in scale}
                 levels = fit(subset, scale, side)
         admissible = [f for f in fits if _admissible(f[3], none)]
         if not admissible:
