@@ -17,8 +17,8 @@ from synthpack.pipeline.generate import build_pack
 from synthpack.errors import SynthpackInputError
 from synthpack.library.core import ParticleLibrary
 from synthpack.physics import PourConfig, Tube, get_engine, pour
-from synthpack.physics.compaction import (TARGET_TOLERANCE, BatchCompaction, PackingController, parse_target,
-                                          resolve_target)
+from synthpack.physics.compaction import (MAX_KNOB, TARGET_TOLERANCE, BatchCompaction, PackingController,
+                                          PackingPrior, parse_target, resolve_target)
 from synthpack.physics.checks import solid_fraction_of
 from synthpack.physics.container import crop_half_sides
 from synthpack.physics.shells import MAX_BARE, bare_fraction, bare_grains, resolve_coordination, shell_inflations
@@ -268,32 +268,42 @@ def _star(depth: float) -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.array(sphere.faces)
 
 
-def test_past_full_compaction_the_shells_shrink_only_once_the_layers_say_it_falls_short():
+def test_the_prior_packs_the_hulls_scaled_by_the_grains_convexity_and_inverts_to_its_knob():
+    convex, sand = PackingPrior(1.0, 0.1), PackingPrior(0.81, 1 - 0.81 ** (1 / 3))
+    assert sand.dense == pytest.approx(0.81 * convex.dense) and sand.free == pytest.approx(0.81 * convex.free)
+    assert 0.5 < sand.dense < 0.54 < 0.58 < convex.dense  # sand's hulls: full compaction short of its scan's 0.58
+    assert sand.fraction(MAX_KNOB) == pytest.approx(convex.dense)  # the most shrunk shell holds the grain's volume
+    for prior in (convex, sand):
+        assert prior.fraction(0.0) == prior.free and prior.fraction(1.0) == pytest.approx(prior.dense)
+        for knob in (-0.4, -0.1, 0.3, 0.9, 1.2, 1.8):
+            assert prior.knob(prior.fraction(knob), highest=MAX_KNOB) == pytest.approx(knob)
+        assert prior.knob(prior.fraction(1.8), highest=1.0) == 1.0  # clipped where shells may not shrink
+
+
+def test_past_full_compaction_the_shells_shrink_once_the_prior_or_the_layers_say_it_falls_short():
     shrunk = BatchCompaction.from_knob(1.5, friction=0.6, max_shrink=0.08)
     assert shrunk.compacts and shrunk.inflation == pytest.approx(-0.04) and shrunk.settle_friction == 0.02
     assert BatchCompaction.from_knob(1.5, friction=0.6).knob == 1.0  # an engine that cannot shrink: full compaction
-    meshes = [_star(0.7)] * 4
-    controller = PackingController(0.60, 0.6, meshes, inner_radius=3.0, shrinks=True)
-    convexity = trimesh.Trimesh(*meshes[0]).volume / trimesh.Trimesh(*meshes[0]).convex_hull.volume
-    assert controller.max_shrink == pytest.approx(1 - convexity ** (1 / 3)) and controller.max_shrink > 0.02
-    controller.next_batch()
+    concave = [_star(0.7)] * 4
+    early = PackingController(0.60, 0.6, concave, inner_radius=3.0, shrinks=True)
+    convexity = trimesh.Trimesh(*concave[0]).volume / trimesh.Trimesh(*concave[0]).convex_hull.volume
+    assert early.max_shrink == pytest.approx(1 - convexity ** (1 / 3)) and early.max_shrink > 0.02
+    assert early.prior == PackingPrior(pytest.approx(convexity), early.max_shrink) and early.prior.dense < 0.58
+    first = early.next_batch()  # the prior says these hulls pack short of 0.60: no batch spent at full compaction
+    assert 1.0 < first.knob <= MAX_KNOB and first.inflation < 0 and early.shrinking
+    early.layers.append((1.0, 2.0, 0.56, first.knob))
+    assert first.knob < early.next_batch().knob <= first.knob + 0.5  # damped: at most 0.5 a batch
+    assert early.record()["max_shrink"] == round(early.max_shrink, 4)
+    rigid = PackingController(0.60, 0.6, concave, inner_radius=3.0)  # an engine that does not shrink shells
+    assert rigid.next_batch().knob == 1.0 and rigid.max_shrink == 0 and "max_shrink" not in rigid.record()
+    convex = [_star(0.9)]  # nearly convex: its shells may still shrink a little
+    controller = PackingController(0.60, 0.6, convex, inner_radius=3.0, shrinks=True)
+    assert controller.next_batch().knob < 1.0 and not controller.shrinking  # the prior: convex hulls reach 0.60
     controller.layers.append((1.0, 2.0, 0.585, 0.9))  # short, but on course for the target at full compaction
     assert controller.next_batch().knob == 1.0 and not controller.shrinking
     controller.layers.append((2.0, 3.0, 0.50, 1.0))  # full compaction short of the target: shells shrink
-    first = controller.next_batch()
-    assert 1.0 < first.knob <= 1.5 and first.inflation < 0 and controller.shrinking
-    early = PackingController(0.60, 0.6, meshes, inner_radius=3.0, shrinks=True)
-    early.next_batch()
-    early.layers.append((1.0, 2.0, 0.50, 0.8))  # far short at 0.8: full compaction cannot make it up
-    assert 1.0 < early.next_batch().knob <= 1.5 and early.shrinking  # no batch spent at full compaction first
-    controller.layers.append((3.0, 4.0, 0.56, first.knob))
-    assert first.knob < controller.next_batch().knob <= first.knob + 0.5  # damped: at most 0.5 a batch
-    assert controller.record()["max_shrink"] == round(controller.max_shrink, 4)
-    rigid = PackingController(0.60, 0.6, meshes, inner_radius=3.0)  # an engine that does not shrink shells
-    rigid.next_batch()
-    rigid.layers.append((1.0, 2.0, 0.53, 1.0))
-    assert rigid.next_batch().knob == 1.0 and rigid.max_shrink == 0 and "max_shrink" not in rigid.record()
-    reached = PackingController(0.60, 0.6, meshes, inner_radius=3.0, shrinks=True)
+    assert 1.0 < controller.next_batch().knob <= 1.5 and controller.shrinking
+    reached = PackingController(0.60, 0.6, convex, inner_radius=3.0, shrinks=True)
     reached.next_batch()
     reached.layers.append((1.0, 2.0, 0.598, 1.0))  # full compaction reaches it: never shrinks
     assert reached.next_batch().knob <= 1.0 and not reached.shrinking

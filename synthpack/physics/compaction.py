@@ -28,12 +28,14 @@ locking, with one knob ``u`` per batch (:class:`BatchCompaction`):
   (``0.58 / c`` would be 0.72) is more than any random packing holds. The grains are
   rendered at their true size, so neighbours may overlap a little where their
   concavities do not meet (the checks report the penetration and the overlap). A
-  batch gets ``u > 1`` only once the compacted bulk layers (``u > 0``), scaled to full
-  compaction by their measured fraction over the prior's, say that full compaction falls short of
-  the target by more than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to
-  the target never shrinks a shell, and one it cannot bring there shrinks them from the first
-  measured layer rather than after layers of full compaction; the knob
-  rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
+  batch gets ``u > 1`` only once the prior (:class:`PackingPrior`, which scales the hulls'
+  packing by ``c``), or the compacted bulk layers (``u > 0``) scaled to full compaction by their
+  measured fraction over the prior's, say that full compaction falls short of the target by more
+  than half of :data:`TARGET_TOLERANCE`: a pour that full compaction brings to the target never
+  shrinks a shell, and one it cannot bring there shrinks them from the first batch rather than
+  after layers of full compaction (a narrow tube of sand, whose first bulk layer is measured after
+  half of its batches, reached 0.536 against the scan's 0.596 when only the layers could start
+  it); the knob rises by at most ``_MAX_SHRINK_STEP`` a batch, as thin layers measure noisily.
 * ``u < 0``, **looser than a free pour**: the grains collide as shells inflated by
   ``-u`` of their size about their centre of mass (a spacing, as in the coarse-grain
   and "collision distance" options of DEM codes), so they settle apart; they are
@@ -52,7 +54,7 @@ cover it and no later grain falls into it; for an interior crop, only the crop's
 the part the pack shows, ``crop``); by Monte Carlo against the grains' meshes,
 :func:`synthpack.physics.checks.solid_fraction_of`),
 and sets the next batch's knob from a prior model of the fraction against the knob
-(:func:`prior_fraction`; for ``u > 1``, the full compaction's fraction over the shrunk
+(:class:`PackingPrior`; for ``u > 1``, the full compaction's fraction over the shrunk
 shell's volume, ``(1 - shrink)^3``), scaled by the ratio measured so far (each layer against the
 prior of the grains centred in it: a layer holds grains of several batches), aiming the next layer
 so that the cumulative bulk fraction comes back to the target (integral action).
@@ -85,11 +87,11 @@ __all__ = [
     "BatchCompaction",
     "MAX_TARGET",
     "PackingController",
+    "PackingPrior",
     "TARGET_SOURCE",
     "TARGET_TOLERANCE",
     "expected_fraction",
     "parse_target",
-    "prior_fraction",
     "report_target",
     "resolve_target",
 ]
@@ -111,10 +113,12 @@ MAX_KNOB = 2.0
 #: Densest target accepted: random packings of rigid grains stay below it (spheres jam at
 #: 0.64, ellipsoids at 0.74, the densest random packings known, of tetrahedra and cubes, at about 0.78).
 MAX_TARGET = 0.8
-#: Prior model: packing fraction of a free pour and of a fully compacted one.
-PRIOR_FREE, PRIOR_DENSE = 0.52, 0.60
+#: Prior model (`PackingPrior`): packing fraction of the grains' convex hulls in a free pour and in a fully
+#: compacted one, as measured: the `large` sample's grains (convexity 0.92) pack at 0.52 and 0.60, the sand
+#: micro-CT's (0.81) at 0.52 under full compaction, both 0.65 of their hulls.
+HULL_FREE, HULL_DENSE = 0.565, 0.65
 #: The next layer aims at most this far from the target to make up for past layers (a target looser
-#: than a free pour: this times target / PRIOR_FREE, the same share of the target).
+#: than a free pour: this times target over the prior's free-pour fraction, the same share of the target).
 _MAX_CORRECTION = 0.06
 #: Above 1, a batch's knob rises at most this far above the last batch's (the shrunk layers' fraction is noisy).
 _MAX_SHRINK_STEP = 0.5
@@ -221,26 +225,58 @@ def _shrink(knob: float, max_shrink: float) -> float:
     return max(knob - 1.0, 0.0) * max_shrink
 
 
-def prior_fraction(knob: float, max_shrink: float = 0.0) -> float:
-    """The prior model's packing fraction at knob `knob` (before the measured correction)."""
-    if knob < 0:
-        return PRIOR_FREE / (1.0 - knob) ** 3
-    return (PRIOR_FREE + (PRIOR_DENSE - PRIOR_FREE) * min(knob, 1.0)) / (1.0 - _shrink(knob, max_shrink)) ** 3
+@dataclass(frozen=True)
+class PackingPrior:
+    """The prior model of the bulk packing fraction a batch reaches at knob ``u`` (before the measured correction).
 
+    Grains collide as their convex hulls, so the prior is the hulls' packing fraction times the
+    grains' convexity ``c`` (mean mesh volume over hull volume): :data:`HULL_FREE` for a free pour,
+    rising linearly to :data:`HULL_DENSE` at full compaction (``u = 1``); divided by the shrunk
+    shell's volume ``(1 - (u - 1) * max_shrink)^3`` above 1 and by the inflated shell's
+    ``(1 - u)^3`` below 0.
 
-def _full_compaction_fraction(heights: np.ndarray, fractions: np.ndarray, priors: np.ndarray) -> float:
-    """What full compaction (``u = 1``) packs, predicted from compacted layers: the prior's, scaled by their
-    measured fraction over their prior (heights weighting both), so that a layer of any compacting knob counts."""
-    return float(heights @ fractions / (heights @ priors)) * prior_fraction(1.0)
+    Attributes
+    ----------
+    convexity : float
+        The grains' mean mesh volume over their convex hull's, in (0, 1].
+    max_shrink : float
+        The shells' shrink at knob :data:`MAX_KNOB`, a fraction of the grain's size (0: an engine
+        that cannot shrink them).
+    """
 
+    convexity: float = 1.0
+    max_shrink: float = 0.0
 
-def _prior_knob(fraction: float, highest: float = 1.0, max_shrink: float = 0.0) -> float:
-    """The knob at which :func:`prior_fraction` is `fraction` (clipped to ``[-MAX_INFLATION, highest]``)."""
-    if fraction < PRIOR_FREE:
-        return max(1.0 - (PRIOR_FREE / fraction) ** (1 / 3), -MAX_INFLATION)
-    if fraction <= PRIOR_DENSE or highest <= 1.0 or max_shrink <= 0:
-        return min((fraction - PRIOR_FREE) / (PRIOR_DENSE - PRIOR_FREE), 1.0)
-    return min(1.0 + (1.0 - (PRIOR_DENSE / fraction) ** (1 / 3)) / max_shrink, highest)
+    @property
+    def free(self) -> float:
+        """The prior's packing fraction of a free pour (``u = 0``)."""
+        return HULL_FREE * self.convexity
+
+    @property
+    def dense(self) -> float:
+        """The prior's packing fraction under full compaction (``u = 1``)."""
+        return HULL_DENSE * self.convexity
+
+    def fraction(self, knob: float) -> float:
+        """The packing fraction at knob `knob`."""
+        if knob < 0:
+            return self.free / (1.0 - knob) ** 3
+        return (self.free + (self.dense - self.free) * min(knob, 1.0)) / (1.0 - _shrink(knob, self.max_shrink)) ** 3
+
+    def knob(self, fraction: float, highest: float = 1.0) -> float:
+        """The knob at which :meth:`fraction` is `fraction`, clipped to ``[-MAX_INFLATION, highest]``."""
+        if fraction < self.free:
+            return max(1.0 - (self.free / fraction) ** (1 / 3), -MAX_INFLATION)
+        if fraction <= self.dense or highest <= 1.0 or self.max_shrink <= 0:
+            return min((fraction - self.free) / (self.dense - self.free), 1.0)
+        return min(1.0 + (1.0 - (self.dense / fraction) ** (1 / 3)) / self.max_shrink, highest)
+
+    def full_compaction(self, heights: np.ndarray, fractions: np.ndarray, knobs: np.ndarray) -> float:
+        """What full compaction (``u = 1``) packs, predicted from compacted layers (heights, measured fractions
+        and knobs, (L,) each): the prior's, scaled by their measured fraction over their prior (heights weighting
+        both), so that a layer of any compacting knob counts."""
+        priors = np.array([self.fraction(k) for k in knobs])
+        return float(heights @ fractions / (heights @ priors)) * self.dense
 
 
 @dataclass
@@ -301,7 +337,8 @@ class PackingController:
     layers: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: Set once every bulk layer measured so far held no solid: the control could not steer (see :meth:`next_batch`).
     degenerate: bool = False
-    #: Set once the compacted layers say full compaction packs short of the target: knobs may then exceed 1 (shrunk shells).
+    #: Set once the prior, or the compacted layers once measured, say full compaction packs short of the target:
+    #: knobs may then exceed 1 (shrunk shells).
     shrinking: bool = False
     _grains: dict[int, tuple] = field(default_factory=dict, repr=False)
     _knob_of: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # body -> (knob, volume)
@@ -311,9 +348,11 @@ class PackingController:
     def __post_init__(self) -> None:
         self._measured_to = BULK_FLOOR_MARGIN * float(self.margin)  # the bulk region's floor
         self._rng = generator(self.seed, "compaction")
+        convexity = float(np.mean([self._figures(v, f).convexity for v, f in self.meshes]))
         #: The shells' shrink at knob MAX_KNOB: ``1 - c^(1/3)``, ``c`` the grains' mean mesh over hull volume.
-        self.max_shrink = 1.0 - float(np.mean([self._figures(v, f).convexity for v, f in self.meshes])) ** (1 / 3) \
-            if self.shrinks else 0.0
+        self.max_shrink = 1.0 - convexity ** (1 / 3) if self.shrinks else 0.0
+        #: The prior model of the fraction against the knob, for these grains.
+        self.prior = PackingPrior(convexity, self.max_shrink)
         # the grains observed so far, in observing order: their keys and lowest, highest and mean z
         self._observed: list[int] = []
         self._z = np.empty((len(self.meshes), 3))  # rows 0 .. len(self._observed) - 1 in use
@@ -344,24 +383,23 @@ class PackingController:
                            "pour cannot be steered: batches get the prior model's knob until one does.", self.target)
         if measured:
             heights, fractions, knobs = (np.array(column) for column in zip(*measured))
-            priors = np.array([prior_fraction(k, self.max_shrink) for k in knobs])
+            priors = np.array([self.prior.fraction(k) for k in knobs])
             reached = float(heights @ fractions / heights.sum())
             ratio = float(heights @ fractions / (heights @ priors))
             compacted = knobs > 0  # shells shrink once the compacted layers say full compaction falls short
-            if self.max_shrink > 0 and compacted.any() and not self.shrinking and \
-                    _full_compaction_fraction(heights[compacted], fractions[compacted], priors[compacted]) \
-                    < self.target - TARGET_TOLERANCE / 2:
-                self.shrinking = True
-                logger.debug("Full compaction packs below %.3f: shells shrink by up to %.3f", self.target,
-                             self.max_shrink)
+            if compacted.any():
+                self._shrink_if_short(self.prior.full_compaction(heights[compacted], fractions[compacted],
+                                                                 knobs[compacted]), "the compacted layers")
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
-            correction = _MAX_CORRECTION * min(1.0, self.target / PRIOR_FREE)
+            correction = _MAX_CORRECTION * min(1.0, self.target / self.prior.free)
             wanted = float(np.clip(wanted, self.target - correction, self.target + correction))
-        knob = _prior_knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
+        elif not self.knobs:
+            self._shrink_if_short(self.prior.dense, "the prior")
+        knob = self.prior.knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0)
         if knob > 1.0:
             knob = min(knob, max(self.knobs[-1] if self.knobs else 1.0, 1.0) + _MAX_SHRINK_STEP)
-        if self.target < PRIOR_FREE:
+        if self.target < self.prior.free:
             knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
         self.knobs.append(knob)
         return BatchCompaction.from_knob(knob, self.friction, self.max_shrink)
@@ -424,8 +462,16 @@ class PackingController:
         knobs, volumes = (np.array(column) for column in zip(*placed))
         if np.ptp(knobs) == 0:
             return float(knobs[0])
-        return _prior_knob(float(volumes @ [prior_fraction(k, self.max_shrink) for k in knobs] / volumes.sum()),
-                           MAX_KNOB if self.shrinking else 1.0, self.max_shrink)
+        return self.prior.knob(float(volumes @ [self.prior.fraction(k) for k in knobs] / volumes.sum()),
+                               MAX_KNOB if self.shrinking else 1.0)
+
+    def _shrink_if_short(self, full: float, says: str) -> None:
+        """Let knobs exceed 1 (:attr:`shrinking`) where full compaction, predicted to pack at `full` by `says`,
+        falls short of the target by more than half its tolerance, with an engine that shrinks shells."""
+        if self.max_shrink > 0 and not self.shrinking and full < self.target - TARGET_TOLERANCE / 2:
+            self.shrinking = True
+            logger.debug("Full compaction packs at %.3f (%s), below %.3f: shells shrink by up to %.3f", full, says,
+                         self.target, self.max_shrink)
 
     def _surface_height(self, radius: float) -> float:
         """Median height of the pack's surface within `radius` of the axis (0 where the floor shows).
