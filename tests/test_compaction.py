@@ -326,9 +326,9 @@ def test_the_bulk_of_an_interior_crop_is_measured_in_the_crop_s_footprint():
     assert crop_half_sides(10.0, (6.0, 8.0)) == pytest.approx((3.0, 4.0))
 
 
-# the `large` sample's grains pack at about 0.60 under full compaction, below the scan's 0.617: in this
-# draw (seed 2) the layers of full compaction fall short and the shells shrink (seeds 4 and 6 reach it
-# without); this checks that the crop gets the source's fraction with shrunk shells, in a short pour
+# the `large` sample's grains pack at about 0.60 under full compaction, below the scan's 0.617, and the
+# prior says so (their hulls at 0.65, times their convexity 0.92): the shells shrink from the first batch;
+# this checks that the crop gets the source's fraction with shrunk shells, in a short pour
 def test_the_source_fraction_is_reached_in_an_interior_crop_past_full_compaction(large_library):
     config = PackConfig().replace(pour={"n_particles": 200, "batch_size": 40}, postprocess="none")
     pack = build_pack(large_library, config, seed=2, progress=False)
