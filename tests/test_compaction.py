@@ -293,6 +293,9 @@ def test_past_full_compaction_the_shells_shrink_once_the_prior_or_the_layers_say
     assert 1.0 < first.knob <= MAX_KNOB and first.inflation < 0 and early.shrinking
     early.layers.append((1.0, 2.0, 0.56, first.knob))
     assert first.knob < early.next_batch().knob <= first.knob + 0.5  # damped: at most 0.5 a batch
+    last = early.knobs[-1]
+    early.layers.append((2.0, 3.0, 0.75, last))  # far denser than the target: the knob falls, as damped
+    assert early.prior.knob(0.55) < last - 0.75 <= early.next_batch().knob < last
     assert early.record()["max_shrink"] == round(early.max_shrink, 4)
     rigid = PackingController(0.60, 0.6, concave, inner_radius=3.0)  # an engine that does not shrink shells
     assert rigid.next_batch().knob == 1.0 and rigid.max_shrink == 0 and "max_shrink" not in rigid.record()
