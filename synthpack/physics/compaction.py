@@ -406,7 +406,7 @@ class PackingController:
         knob = self.prior.knob(wanted / ratio, MAX_KNOB if self.shrinking else 1.0)
         if knob > 1.0:
             knob = min(knob, max(self.knobs[-1] if self.knobs else 1.0, 1.0) + _MAX_SHRINK_STEP)
-        if self.knobs and self.knobs[-1] > 0:  # a compacted batch's knob falls as slowly
+        if self.knobs and self.knobs[-1] > 0:  # after a compacted batch the knob falls by at most _MAX_KNOB_FALL
             knob = max(knob, self.knobs[-1] - _MAX_KNOB_FALL)
         if self.target < self.prior.free:
             knob = min(knob, 0.0)  # looser than a free pour: spaced or free, never compacted
