@@ -278,11 +278,10 @@ class PackingPrior:
             return min((fraction - self.free) / (self.dense - self.free), 1.0)
         return min(1.0 + (1.0 - (self.dense / fraction) ** (1 / 3)) / self.max_shrink, highest)
 
-    def full_compaction(self, heights: np.ndarray, fractions: np.ndarray, knobs: np.ndarray) -> float:
+    def full_compaction(self, heights: np.ndarray, fractions: np.ndarray, priors: np.ndarray) -> float:
         """What full compaction (``u = 1``) packs, predicted from compacted layers (heights, measured fractions
-        and knobs, (L,) each): the prior's, scaled by their measured fraction over their prior (heights weighting
-        both), so that a layer of any compacting knob counts."""
-        priors = np.array([self.fraction(k) for k in knobs])
+        and their :meth:`fraction` at their knobs, (L,) each): the prior's, scaled by their measured fraction over
+        their prior (heights weighting both), so that a layer of any compacting knob counts."""
         return float(heights @ fractions / (heights @ priors)) * self.dense
 
 
@@ -396,7 +395,7 @@ class PackingController:
             compacted = knobs > 0  # shells shrink once the compacted layers say full compaction falls short
             if compacted.any():
                 self._shrink_if_short(self.prior.full_compaction(heights[compacted], fractions[compacted],
-                                                                 knobs[compacted]), "the compacted layers")
+                                                                 priors[compacted]), "the compacted layers")
             # aim the next layer (of the mean height so far) so the cumulative fraction returns to the target
             wanted = self.target + (self.target - reached) * len(heights)
             correction = _MAX_CORRECTION * min(1.0, self.target / self.prior.free)
