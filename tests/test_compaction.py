@@ -303,13 +303,59 @@ def test_past_full_compaction_the_shells_shrink_once_the_prior_or_the_layers_say
     controller = PackingController(0.60, 0.6, convex, inner_radius=3.0, shrinks=True)
     assert controller.next_batch().knob < 1.0 and not controller.shrinking  # the prior: convex hulls reach 0.60
     controller.layers.append((1.0, 2.0, 0.585, 0.9))  # short, but on course for the target at full compaction
-    assert controller.next_batch().knob == 1.0 and not controller.shrinking
+    assert 0.9 < controller.next_batch().knob <= 1.0 and not controller.shrinking
     controller.layers.append((2.0, 3.0, 0.50, 1.0))  # full compaction short of the target: shells shrink
     assert 1.0 < controller.next_batch().knob <= 1.5 and controller.shrinking
     reached = PackingController(0.60, 0.6, convex, inner_radius=3.0, shrinks=True)
     reached.next_batch()
     reached.layers.append((1.0, 2.0, 0.598, 1.0))  # full compaction reaches it: never shrinks
     assert reached.next_batch().knob <= 1.0 and not reached.shrinking
+
+
+def test_a_thin_noisy_layer_moves_the_knob_less_than_a_thick_one():
+    """The measured ratio to the prior is shrunk toward 1 as by a pseudo-layer at the prior: one thin dense layer
+    (the sand micro-CT's 2x finer variant: 0.639 at knob 1.63 against 0.583 swung the knob to 0.88) is not taken
+    at its word."""
+    knobs = {}
+    for height in (0.3, 3.0):
+        controller = PackingController(0.583, 0.6, [_star(0.7)] * 4, inner_radius=3.0, shrinks=True)
+        first = controller.next_batch().knob
+        controller.layers.append((1.0, 1.0 + height, 0.639, first))
+        knobs[height] = controller.next_batch().knob
+    assert knobs[3.0] < knobs[0.3] < first
+
+
+def test_the_past_layers_are_made_up_over_the_bulk_still_to_come():
+    """Early in a long pour a layer off target is made up over the layers to come, near its end in the next."""
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0)).subdivide().subdivide()  # vertices in every surface column
+    centres = np.array([(x, y, z + 0.5) for z in range(5) for y in range(-3, 4) for x in range(-3, 4)], float)
+    identity = np.tile([1.0, 0, 0, 0], (len(centres), 1))
+    knobs = {}
+    for n_grains in (len(centres), 4 * len(centres)):  # the whole pour observed, or a quarter of it
+        controller = PackingController(0.5, 0.6, [(cube.vertices, cube.faces)] * n_grains, inner_radius=3.0)
+        controller.next_batch()
+        controller.observe(np.arange(len(centres)), centres, identity)
+        ((z0, z1, _, knob),) = controller.layers
+        controller.layers[0] = (z0, z1, 0.47, knob)  # short of the target by 0.03 over 2 diameters
+        knobs[n_grains] = controller.next_batch().knob
+    # the pour's last layer makes up the whole 0.03 (2 diameters high, as the past); the quarter's is spread over the
+    # 16 diameters of bulk its surface (5) says 4x the grains reach: the knobs' prior fractions differ by that ratio
+    aimed = [controller.prior.fraction(knobs[n]) for n in (len(centres), 4 * len(centres))]
+    assert aimed[0] / aimed[1] == pytest.approx((0.5 + 0.03) / (0.5 + 0.03 * 2 / 16), rel=1e-6)
+
+
+def test_the_cheap_count_of_hull_hits_is_corrected_where_hulls_overlap():
+    cube = trimesh.creation.box((2.0, 2.0, 2.0))  # two cubes of side 2, the second shifted by 1 along x
+    vertices, faces = np.asarray(cube.vertices), np.asarray(cube.faces)
+    hull = ConvexHull(vertices).equations
+    grains = [(vertices, faces, hull, np.array([dx, 0.0, 0.0]), Rotation.identity(), 1.0,
+               vertices + [dx, 0, 0], 1.0) for dx in (0.0, 1.0)]
+    box = dict(half_sides=(2.0, 2.0))  # |x|, |y| < 2, |z| < 1: 32; the cubes' union 12, their sum 16
+    exact = solid_fraction_of(grains, 3.0, -1.0, 1.0, 20_000, np.random.default_rng(0), **box)
+    cheap = solid_fraction_of(grains, 3.0, -1.0, 1.0, 20_000, np.random.default_rng(0), n_exact=0, **box)
+    corrected = solid_fraction_of(grains, 3.0, -1.0, 1.0, 20_000, np.random.default_rng(0), n_exact=4000, **box)
+    assert exact == pytest.approx(12 / 32, abs=0.015) and cheap == pytest.approx(16 / 32, abs=0.015)
+    assert corrected == pytest.approx(12 / 32, abs=0.015)
 
 
 def test_the_bulk_of_an_interior_crop_is_measured_in_the_crop_s_footprint():

@@ -380,7 +380,8 @@ def _packing(
     hulls = {i: ConvexHull(meshes[i][0]).equations for i in np.unique(indices)}
     grains = [(*meshes[i], hulls[i], positions[k], rotations[k], scales[k], world[k], 1.0)
               for k, i in enumerate(indices)]
-    hits = _hits(grains, radius, z_min, z_max, n_samples, generator(seed, "checks"), exact=True, half_sides=half)
+    _, hits = _hits(grains, radius, z_min, z_max, n_samples, generator(seed, "checks"), n_exact=n_samples,
+                    half_sides=half)
     solid = int(np.count_nonzero(hits))
     overlap = float(np.count_nonzero(hits > 1) / solid) if solid else 0.0
     return solid / n_samples, overlap, region
@@ -388,7 +389,7 @@ def _packing(
 
 def solid_fraction_of(
     grains: Sequence[tuple], radius: float, z_min: float, z_max: float, n_samples: int, rng: np.random.Generator,
-    *, exact: bool = True, half_sides: Sequence[float] | None = None,
+    *, n_exact: int | None = None, half_sides: Sequence[float] | None = None,
 ) -> float:
     """Solid fraction of placed grains in the cylinder ``r < radius, z_min < z < z_max`` (Monte Carlo), or in
     the box of `half_sides` within it.
@@ -407,11 +408,14 @@ def solid_fraction_of(
         Uniform random points in the cylinder (standard error ~ sqrt(f (1 - f) / n_samples)).
     rng : numpy.random.Generator
         Source of the points.
-    exact : bool
-        Test the points inside a hull against the mesh (generalized winding number).
-        False: count a point inside a grain's hull as ``convexity`` of a hit, which
-        estimates the same fraction as long as hulls do not overlap (as in a pour,
-        where grains collide as their hulls) at a fraction of the cost.
+    n_exact : int, optional
+        How many of the points are tested against the meshes (generalized winding number, the
+        costly test); None: all of them, the fraction of the points inside a mesh. Fewer: a point
+        inside a grain's hull counts as ``convexity`` of a hit (cheap), and the first `n_exact`
+        points' mean difference between the exact test and that count corrects the estimate (a
+        control variate: unbiased where hulls overlap, as in a pour whose shells shrink, and where
+        other hulls fill a grain's concavities, at about `n_exact` / `n_samples` of the cost; the
+        correction's standard error is about ``0.4 sqrt(f / n_exact)``).
     half_sides : (float, float), optional
         ``(Y, X)``: measure in the box ``|y| < half_sides[0], |x| < half_sides[1]``,
         ``z_min < z < z_max`` instead (an interior crop's footprint, within `radius`).
@@ -419,23 +423,27 @@ def solid_fraction_of(
     Returns
     -------
     float
-        The fraction of the points inside a grain's mesh.
+        The fraction of the points inside a grain's mesh (estimated as above with `n_exact`).
     """
-    hits = _hits(grains, radius, z_min, z_max, n_samples, rng, exact=exact, half_sides=half_sides)
-    return float((np.count_nonzero(hits) if exact else hits.sum()) / n_samples)
+    n_exact = n_samples if n_exact is None else min(max(int(n_exact), 0), n_samples)
+    cheap, exact = _hits(grains, radius, z_min, z_max, n_samples, rng, n_exact=n_exact, half_sides=half_sides)
+    if n_exact == n_samples:
+        return float(np.count_nonzero(exact) / n_samples)
+    correction = (np.count_nonzero(exact) - cheap[:n_exact].sum()) / n_exact if n_exact else 0.0
+    return float(cheap.sum() / n_samples + correction)
 
 
 def _hits(
     grains: Sequence[tuple], radius: float, z_min: float, z_max: float, n_samples: int, rng: np.random.Generator,
-    *, exact: bool, half_sides: Sequence[float] | None = None,
-) -> np.ndarray:
-    """(n_samples,): how many grains' meshes hold each of `n_samples` uniform points of the cylinder (or of the
-    box of ``(Y, X)`` `half_sides` in it).
+    *, n_exact: int, half_sides: Sequence[float] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How many grains hold each of `n_samples` uniform points of the cylinder (or of the box of ``(Y, X)``
+    `half_sides` in it): the sum of the convexities of the hulls that hold it, (n_samples,) float64, and for the
+    first `n_exact` points how many meshes do, (n_exact,) int32.
 
     Each point is tested against every nearby grain's convex hull (a cheap half-space
-    test) and, if inside it and `exact`, against the grain's mesh with the generalized
-    winding number (int32 counts); without `exact`, a point inside a hull counts as
-    the grain's convexity (float64).
+    test) and, if inside it and among the first `n_exact`, against the grain's mesh with the
+    generalized winding number.
     """
     if half_sides is None:
         rho = radius * np.sqrt(rng.uniform(0, 1, n_samples))
@@ -447,7 +455,8 @@ def _hits(
     points = np.column_stack([*lateral, rng.uniform(z_min, z_max, n_samples)])
     by_x = np.argsort(points[:, 0], kind="stable")
     sorted_x = points[by_x, 0]
-    hits = np.zeros(n_samples, dtype=np.int32 if exact else np.float64)
+    cheap = np.zeros(n_samples)
+    exact = np.zeros(n_exact, dtype=np.int32)
     for vertices, faces, hull, position, rotation, scale, world, convexity in grains:
         lo, hi = world.min(axis=0), world.max(axis=0)
         if hi[2] < z_min or lo[2] > z_max:
@@ -457,10 +466,9 @@ def _hits(
             continue
         local = rotation.inv().apply(points[near] - position) / scale
         in_hull = (local @ hull[:, :3].T + hull[:, 3]).max(axis=1) <= 0
-        if not exact:
-            hits[near[in_hull]] += convexity
-            continue
-        near, local = near[in_hull], local[in_hull]
+        cheap[near[in_hull]] += convexity
+        tested = in_hull & (near < n_exact)
+        near, local = near[tested], local[tested]
         inside = winding_number(local, vertices, faces) > 0.5
-        hits[near[inside]] += 1
-    return hits
+        exact[near[inside]] += 1
+    return cheap, exact
