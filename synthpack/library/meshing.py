@@ -37,7 +37,8 @@ def mesh_from_mask(
     grains; sharp corners are rounded, a box gains about 3%). The mesh is then
     decimated with quadric error metrics (``fast-simplification`` through trimesh)
     to about `target_faces` faces (within 25%; a count that would break
-    watertightness is nudged, and the full mesh is kept if none works).
+    watertightness is nudged, then the mesh is halved (`DECIMATION_STEP`) and tried again,
+    and the fewest faces that kept it whole are kept if no count works).
 
     Parameters
     ----------
@@ -95,13 +96,29 @@ def _volume_preserving_level(smooth: np.ndarray, n_voxels: int) -> float:
 #: Face counts tried, as fractions of the target: quadric decimation occasionally leaves a
 #: non-manifold edge at one exact face count; a slightly different count almost always avoids it.
 DECIMATION_FACTORS = (1.0, 0.96, 1.04, 0.9, 1.1, 0.8, 1.25)
+#: Where no count of `DECIMATION_FACTORS` keeps the surface, the mesh is cut by this factor and tried again: straight
+#: from a large grain's marching-cubes mesh (10,000-38,000 faces) to ~500, quadric decimation left non-manifold
+#: edges in 173 of 502 grains of a sand micro-CT at 2x finer voxels; halving at a time brings all but a few to it.
+DECIMATION_STEP = 2.0
 
 
 def _decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
-    for factor in DECIMATION_FACTORS:
-        simplified = mesh.simplify_quadric_decimation(face_count=int(target_faces * factor))
-        if simplified.is_watertight and simplified.volume > 0:
-            return simplified
-    logger.debug("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
-                 target_faces, len(mesh.faces))
-    return mesh
+    while True:
+        for factor in DECIMATION_FACTORS:
+            simplified = mesh.simplify_quadric_decimation(face_count=int(target_faces * factor))
+            if _intact(simplified):
+                return simplified
+        if len(mesh.faces) <= max(DECIMATION_FACTORS) * target_faces:
+            return mesh
+        halved = mesh.simplify_quadric_decimation(face_count=max(int(len(mesh.faces) / DECIMATION_STEP),
+                                                                 target_faces))
+        if not _intact(halved):
+            logger.debug("decimation to ~%d faces kept breaking the surface; mesh left at %d faces",
+                         target_faces, len(mesh.faces))
+            return mesh
+        mesh = halved
+
+
+def _intact(mesh: trimesh.Trimesh) -> bool:
+    """Whether a decimated mesh is still a closed surface with outward faces."""
+    return bool(mesh.is_watertight and mesh.volume > 0)
