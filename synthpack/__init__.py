@@ -16,7 +16,7 @@ from ._shared.exports import lazy_exports
 from .errors import SynthpackInputError
 from .scan.core import Scan
 
-__version__ = "0.22.0"
+__version__ = "0.23.0"
 
 _getattr, __dir__, _lazy = lazy_exports(__name__, {
     "read_scan": ".io",
