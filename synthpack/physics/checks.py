@@ -468,7 +468,7 @@ def _hits(
         in_hull = (local @ hull[:, :3].T + hull[:, 3]).max(axis=1) <= 0
         cheap[near[in_hull]] += convexity
         tested = in_hull & (near < n_exact)
-        near, local = near[tested], local[tested]
-        inside = winding_number(local, vertices, faces) > 0.5
-        exact[near[inside]] += 1
+        if tested.any():  # the mesh's triangles only for a grain that holds a point tested exactly
+            near, local = near[tested], local[tested]
+            exact[near[winding_number(local, vertices, faces) > 0.5]] += 1
     return cheap, exact
