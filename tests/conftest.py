@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import ndimage
 
+from synthpack.io import write_tiff
 from synthpack.pipeline.config import PackConfig
 from synthpack.pipeline.generate import generate_packs
 from synthpack.library.core import ParticleLibrary
@@ -49,6 +52,20 @@ def even_large_library(large_library: ParticleLibrary) -> ParticleLibrary:
 @pytest.fixture
 def blob_scan() -> Scan:
     """A 30x40x50 scan with four box- and ball-shaped particles, one on the border."""
+    return _blob_scan()
+
+
+@pytest.fixture(scope="session")
+def blob_scan_files(tmp_path_factory) -> tuple[Path, Path]:
+    """The blob scan written once as ``t.tif`` and ``l.tif`` (its voxel size in the files): (tomogram, labels)."""
+    folder = tmp_path_factory.mktemp("blob_scan")
+    scan = _blob_scan()
+    write_tiff(folder / "t.tif", scan.tomogram, scan.voxel_size, scan.unit)
+    write_tiff(folder / "l.tif", scan.labels, scan.voxel_size, scan.unit, labels=True)
+    return folder / "t.tif", folder / "l.tif"
+
+
+def _blob_scan() -> Scan:
     labels = np.zeros((30, 40, 50), dtype=np.int32)
     labels[5:15, 5:15, 5:20] = 1
     zz, yy, xx = np.mgrid[:30, :40, :50]

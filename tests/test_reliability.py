@@ -58,9 +58,12 @@ def leftovers(folder: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def library(tmp_path_factory) -> Path:
+def library(tmp_path_factory, blob_scan_files) -> Path:
+    """A library of the blob scan's three whole grains: what is tested is the command line, not the grains."""
     folder = tmp_path_factory.mktemp("library")
-    result = run("library", "build", "--sample", "large", "--out", "lib", "--workers", "1", cwd=folder)
+    tomogram, labels = blob_scan_files
+    result = run("library", "build", "--tomogram", str(tomogram), "--labels", str(labels), "--out", "lib",
+                 "--workers", "1", cwd=folder)
     assert result.returncode == 0, result.stderr
     return folder / "lib"
 
@@ -89,9 +92,10 @@ def test_library_build_refuses_a_user_folder_or_file(user_folder, out):
     assert sorted(p.name for p in (user_folder / "precious").iterdir()) == ["thesis.txt"]
 
 
-def test_library_build_overwrite_writes_into_a_user_folder_and_keeps_its_files(user_folder):
-    result = run("library", "build", "--sample", "large", "--workers", "1", "--out", "precious", "--overwrite",
-                 cwd=user_folder)
+def test_library_build_overwrite_writes_into_a_user_folder_and_keeps_its_files(user_folder, blob_scan_files):
+    tomogram, labels = blob_scan_files
+    result = run("library", "build", "--tomogram", str(tomogram), "--labels", str(labels), "--workers", "1",
+                 "--out", "precious", "--overwrite", cwd=user_folder)
     assert result.returncode == 0, result.stderr
     assert user_files_intact(user_folder)
     assert (user_folder / "precious" / "library.json").is_file()

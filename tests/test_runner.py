@@ -153,11 +153,11 @@ def test_ctrl_c_keeps_the_complete_packs_and_says_so_in_one_line(large_library, 
     """Issue 13 case 13: Ctrl-C printed KeyboardInterrupt tracebacks from the worker processes."""
     large_library.save(tmp_path / "library")
     out = tmp_path / "packs"
-    config = tmp_path / "config.yaml"  # what is tested is the stop, not the image formation: in packs of 60 grains
+    config = tmp_path / "config.yaml"  # what is tested is the stop, not the image formation: in packs of 24 grains
     config.write_text("postprocess: none\n")  # the calibration's guard may drop a step, with a warning
     command = _cli("generate", "--library", str(tmp_path / "library"), "--n-packs", "6", "--workers", "2",
-                   "--n-particles", "60", "--batch-size", "20", "--out", str(out), "--config", str(config),
-                   "--target-solid-fraction", "none")  # 60 grains are too few to reach the source's: a warning
+                   "--n-particles", "24", "--batch-size", "12", "--out", str(out), "--config", str(config),
+                   "--target-solid-fraction", "none")  # 24 grains are too few to reach the source's: a warning
     # a terminal's run gets Ctrl-C; a pytest-xdist worker ignores SIGINT, and its children would inherit that
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

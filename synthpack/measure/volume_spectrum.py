@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import fft
-from scipy.signal import windows
 
 __all__ = ["MAX_CUBES", "MIN_CUBES", "TILE", "TILES", "cube_corners", "cylindrical_spectrum", "frequency_bins",
            "radii", "table_tile"]
@@ -131,6 +130,8 @@ def cylindrical_spectrum(volume: np.ndarray, region: np.ndarray, *, tile: int | 
             break
     else:
         return None
+    from scipy.signal import windows  # here, not at import: scipy.signal takes a third of the command line's start
+
     hann = windows.hann(tile, sym=False)
     window = hann[:, None, None] * hann[None, :, None] * hann[None, None, :]
     power = np.zeros((tile,) * 3, dtype=np.float64)
