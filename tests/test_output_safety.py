@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,6 @@ import numpy as np
 import pytest
 
 from synthpack.io.atomic import RECORD
-from synthpack.io import write_tiff
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,10 +23,10 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture
-def scan_files(tmp_path, blob_scan) -> Path:
+def scan_files(tmp_path, blob_scan_files) -> Path:
     """The blob scan as t.tif / l.tif in `tmp_path` (four grains, 30x40x50)."""
-    write_tiff(tmp_path / "t.tif", blob_scan.tomogram, blob_scan.voxel_size, blob_scan.unit)
-    write_tiff(tmp_path / "l.tif", blob_scan.labels, blob_scan.voxel_size, blob_scan.unit, labels=True)
+    for path in blob_scan_files:
+        shutil.copy(path, tmp_path / path.name)
     return tmp_path
 
 
